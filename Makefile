@@ -1,0 +1,32 @@
+# demoforge: `make evaluate` runs the main job, `make test` the tests. Both set up everything first.
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.demoforge-setup
+export MUJOCO_GL ?= egl
+export PREFECT_HOME ?= $(CURDIR)/.prefect
+export PREFECT_LOGGING_LEVEL ?= WARNING
+export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
+
+.PHONY: setup test evaluate bench catalog clean-warehouse help
+
+help:  ## list the targets
+	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
+
+setup: $(STAMP)  ## create .venv and install pinned dependencies (fast when nothing changed)
+
+$(STAMP): pyproject.toml requirements/lock.txt requirements/torch.txt scripts/setup.sh
+	bash scripts/setup.sh
+	@touch $@
+
+test: setup  ## run the test suite
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+evaluate: setup  ## the main job: synthetic takes -> every flow -> reports/
+	$(VENV)/bin/demoforge evaluate $(EVALUATE_ARGS)
+
+bench: setup  ## run the benchmarks, write warehouse/benchmarks and print a table
+	$(VENV)/bin/demoforge bench $(BENCH_ARGS)
+
+catalog: setup  ## rebuild warehouse/catalog.duckdb (views over the Parquet tables)
+	$(VENV)/bin/demoforge catalog

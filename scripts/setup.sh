@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Set up demoforge on a fresh machine: system libraries, .venv, pinned Python packages.
+# Idempotent: `make setup` only re-runs this when requirements or pyproject.toml changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+VENV=.venv
+
+say() { printf '[setup] %s\n' "$*"; }
+
+# open3d's wheel links libusb-1.0; it is not on a fresh machine.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    say "installing libusb-1.0-0 (needed by open3d)"
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+    say "creating $VENV with $($PYTHON --version)"
+    "$PYTHON" -m venv "$VENV"
+fi
+PIP="$VENV/bin/python -m pip"
+$PIP install -q --upgrade pip
+
+# torch first and alone: this exact pin resolves to the local CPU wheel; anything that pulls torch
+# earlier would download several GB of CUDA wheels.
+if ! "$VENV/bin/python" -c "import torch, sys; sys.exit(0 if torch.__version__.startswith('2.13.0') else 1)" 2>/dev/null; then
+    say "installing torch (CPU)"
+    $PIP install -q -r requirements/torch.txt
+fi
+say "installing pinned dependencies"
+$PIP install -q -r requirements/lock.txt
+say "installing demoforge (editable)"
+$PIP install -q --no-deps --no-build-isolation -e .
+"$VENV/bin/python" -c "import open3d, mujoco, prefect, duckdb, torch; print('[setup] ok: prefect', prefect.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"
