@@ -1,0 +1,29 @@
+"""Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def prefect_api():
+    """A real, temporary Prefect API for flows run by tests (started once per session)."""
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=120):
+        yield
+
+
+@pytest.fixture()
+def warehouse(tmp_path, monkeypatch):
+    root = tmp_path / "warehouse"
+    root.mkdir()
+    monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(root))
+    return root

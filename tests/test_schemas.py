@@ -1,0 +1,161 @@
+"""Table contracts: validation names the column, writes are atomic, reads check the version."""
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from schemas.core import (
+    Column,
+    SchemaError,
+    TableSchema,
+    dual_pose8,
+    get_schema,
+    keypoints3d,
+    read_table,
+    registry,
+    table,
+    table_files,
+    validate,
+    write_table,
+)
+
+POSES = table(
+    "_test_poses",
+    version=3,
+    doc="test table",
+    columns=[
+        Column("take", pa.string(), "take id"),
+        Column("frame", pa.int64(), "frame index"),
+        Column("joints", keypoints3d(21), "joints, m"),
+        Column("action", dual_pose8(), "2x8 poses"),
+        Column("score", pa.float64(), "optional score", nullable=True),
+    ],
+    partition_by=("take",),
+)
+
+
+def _rows(n=4, take="t1", seed=0):
+    rng = np.random.default_rng(seed)
+    return {
+        "take": [take] * n,
+        "frame": np.arange(n),
+        "joints": rng.normal(size=(n, 21, 3)),
+        "action": rng.normal(size=(n, 2, 8)),
+        "score": [0.5] * n,
+    }
+
+
+def test_round_trip_keeps_values_and_fixed_shapes(tmp_path):
+    data = _rows()
+    written = write_table("_test_poses", data, tmp_path)
+    assert len(written) == 1 and written[0].rows == 4
+    assert written[0].path.endswith("_test_poses/take=t1/data.parquet")
+    back = read_table("_test_poses", tmp_path)
+    assert back.schema.field("joints").type == keypoints3d(21)
+    np.testing.assert_array_equal(np.array(back.column("joints").to_pylist()), data["joints"])
+    np.testing.assert_array_equal(np.array(back.column("action").to_pylist()), data["action"])
+    meta = pq.read_schema(written[0].path).metadata
+    assert meta[b"demoforge.schema_version"] == b"3"
+    assert b"joints, m" in pq.read_schema(written[0].path).field("joints").metadata[b"doc"]
+
+
+def test_partitions_are_written_and_replaced_independently(tmp_path):
+    write_table("_test_poses", _rows(3, "a"), tmp_path)
+    write_table("_test_poses", _rows(5, "b"), tmp_path)
+    write_table("_test_poses", _rows(2, "a", seed=1), tmp_path)  # replaces partition a only
+    assert read_table("_test_poses", tmp_path, take="a").num_rows == 2
+    assert read_table("_test_poses", tmp_path, take="b").num_rows == 5
+    assert read_table("_test_poses", tmp_path).num_rows == 7
+
+
+@pytest.mark.parametrize(
+    "column, bad, message",
+    [
+        ("joints", np.zeros((4, 20, 3)), "'joints'"),
+        ("joints", np.zeros((4, 21, 2)), "'joints'"),
+        ("frame", ["x", "y", "z", "w"], "'frame'"),
+        ("action", np.zeros((4, 2, 7)), "'action'"),
+        ("frame", [1.5, 2.0, 3.0, 4.0], "'frame'"),
+    ],
+)
+def test_wrong_type_or_shape_names_the_column_and_leaves_previous_file(tmp_path, column, bad, message):
+    (good,) = write_table("_test_poses", _rows(), tmp_path)
+    before = open(good.path, "rb").read()
+    data = _rows()
+    data[column] = bad
+    with pytest.raises(SchemaError, match=message):
+        write_table("_test_poses", data, tmp_path)
+    assert open(good.path, "rb").read() == before
+    leftovers = [p for p in (tmp_path / "_test_poses").rglob("*") if p.is_file() and p.name != "data.parquet"]
+    assert leftovers == []
+
+
+def test_missing_extra_and_null_columns_are_refused(tmp_path):
+    data = _rows()
+    del data["score"]
+    with pytest.raises(SchemaError, match=r"missing column\(s\) \['score'\]"):
+        validate("_test_poses", data)
+    data = _rows()
+    data["extra"] = [1] * 4
+    with pytest.raises(SchemaError, match="unexpected column"):
+        validate("_test_poses", data)
+    data = _rows()
+    data["take"] = ["t", None, "t", "t"]
+    with pytest.raises(SchemaError, match="'take'.*null"):
+        validate("_test_poses", data)
+    data = _rows()
+    data["score"] = [None] * 4  # nullable column accepts nulls
+    assert validate("_test_poses", data).column("score").null_count == 4
+
+
+def test_nan_is_a_value_but_a_missing_coordinate_is_refused():
+    data = _rows()
+    joints = [[[0.0, 0.0, 0.0]] * 21 for _ in range(4)]
+    joints[2][5] = [0.0, None, 0.0]
+    data["joints"] = joints
+    with pytest.raises(SchemaError, match="'joints'.*null element"):
+        validate("_test_poses", data)
+
+
+def test_failed_write_mid_file_keeps_previous_version(tmp_path, monkeypatch):
+    (good,) = write_table("_test_poses", _rows(), tmp_path)
+    before = open(good.path, "rb").read()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pq, "write_table", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_table("_test_poses", _rows(seed=9), tmp_path)
+    assert open(good.path, "rb").read() == before
+    assert [p.name for p in (tmp_path / "_test_poses" / "take=t1").iterdir()] == ["data.parquet"]
+
+
+def test_reader_refuses_other_schema_version(tmp_path):
+    write_table("_test_poses", _rows(), tmp_path)
+    schema = get_schema("_test_poses")
+    (f,) = table_files("_test_poses", tmp_path)
+    t = pq.read_table(f)
+    pq.write_table(t.replace_schema_metadata({b"demoforge.schema_version": b"2"}), f)
+    with pytest.raises(SchemaError, match="version 2.*version 3"):
+        read_table("_test_poses", tmp_path)
+    assert schema.version == 3
+
+
+def test_unsafe_partition_value_is_refused(tmp_path):
+    with pytest.raises(SchemaError, match="partition column 'take'"):
+        write_table("_test_poses", _rows(take="../escape"), tmp_path)
+
+
+def test_reading_an_unwritten_table_gives_an_empty_typed_table(tmp_path):
+    t = read_table("_test_poses", tmp_path)
+    assert t.num_rows == 0 and t.schema.field("action").type == dual_pose8()
+
+
+def test_every_registered_table_documents_every_column():
+    for name, schema in registry().items():
+        assert isinstance(schema, TableSchema) and schema.version >= 1
+        for c in schema.columns:
+            assert len(c.doc) > 3, f"{name}.{c.name} is undocumented"
+        assert "| column |" in schema.describe()
