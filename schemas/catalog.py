@@ -1,0 +1,164 @@
+"""The warehouse location, its DuckDB catalog (views only) and read-only SQL over it.
+
+``warehouse/catalog.duckdb`` holds one view per registered table (reading that table's Parquet files
+with the contract's exact types, fixed-size ARRAYs included) and one view ``_catalog`` that records
+which warehouse and which files the views were built for. It holds no data: deleting it loses
+nothing, ``demoforge catalog`` (or any ``demoforge sql``) rebuilds it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+import duckdb
+import pyarrow as pa
+
+from schemas.core import DATA_FILE, TableSchema, registry
+
+CATALOG_FILE = "catalog.duckdb"
+ENV_WAREHOUSE = "DEMOFORGE_WAREHOUSE"
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+# Statement types a query through `demoforge sql` may contain. DESCRIBE/SHOW parse as SELECT.
+_READ_ONLY_TYPES = {duckdb.StatementType.SELECT}
+
+
+class QueryRefused(ValueError):
+    """The query would write, or is not a single read-only statement."""
+
+
+def warehouse_root(explicit: str | os.PathLike | None = None) -> Path:
+    """``explicit`` if given, else ``$DEMOFORGE_WAREHOUSE``, else ``<project>/warehouse``."""
+    if explicit:
+        return Path(explicit).expanduser().resolve()
+    env = os.environ.get(ENV_WAREHOUSE)
+    if env:
+        return Path(env).expanduser().resolve()
+    return (PROJECT_ROOT / "warehouse").resolve()
+
+
+def _sql_literal(s: str) -> str:
+    return "'" + s.replace("'", "''") + "'"
+
+
+def _duckdb_types(schema: TableSchema) -> list[str]:
+    con = duckdb.connect()
+    try:
+        return [str(t) for t in con.from_arrow(schema.arrow.empty_table()).types]
+    finally:
+        con.close()
+
+
+def _view_sql(root: Path, schema: TableSchema) -> str:
+    types = _duckdb_types(schema)
+    files = list((root / schema.name).glob("**/" + DATA_FILE))
+    if files:
+        cols = ", ".join(f'CAST("{c.name}" AS {t}) AS "{c.name}"' for c, t in zip(schema.columns, types))
+        glob = _sql_literal(str(root / schema.name) + "/**/" + DATA_FILE)
+        source = f"read_parquet({glob}, hive_partitioning = false)"
+        return f'CREATE VIEW "{schema.name}" AS SELECT {cols} FROM {source}'
+    # No data yet: an empty view with the contract's columns, so queries still bind.
+    cols = ", ".join(f'CAST(NULL AS {t}) AS "{c.name}"' for c, t in zip(schema.columns, types))
+    return f'CREATE VIEW "{schema.name}" AS SELECT {cols} WHERE false'
+
+
+def catalog_fingerprint(root: Path) -> str:
+    """Changes whenever a table gains or loses files, a contract changes, or the warehouse moves."""
+    h = hashlib.sha256(str(root).encode())
+    for name, schema in sorted(registry().items()):
+        h.update(f"{name}:{schema.version}:{[(c.name, str(c.type)) for c in schema.columns]}".encode())
+        for f in sorted((root / name).glob("**/" + DATA_FILE)):
+            h.update(str(f.relative_to(root)).encode())
+    return h.hexdigest()
+
+
+def build_catalog(root: str | os.PathLike | None = None) -> Path:
+    """(Re)build ``<root>/catalog.duckdb`` atomically: built in a temporary file, then renamed."""
+    root = warehouse_root(root)
+    root.mkdir(parents=True, exist_ok=True)
+    target = root / CATALOG_FILE
+    fd, tmp = tempfile.mkstemp(prefix=".catalog.", suffix=".duckdb", dir=root)
+    os.close(fd)
+    os.unlink(tmp)  # duckdb must create the file itself
+    try:
+        con = duckdb.connect(tmp)
+        try:
+            for schema in registry().values():
+                con.execute(_view_sql(root, schema))
+            built = datetime.now(timezone.utc).isoformat(timespec="seconds")
+            con.execute(
+                "CREATE VIEW _catalog AS SELECT "
+                f"{_sql_literal(str(root))} AS warehouse, "
+                f"{_sql_literal(catalog_fingerprint(root))} AS fingerprint, "
+                f"{_sql_literal(built)} AS built_at"
+            )
+        finally:
+            con.close()
+        os.replace(tmp, target)
+    finally:
+        for leftover in (tmp, tmp + ".wal"):
+            if os.path.exists(leftover):
+                os.unlink(leftover)
+    return target
+
+
+def catalog_is_current(root: Path) -> bool:
+    target = root / CATALOG_FILE
+    if not target.exists():
+        return False
+    try:
+        con = duckdb.connect(str(target), read_only=True)
+        try:
+            (fp,) = con.execute("SELECT fingerprint FROM _catalog").fetchone()
+        finally:
+            con.close()
+    except duckdb.Error:
+        return False
+    return fp == catalog_fingerprint(root)
+
+
+def check_read_only(sql: str) -> None:
+    """Raise QueryRefused unless ``sql`` is exactly one read-only statement."""
+    con = duckdb.connect()
+    try:
+        statements = con.extract_statements(sql)
+    except duckdb.Error as e:
+        raise QueryRefused(_one_line(e)) from None
+    finally:
+        con.close()
+    if not statements:
+        raise QueryRefused("empty query: give one SELECT statement")
+    if len(statements) > 1:
+        raise QueryRefused(f"{len(statements)} statements given; `demoforge sql` runs exactly one SELECT")
+    kind = statements[0].type
+    if kind not in _READ_ONLY_TYPES:
+        name = str(kind).rsplit(".", 1)[-1]
+        raise QueryRefused(
+            f"{name} refused: `demoforge sql` is read-only; tables are written only by the pipeline's stages"
+        )
+
+
+def query(sql: str, root: str | os.PathLike | None = None) -> pa.Table:
+    """Run one read-only statement against the warehouse catalog and return the result."""
+    check_read_only(sql)
+    root = warehouse_root(root)
+    if not catalog_is_current(root):
+        build_catalog(root)
+    con = duckdb.connect(str(root / CATALOG_FILE), read_only=True)
+    try:
+        result = con.sql(sql).arrow()
+        # duckdb >= 2 returns a RecordBatchReader here, older versions a Table.
+        return result.read_all() if hasattr(result, "read_all") else result
+    except duckdb.Error as e:
+        raise QueryRefused(_one_line(e)) from None
+    finally:
+        con.close()
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return text if len(text) <= 400 else text[:397] + "..."

@@ -1,0 +1,124 @@
+"""The DuckDB catalog and `demoforge sql`: read-only, one-line errors with exit code 2."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from flows.cli import app
+from schemas.catalog import CATALOG_FILE, QueryRefused, build_catalog, catalog_is_current, query
+from schemas.core import write_table
+
+from tests.test_schemas import _rows  # registers the _test_poses table
+
+runner = CliRunner()
+
+
+def sql(*args, **kw):
+    return runner.invoke(app, ["sql", *args], **kw)
+
+
+def test_select_one_works_on_an_empty_warehouse(warehouse):
+    r = sql("SELECT 1 AS one")
+    assert r.exit_code == 0, r.output
+    assert "one" in r.stdout and "1" in r.stdout
+    assert (warehouse / CATALOG_FILE).exists()
+
+
+@pytest.mark.parametrize(
+    "statement",
+    [
+        "DROP VIEW benchmarks",
+        "INSERT INTO benchmarks SELECT * FROM benchmarks",
+        "COPY (SELECT 1) TO 'out.csv'",
+        "CREATE TABLE x AS SELECT 1",
+        "ATTACH 'other.duckdb'",
+        "SELECT 1; DROP VIEW benchmarks",
+        "SET threads = 1",
+    ],
+)
+def test_writes_are_refused_with_one_line_and_exit_2(warehouse, statement, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = sql(statement)
+    assert r.exit_code == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ")
+    assert not (tmp_path / "out.csv").exists() and not (tmp_path / "other.duckdb").exists()
+    assert query("SELECT count(*) AS n FROM benchmarks").column("n")[0].as_py() == 0
+
+
+def test_malformed_and_failing_queries_give_exit_2(warehouse):
+    for bad in ["SELEC 1", "SELECT * FROM no_such_table", "", "SELECT 1/'a'"]:
+        r = sql(bad)
+        assert r.exit_code == 2, (bad, r.output)
+        assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_views_follow_new_files_and_keep_fixed_array_types(warehouse):
+    write_table("_test_poses", _rows(3, "a"), warehouse)
+    t = query("SELECT take, frame, joints FROM _test_poses ORDER BY frame")
+    assert t.num_rows == 3
+    assert str(query("SELECT typeof(joints) AS t FROM _test_poses LIMIT 1").column("t")[0]) == "DOUBLE[3][21]"
+    write_table("_test_poses", _rows(2, "b"), warehouse)  # a new partition: catalog goes stale, rebuilt
+    assert not catalog_is_current(warehouse)
+    n = query("SELECT count(*) AS n FROM _test_poses").column("n")[0].as_py()
+    assert n == 5 and catalog_is_current(warehouse)
+
+
+def test_catalog_holds_views_only(warehouse):
+    write_table("_test_poses", _rows(), warehouse)
+    build_catalog(warehouse)
+    con = duckdb.connect(str(warehouse / CATALOG_FILE), read_only=True)
+    try:
+        assert con.execute("SELECT count(*) FROM duckdb_tables()").fetchone()[0] == 0
+        views = {r[0] for r in con.execute("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()}
+    finally:
+        con.close()
+    assert {"benchmarks", "_test_poses", "_catalog"} <= views
+
+
+def test_output_formats(warehouse, tmp_path):
+    write_table("_test_poses", _rows(2, "a"), warehouse)
+    r = sql("SELECT frame, joints FROM _test_poses ORDER BY frame", "--format", "json")
+    rows = [json.loads(l) for l in r.stdout.splitlines()]
+    assert [x["frame"] for x in rows] == [0, 1] and np.array(rows[0]["joints"]).shape == (21, 3)
+    out = tmp_path / "q.csv"
+    r = sql("SELECT frame, joints FROM _test_poses ORDER BY frame", "--format", "csv", "--output", str(out))
+    assert r.exit_code == 0
+    lines = out.read_text().splitlines()
+    assert lines[0] == '"frame","joints"' and len(lines) == 3
+    pq_out = tmp_path / "q.parquet"
+    r = sql("SELECT frame FROM _test_poses", "--format", "parquet", "--output", str(pq_out))
+    assert r.exit_code == 0 and pq.read_table(pq_out).num_rows == 2
+    r = sql("SELECT 1", "--format", "parquet")
+    assert r.exit_code == 2 and "--output" in r.stderr
+
+
+def test_warehouse_option_overrides_environment(warehouse, tmp_path):
+    other = tmp_path / "other"
+    write_table("_test_poses", _rows(4, "z"), other)
+    r = runner.invoke(app, ["--warehouse", str(other), "sql", "SELECT count(*) AS n FROM _test_poses", "-f", "csv"])
+    assert r.exit_code == 0 and r.stdout.splitlines()[1] == "4"
+    assert query("SELECT count(*) AS n FROM _test_poses").column("n")[0].as_py() == 0  # env warehouse untouched
+
+
+def test_console_script_exit_codes(warehouse):
+    exe = Path(sys.executable).parent / "demoforge"
+    ok = subprocess.run([str(exe), "sql", "SELECT 42 AS answer", "-f", "csv"], capture_output=True, text=True)
+    assert ok.returncode == 0 and ok.stdout.splitlines() == ["\"answer\"", "42"]
+    bad = subprocess.run([str(exe), "sql", "DROP VIEW benchmarks"], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1
+    helped = subprocess.run([str(exe), "--help"], capture_output=True, text=True)
+    for command in ("sql", "catalog", "tables", "bench"):
+        assert command in helped.stdout
+
+
+def test_query_refused_is_raised_for_library_callers(warehouse):
+    with pytest.raises(QueryRefused):
+        query("DELETE FROM benchmarks")
