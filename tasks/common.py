@@ -1,0 +1,174 @@
+"""Prefect conventions every demoforge task follows.
+
+- Cache keys come from the *content* of a task's inputs plus an explicit code-version salt
+  (``stage_task(name=..., version=...)``): never from pickled arrays or the run id. Inputs that are
+  files or folders must be passed as :class:`pathlib.Path`; their bytes are hashed. A plain ``str``
+  is a literal. A :class:`Manifest` is keyed by its content hash. The warehouse a task writes to
+  is an output location, not an input: pass it as ``str`` (as a ``Path`` its changing contents
+  would change every key).
+- Results (the small manifests) and cache records live under the warehouse, in ``_prefect/``, so a
+  warehouse carries its own cache and two warehouses never share one.
+- Tasks return a :class:`Manifest` (table, path, rows, content hash), never a large array.
+- :func:`run_stage` re-runs a cached task when the file its cached manifest names is gone or
+  changed, so deleting a table file and re-running recomputes exactly that stage.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict, dataclass, is_dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from prefect import task
+from prefect.cache_policies import CachePolicy
+from prefect.context import TaskRunContext
+
+from schemas.core import WrittenFile, file_sha256
+
+PREFECT_DIR = "_prefect"
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """What a task hands to the next one: where its table rows are, how many, and their hash."""
+
+    table: str
+    path: str
+    rows: int
+    content_hash: str
+    files: tuple[str, ...] = ()
+
+    @classmethod
+    def from_written(cls, table: str, written: Iterable[WrittenFile], path: str | os.PathLike) -> "Manifest":
+        written = sorted(written, key=lambda w: w.path)
+        h = hashlib.sha256()
+        for w in written:
+            h.update(w.content_hash.encode())
+        return cls(
+            table=table,
+            path=str(path),
+            rows=sum(w.rows for w in written),
+            content_hash=h.hexdigest(),
+            files=tuple(w.path for w in written),
+        )
+
+    def is_intact(self) -> bool:
+        """True if every file this manifest names still exists with the recorded content."""
+        if not self.files:
+            return Path(self.path).exists()
+        h = hashlib.sha256()
+        for f in sorted(self.files):
+            if not Path(f).is_file():
+                return False
+            h.update(file_sha256(f).encode())
+        return h.hexdigest() == self.content_hash
+
+
+# --- content hashing of inputs -------------------------------------------------------------------
+
+_FILE_HASH_MEMO: dict[tuple, str] = {}
+
+
+def _file_digest(path: Path) -> str:
+    st = path.stat()
+    key = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    digest = _FILE_HASH_MEMO.get(key)
+    if digest is None:
+        digest = file_sha256(path)
+        _FILE_HASH_MEMO[key] = digest
+    return digest
+
+
+def content_fingerprint(value: Any) -> Any:
+    """A JSON-able, content-based stand-in for a task input."""
+    if isinstance(value, Manifest):
+        return {"manifest": value.table, "hash": value.content_hash}
+    if isinstance(value, Path):
+        if value.is_file():
+            return {"file": value.name, "sha256": _file_digest(value)}
+        if value.is_dir():
+            h = hashlib.sha256()
+            for f in sorted(p for p in value.rglob("*") if p.is_file()):
+                h.update(str(f.relative_to(value)).encode())
+                h.update(_file_digest(f).encode())
+            return {"dir": value.name, "sha256": h.hexdigest()}
+        return {"missing_path": str(value)}
+    if isinstance(value, dict):
+        return {str(k): content_fingerprint(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(value, (list, tuple)):
+        return [content_fingerprint(v) for v in value]
+    if is_dataclass(value) and not isinstance(value, type):
+        return {type(value).__name__: content_fingerprint(asdict(value))}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(
+        f"cannot build a content cache key from {type(value).__name__}; pass files as pathlib.Path, "
+        "results of other tasks as Manifest, and everything else as plain JSON-able values"
+    )
+
+
+@dataclass
+class ContentHashPolicy(CachePolicy):
+    """Cache key = sha256(stage salt, content fingerprints of all inputs)."""
+
+    salt: str = ""
+
+    def compute_key(
+        self,
+        task_ctx: TaskRunContext,
+        inputs: dict[str, Any],
+        flow_parameters: dict[str, Any],
+        **kwargs: Any,
+    ) -> str:
+        payload = json.dumps(
+            {"salt": self.salt, "inputs": content_fingerprint(inputs or {})},
+            sort_keys=True,
+            separators=(",", ":"),
+        )
+        return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def stage_task(*, name: str, version: str, **task_options: Any) -> Callable:
+    """Decorate a stage function as a Prefect task with demoforge's cache policy.
+
+    ``version`` is the code-version salt: bump it when the stage's logic changes so old cache
+    entries stop matching.
+    """
+
+    def decorate(fn: Callable) -> Any:
+        return task(
+            fn,
+            name=name,
+            cache_policy=ContentHashPolicy(salt=f"{name}@{version}"),
+            persist_result=True,
+            **task_options,
+        )
+
+    return decorate
+
+
+def run_stage(stage: Any, warehouse: str | os.PathLike, /, **kwargs: Any) -> Any:
+    """Call a stage task with its results kept under ``warehouse``; recompute if the output is gone.
+
+    A cache hit whose manifest names files that were deleted or changed is not trusted: the task
+    runs again with ``refresh_cache=True``.
+    """
+    storage = Path(warehouse).resolve() / PREFECT_DIR / "results"
+    configured = stage.with_options(result_storage=storage)
+    result = configured(**kwargs)
+    if not _intact(result):
+        result = configured.with_options(refresh_cache=True)(**kwargs)
+    return result
+
+
+def _intact(result: Any) -> bool:
+    if isinstance(result, Manifest):
+        return result.is_intact()
+    if isinstance(result, (list, tuple)):
+        return all(_intact(r) for r in result)
+    if isinstance(result, dict):
+        return all(_intact(r) for r in result.values())
+    return True

@@ -1,0 +1,98 @@
+"""The cache convention on a real Prefect flow: content-keyed, code-versioned, output-checked."""
+
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pytest
+from prefect import flow
+
+from schemas.core import Column, read_table, table, write_table
+from tasks.common import ContentHashPolicy, Manifest, content_fingerprint, run_stage, stage_task
+
+table("_test_counts", 1, "word counts of a text file (cache test)", [
+    Column("word", pa.string(), "a word"),
+    Column("count", pa.int64(), "occurrences"),
+])
+
+CALLS = {"n": 0}
+
+
+def _count_words(text_file: Path, warehouse: str, min_count: int = 1) -> Manifest:
+    CALLS["n"] += 1
+    words = text_file.read_text().split()
+    counts = {w: words.count(w) for w in sorted(set(words)) if words.count(w) >= min_count}
+    written = write_table("_test_counts", {"word": list(counts), "count": list(counts.values())}, warehouse)
+    return Manifest.from_written("_test_counts", written, Path(warehouse) / "_test_counts")
+
+
+count_words_v1 = stage_task(name="count_words", version="1")(_count_words)
+count_words_v2 = stage_task(name="count_words", version="2")(_count_words)
+
+
+@flow(name="count-words")
+def count_flow(text_file: str, warehouse: str, version: int = 1, min_count: int = 1) -> Manifest:
+    stage = count_words_v1 if version == 1 else count_words_v2
+    return run_stage(stage, warehouse, text_file=Path(text_file), warehouse=warehouse, min_count=min_count)
+
+
+@pytest.fixture()
+def text_file(tmp_path):
+    f = tmp_path / "input.txt"
+    f.write_text("pour pour cup bottle pour cup")
+    return f
+
+
+def test_second_run_is_served_from_cache_and_input_change_invalidates(prefect_api, warehouse, text_file):
+    CALLS["n"] = 0
+    m1 = count_flow(str(text_file), str(warehouse))
+    assert CALLS["n"] == 1 and m1.rows == 3
+    m2 = count_flow(str(text_file), str(warehouse))
+    assert CALLS["n"] == 1, "second run with identical input must come from the cache"
+    assert m2 == m1
+    assert (warehouse / "_prefect" / "results").is_dir()
+
+    text_file.write_text("pour cup")  # content changes: recompute
+    m3 = count_flow(str(text_file), str(warehouse))
+    assert CALLS["n"] == 2 and m3.rows == 2 and m3.content_hash != m1.content_hash
+    counts = dict(zip(*read_table("_test_counts", warehouse).to_pydict().values()))
+    assert counts == {"cup": 1, "pour": 1}
+
+    count_flow(str(text_file), str(warehouse), min_count=2)  # a parameter change: recompute
+    assert CALLS["n"] == 3
+
+
+def test_code_version_salt_invalidates(prefect_api, warehouse, text_file):
+    CALLS["n"] = 0
+    count_flow(str(text_file), str(warehouse), version=1)
+    count_flow(str(text_file), str(warehouse), version=1)
+    assert CALLS["n"] == 1
+    count_flow(str(text_file), str(warehouse), version=2)
+    assert CALLS["n"] == 2
+
+
+def test_deleted_output_is_recomputed_not_served_stale(prefect_api, warehouse, text_file):
+    CALLS["n"] = 0
+    m1 = count_flow(str(text_file), str(warehouse))
+    Path(m1.files[0]).unlink()
+    m2 = count_flow(str(text_file), str(warehouse))
+    assert CALLS["n"] == 2 and Path(m2.files[0]).is_file() and m2.is_intact()
+
+
+def test_touching_a_file_without_changing_content_keeps_the_key(tmp_path):
+    f = tmp_path / "a.txt"
+    f.write_text("same")
+    policy = ContentHashPolicy(salt="s@1")
+    k1 = policy.compute_key(None, {"f": f}, {})
+    f.write_text("same")
+    assert policy.compute_key(None, {"f": f}, {}) == k1
+    f.write_text("diff")
+    assert policy.compute_key(None, {"f": f}, {}) != k1
+    assert ContentHashPolicy(salt="s@2").compute_key(None, {"f": f}, {}) != policy.compute_key(None, {"f": f}, {})
+
+
+def test_unhashable_inputs_are_refused_with_advice():
+    import numpy as np
+
+    with pytest.raises(TypeError, match="pathlib.Path"):
+        content_fingerprint({"arr": np.zeros(3)})
