@@ -1,0 +1,207 @@
+"""`demoforge`: the command line. Each command is a thin call into a flow or the catalog."""
+
+from __future__ import annotations
+
+import enum
+import os
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+import lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+
+app = typer.Typer(
+    name="demoforge",
+    help=(
+        "Turn one RGB-D video of a two-handed human demonstration into thousands of dual-arm robot "
+        "episodes, and measure how good they are. All results are Parquet tables in the warehouse "
+        "(default ./warehouse, or $DEMOFORGE_WAREHOUSE, or --warehouse), queryable with `demoforge sql`."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+EXIT_USER_ERROR = 2
+
+
+def fail(message: str) -> "typer.Exit":
+    """Print a one-line error to stderr and return the exit to raise (code 2)."""
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(EXIT_USER_ERROR)
+
+
+class State:
+    warehouse: Optional[Path] = None
+
+
+def current_warehouse() -> Path:
+    from schemas.catalog import warehouse_root
+
+    return warehouse_root(State.warehouse)
+
+
+@app.callback()
+def _main(
+    warehouse: Optional[Path] = typer.Option(
+        None, "--warehouse", "-w", envvar="DEMOFORGE_WAREHOUSE",
+        help="Warehouse folder (Parquet tables + catalog.duckdb). Default: ./warehouse of the project.",
+    ),
+) -> None:
+    State.warehouse = warehouse
+
+
+class OutputFormat(str, enum.Enum):
+    table = "table"
+    csv = "csv"
+    json = "json"
+    parquet = "parquet"
+
+
+@app.command()
+def sql(
+    query: str = typer.Argument(..., help='One read-only statement, e.g. "SELECT * FROM benchmarks LIMIT 5".'),
+    format: OutputFormat = typer.Option(OutputFormat.table, "--format", "-f", help="Output format."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Write to this file instead of stdout (required for parquet)."),
+    max_rows: int = typer.Option(40, help="Rows shown in `table` format (the rest are elided)."),
+) -> None:
+    """Run a read-only SQL query over the warehouse (DuckDB) and print or save the result.
+
+    Every table is a view in warehouse/catalog.duckdb; `demoforge tables` lists them with their
+    columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2.
+    """
+    from schemas.catalog import QueryRefused, query as run_query
+
+    try:
+        result = run_query(query, current_warehouse())
+    except QueryRefused as e:
+        raise fail(str(e))
+    _emit(result, format, output, max_rows)
+
+
+def _emit(result, fmt: OutputFormat, output: Optional[Path], max_rows: int) -> None:
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    if fmt is OutputFormat.parquet:
+        if output is None:
+            raise fail("--format parquet needs --output FILE")
+        pq.write_table(result, output)
+        typer.echo(f"wrote {result.num_rows} rows to {output}", err=True)
+        return
+    if fmt is OutputFormat.csv:
+        import io
+
+        buf = io.BytesIO()
+        pacsv.write_csv(_flatten_lists_for_csv(result), buf)
+        text = buf.getvalue().decode()
+    elif fmt is OutputFormat.json:
+        import json
+
+        text = "\n".join(json.dumps(r, default=str) for r in result.to_pylist()) + ("\n" if result.num_rows else "")
+    else:
+        text = _pretty(result, max_rows)
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        output.write_text(text)
+        typer.echo(f"wrote {result.num_rows} rows to {output}", err=True)
+
+
+def _flatten_lists_for_csv(result):
+    """CSV has no arrays: list columns are written as JSON text."""
+    import json
+
+    import pyarrow as pa
+
+    cols = []
+    for name in result.column_names:
+        col = result.column(name)
+        t = col.type
+        if pa.types.is_list(t) or pa.types.is_fixed_size_list(t) or pa.types.is_large_list(t) or pa.types.is_struct(t):
+            col = pa.array([json.dumps(v) for v in col.to_pylist()], pa.string())
+        cols.append(col)
+    return pa.table(cols, names=result.column_names)
+
+
+def _pretty(result, max_rows: int) -> str:
+    import duckdb
+
+    con = duckdb.connect()
+    try:
+        rel = con.from_arrow(result)
+        text = rel.limit(max_rows).__str__() if result.num_rows > max_rows else str(rel)
+    finally:
+        con.close()
+    if result.num_rows > max_rows:
+        text += f"({result.num_rows} rows, {max_rows} shown; use --max-rows or --format csv)\n"
+    return text
+
+
+@app.command()
+def catalog() -> None:
+    """Rebuild warehouse/catalog.duckdb: one DuckDB view per table, over its Parquet files."""
+    from schemas.catalog import build_catalog
+
+    path = build_catalog(current_warehouse())
+    typer.echo(f"catalog rebuilt: {path}")
+
+
+@app.command()
+def tables(
+    name: Optional[str] = typer.Argument(None, help="Describe this table column by column."),
+) -> None:
+    """List the warehouse tables with their row counts, or describe one table's columns."""
+    from schemas import registry
+    from schemas.core import get_schema, table_files
+
+    root = current_warehouse()
+    if name:
+        try:
+            schema = get_schema(name)
+        except KeyError as e:
+            raise fail(str(e.args[0]))
+        typer.echo(schema.describe())
+        return
+    import pyarrow.parquet as pq
+
+    for tname, schema in sorted(registry().items()):
+        files = table_files(tname, root)
+        rows = sum(pq.ParquetFile(f).metadata.num_rows for f in files)
+        typer.echo(f"{tname:<24} v{schema.version}  {rows:>10} rows  {len(files):>5} files  {schema.doc.splitlines()[0][:70]}")
+
+
+@app.command()
+def bench(
+    stage: Optional[List[str]] = typer.Option(None, "--stage", "-s", help="Only these stages (repeatable)."),
+    quick: bool = typer.Option(False, help="Smaller inputs, for a fast smoke run."),
+) -> None:
+    """Benchmark every stage against a straightforward baseline; rows go to the `benchmarks` table."""
+    from flows.bench import run_benchmarks
+
+    try:
+        rows = run_benchmarks(str(current_warehouse()), stages=stage, quick=quick)
+    except ValueError as e:
+        raise fail(str(e))
+    header = f"{'stage':<12} {'case':<44} {'size':>9} {'unit':<9} {'seconds':>9} {'baseline s':>10} {'ratio':>8}"
+    typer.echo(header)
+    typer.echo("-" * len(header))
+    for r in rows:
+        typer.echo(
+            f"{r['stage']:<12} {r['case_name'][:44]:<44} {r['size']:>9} {r['unit']:<9} "
+            f"{r['seconds']:>9.4f} {r['baseline_seconds']:>10.4f} {r['ratio']:>7.1f}x"
+        )
+    if rows:
+        typer.echo(f"machine: {rows[0]['machine']}; commit {rows[0]['git_commit']}; run {rows[0]['run_id']}")
+
+
+def main() -> None:
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,10 @@
+"""Pure domain code of demoforge: geometry, hands, tasks, augmentation, retrieval, metrics.
+
+No Prefect and no warehouse layout knowledge lives here.
+"""
+
+import os
+
+# MuJoCo picks its OpenGL backend at import time; headless machines need EGL (Mesa software).
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
