@@ -1,0 +1,368 @@
+"""Offscreen MuJoCo rendering of a task scene with two capsule hands, seen by the head camera.
+
+Camera (the thesis's set-up: an RGB-D camera above the workspace, angled down at the table, where a
+dual-arm robot's head camera sits): 640 x 480, fx = fy = 570.3422, cx = 319.5, cy = 239.5 (the
+exact image centre in the pixel-centre convention, which is where MuJoCo puts the principal point),
+at :data:`CAMERA_POS` = (0, -0.40, 0.90) m in the world (table) frame, looking at
+:data:`CAMERA_TARGET` = (0, 0.25, 0) with no roll (chosen so that, over the scripted demos of all six
+tasks, >= 98 % of hand joints and >= 94 % of object keypoints project into the image). ``T_world_camera`` maps OpenCV camera coordinates
+(x right, y down, z forward) to the world. A MuJoCo camera looks along its -z with y up, so its
+``xyaxes`` are (x_cv, -y_cv); its ``fovy`` = 2 atan(height / (2 fy)) makes the rendered image match
+K exactly.
+
+Depth: MuJoCo's depth buffer (reversed-Z, ``mjDEPTH_ZEROFAR``) is converted exactly as
+``mujoco.Renderer`` does, which yields the distance along the camera's optical axis (the OpenCV z),
+not the ray length; :func:`add_depth_noise` adds a realistic sensor model on top (0.0 = invalid).
+
+Quaternions are scalar-first (MuJoCo's order) only inside this module, at the simulator boundary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+import lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
+import mujoco
+
+from lib.hand_model import HandStyle, capsule_segments, hand_capsules, joint_radii
+
+WIDTH, HEIGHT = 640, 480
+FX = FY = 570.3422
+CX, CY = 319.5, 239.5
+CAMERA_POS = (0.0, -0.40, 0.90)
+CAMERA_TARGET = (0.0, 0.25, 0.0)
+CAMERA_NAME = "demoforge_head_cam"
+HAND_PREFIX = "demoforge_hand"
+SIDES = ("left", "right")
+
+
+# --- camera --------------------------------------------------------------------------------------
+
+def camera_K() -> np.ndarray:
+    """3 x 3 intrinsics of the head camera."""
+    return np.array([[FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]])
+
+
+def camera_T_world_camera(pos=CAMERA_POS, target=CAMERA_TARGET) -> np.ndarray:
+    """4 x 4 camera-to-world transform (OpenCV camera axes) of a camera at ``pos`` looking at ``target``
+    with its image x axis horizontal (no roll)."""
+    pos, target = np.asarray(pos, float), np.asarray(target, float)
+    z = target - pos
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, pos
+    return T
+
+
+def camera_fovy_deg(fy: float = FY, height: int = HEIGHT) -> float:
+    """MuJoCo's vertical field of view (degrees) that gives focal length ``fy`` at ``height`` rows."""
+    return float(np.degrees(2.0 * np.arctan(height / (2.0 * fy))))
+
+
+def camera_xml(T_world_camera: np.ndarray | None = None, fy: float = FY, height: int = HEIGHT,
+               name: str = CAMERA_NAME) -> str:
+    """The MJCF ``<camera>`` element for an OpenCV camera pose (MuJoCo camera: -z forward, y up)."""
+    T = camera_T_world_camera() if T_world_camera is None else np.asarray(T_world_camera)
+    x, y, p = T[:3, 0], -T[:3, 1], T[:3, 3]
+    f = lambda v: " ".join(f"{c:.9g}" for c in v)  # noqa: E731
+    return (f'<camera name="{name}" mode="fixed" pos="{f(p)}" xyaxes="{f(x)} {f(y)}" '
+            f'fovy="{camera_fovy_deg(fy, height):.9g}"/>')
+
+
+def world_to_camera(points: np.ndarray, T_world_camera: np.ndarray) -> np.ndarray:
+    """World points (..., 3) to OpenCV camera coordinates (..., 3)."""
+    R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
+    return (np.asarray(points) - t) @ R
+
+
+def project(points_world: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray):
+    """Pixel coordinates (..., 2) (OpenCV: pixel centres at integers) and camera z (...) of world points."""
+    pc = world_to_camera(points_world, T_world_camera)
+    z = pc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (pc[..., :2] / z[..., None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
+    return uv, z
+
+
+# --- hands in MJCF -------------------------------------------------------------------------------
+
+def _hand_body_names(side: str, n: int) -> list[str]:
+    return [f"{HAND_PREFIX}_{side}_{i:02d}" for i in range(n)]
+
+
+def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle())) -> str:
+    """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody."""
+    out = []
+    for side, style in zip(SIDES, styles):
+        caps = hand_capsules(style)
+        rgba = " ".join(f"{c:.4g}" for c in style.skin_rgba)
+        for name, cap in zip(_hand_body_names(side, len(caps)), caps):
+            out.append(
+                f'<body name="{name}" mocap="true" pos="0 0 -5">'
+                f'<geom name="{name}_geom" type="capsule" size="{cap.radius:.6g} 0.01" contype="0" '
+                f'conaffinity="0" group="1" rgba="{rgba}" material="{HAND_PREFIX}_skin"/></body>'
+            )
+    return "\n".join(out)
+
+
+def hands_assets_xml() -> str:
+    return (f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" '
+            f'reflectance="0"/>')
+
+
+def extra_worldbody_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
+                        T_world_camera: np.ndarray | None = None) -> str:
+    """Everything this module adds to a task scene's worldbody: the head camera and both hands."""
+    return camera_xml(T_world_camera) + "\n" + hands_xml(styles)
+
+
+def _insert(xml: str, closing: str, text: str) -> str:
+    i = xml.rfind(closing)
+    if i < 0:
+        raise ValueError(f"scene MJCF has no {closing}")
+    return xml[:i] + text + "\n" + xml[i:]
+
+
+def with_camera_and_hands(scene_xml: str, styles: Sequence[HandStyle],
+                          T_world_camera: np.ndarray | None = None) -> str:
+    """Add the head camera, the hands and their material to an MJCF scene unless already there."""
+    xml = scene_xml
+    if f'name="{CAMERA_NAME}"' not in xml:
+        xml = _insert(xml, "</worldbody>", camera_xml(T_world_camera))
+    if f'{HAND_PREFIX}_left_00' not in xml:
+        xml = _insert(xml, "</worldbody>", hands_xml(styles))
+    if f'name="{HAND_PREFIX}_skin"' not in xml:
+        if "</asset>" in xml:
+            xml = _insert(xml, "</asset>", hands_assets_xml())
+        else:
+            xml = _insert(xml, "</worldbody>", "")  # validate it has a worldbody
+            i = xml.find("<worldbody")
+            xml = xml[:i] + f"<asset>{hands_assets_xml()}</asset>\n" + xml[i:]
+    return xml
+
+
+def _quat_z_to(d: np.ndarray) -> np.ndarray:
+    """Scalar-first quaternions (n, 4) rotating +z onto the unit vectors d (n, 3)."""
+    w = 1.0 + d[:, 2]
+    q = np.stack([w, -d[:, 1], d[:, 0], np.zeros(len(d))], axis=-1)
+    flip = w < 1e-9
+    q[flip] = [0.0, 1.0, 0.0, 0.0]
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+# --- depth sensor model --------------------------------------------------------------------------
+
+def add_depth_noise(depth: np.ndarray, rng: np.random.Generator, sigma0: float = 0.001,
+                    sigma2: float = 0.002, n_holes: tuple[int, int] = (2, 8),
+                    edge_jump: float = 0.03, edge_dropout: float = 0.6) -> np.ndarray:
+    """A structured-light/ToF-like depth map from an exact one (float32 m; 0.0 = invalid).
+
+    Gaussian noise with sigma = sigma0 + sigma2 z^2, a few random invalid blobs (ellipses of 3-15 px)
+    and invalid pixels at depth discontinuities (neighbour differs by more than ``edge_jump`` m),
+    each edge pixel dropped with probability ``edge_dropout``.
+    """
+    import cv2
+
+    d = depth.astype(np.float32, copy=True)
+    valid = d > 0
+    noise = rng.standard_normal(d.shape).astype(np.float32)
+    d[valid] += (sigma0 + sigma2 * d[valid] ** 2) * noise[valid]
+    # depth edges
+    pad = np.pad(depth, 1, mode="edge")
+    jump = np.zeros(depth.shape, bool)
+    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        jump |= np.abs(pad[dy:dy + depth.shape[0], dx:dx + depth.shape[1]] - depth) > edge_jump
+    drop = jump & (rng.random(depth.shape) < edge_dropout)
+    # blobs
+    mask = np.zeros(depth.shape, np.uint8)
+    h, w = depth.shape
+    for _ in range(int(rng.integers(n_holes[0], n_holes[1] + 1))):
+        c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        ax = (int(rng.integers(3, 16)), int(rng.integers(3, 16)))
+        cv2.ellipse(mask, c, ax, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    d[drop | (mask > 0) | ~valid] = 0.0
+    d[d < 0] = 0.0
+    return d
+
+
+# --- renderer ------------------------------------------------------------------------------------
+
+@dataclass
+class Frame:
+    rgb: np.ndarray            # (H, W, 3) uint8
+    depth: np.ndarray          # (H, W) float32, m along the camera z; exact (no noise)
+    segmentation: np.ndarray | None = None  # (H, W) int32 geom id, -1 = background
+
+
+class SceneRenderer:
+    """Renders a MuJoCo scene with two capsule hands from the head camera.
+
+    scene_xml: an MJCF string (e.g. ``task.scene_xml(placement)``); the head camera and the hand
+    mocap bodies are appended to its worldbody unless already present (pass
+    :func:`extra_worldbody_xml` as the task's ``extra_worldbody`` to put them there yourself).
+    object_names: bodies with a free joint whose pose :meth:`render` sets, in this order.
+    Shadows, reflections and the skybox are off (speed; a head camera over a table sees no sky).
+    """
+
+    def __init__(self, scene_xml: str, object_names: Sequence[str] = (),
+                 styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
+                 width: int = WIDTH, height: int = HEIGHT,
+                 T_world_camera: np.ndarray | None = None, multisamples: int = 0,
+                 blur_sigma: float = 0.0):
+        self.blur_sigma = float(blur_sigma)
+        self.styles = tuple(styles)
+        self.width, self.height = width, height
+        self.T_world_camera = camera_T_world_camera() if T_world_camera is None else np.asarray(T_world_camera)
+        xml = with_camera_and_hands(scene_xml, self.styles, self.T_world_camera)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, width)
+        self.model.vis.global_.offheight = max(self.model.vis.global_.offheight, height)
+        # No multisampling by default: 3-4x faster with the software (EGL/llvmpipe) renderer; a mild
+        # blur (``blur_sigma``, px) stands in for anti-aliasing and lens blur.
+        self.model.vis.quality.offsamples = int(multisamples)
+        self.data = mujoco.MjData(self.model)
+        self.cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME)
+        # objects: free joints' qpos addresses
+        self.object_names = list(object_names)
+        self._obj_qpos = []
+        for name in self.object_names:
+            bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+            if bid < 0:
+                raise ValueError(f"scene has no body named {name!r}")
+            jid = self.model.body_jntadr[bid]
+            if jid < 0 or self.model.jnt_type[jid] != mujoco.mjtJoint.mjJNT_FREE:
+                raise ValueError(f"body {name!r} has no free joint")
+            self._obj_qpos.append(int(self.model.jnt_qposadr[jid]))
+        # hands: mocap ids and geom ids per side
+        self._caps = [hand_capsules(s) for s in self.styles]
+        self._mocap, self._geoms = [], []
+        for side, caps in zip(SIDES, self._caps):
+            names = _hand_body_names(side, len(caps))
+            bids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
+            self._mocap.append(np.array([self.model.body_mocapid[b] for b in bids]))
+            self._geoms.append(np.array([self.model.body_geomadr[b] for b in bids]))
+        self.hand_geom_ids = np.concatenate(self._geoms)
+        self.joint_radii = np.stack([joint_radii(s) for s in self.styles])  # (2, 21)
+
+        self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+        self._option = mujoco.MjvOption()
+        scn = self._renderer.scene
+        scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        scn.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
+        self._rgb = np.empty((height, width, 3), np.uint8)
+        self._zbuf = np.empty((height, width), np.float32)
+
+    # -- state ----------------------------------------------------------------------------------
+    def set_state(self, object_poses: np.ndarray | None = None, hand_joints: np.ndarray | None = None,
+                  hand_present: Sequence[bool] = (True, True)) -> None:
+        """Object poses (n_objects, 4, 4) world and hand joints (2, 21, 3) world; then mj_forward."""
+        m, d = self.model, self.data
+        if object_poses is not None:
+            from scipy.spatial.transform import Rotation
+
+            poses = np.asarray(object_poses, float)
+            q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()          # scalar-last
+            for adr, p, qq in zip(self._obj_qpos, poses, q):
+                d.qpos[adr:adr + 3] = p[:3, 3]
+                d.qpos[adr + 3:adr + 7] = [qq[3], qq[0], qq[1], qq[2]]   # scalar-first at the boundary
+        if hand_joints is not None:
+            for h in range(2):
+                if not hand_present[h]:
+                    d.mocap_pos[self._mocap[h]] = [0.0, 0.0, -5.0]
+                    continue
+                seg = capsule_segments(np.asarray(hand_joints[h], float), self.styles[h])  # (n, 2, 3)
+                a, b = seg[:, 0], seg[:, 1]
+                v = b - a
+                L = np.linalg.norm(v, axis=-1)
+                dirs = v / np.maximum(L, 1e-12)[:, None]
+                d.mocap_pos[self._mocap[h]] = 0.5 * (a + b)
+                d.mocap_quat[self._mocap[h]] = _quat_z_to(dirs)
+                m.geom_size[self._geoms[h], 1] = np.maximum(0.5 * L, 1e-6)
+        mujoco.mj_forward(m, d)
+
+    # -- rendering ------------------------------------------------------------------------------
+    def render(self, segmentation: bool = False) -> Frame:
+        """RGB and exact depth (0 where nothing is hit, i.e. beyond the far plane) of the current state.
+
+        Two passes of ``mujoco.Renderer``: colour, then depth (its depth pass renders with flat ID
+        colours and converts the reversed-Z buffer to metric depth along the optical axis; measured
+        exact to 1e-7 m on a plane, where reading the depth of the shaded pass is off by 0.5 mm).
+        """
+        r = self._renderer
+        r.update_scene(self.data, camera=self.cam_id, scene_option=self._option)
+        rgb = r.render(out=self._rgb).copy()
+        if self.blur_sigma > 0:
+            import cv2
+
+            rgb = cv2.GaussianBlur(rgb, (0, 0), self.blur_sigma)
+        r.enable_depth_rendering()
+        depth = r.render(out=self._zbuf).copy()
+        r.disable_depth_rendering()
+        far = self.model.vis.map.zfar * self.model.stat.extent
+        depth[~np.isfinite(depth) | (depth >= far * 0.999)] = 0.0
+        seg = None
+        if segmentation:
+            r.enable_segmentation_rendering()
+            s = r.render()
+            r.disable_segmentation_rendering()
+            seg = np.where(s[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), s[..., 0], -1).astype(np.int32)
+        return Frame(rgb=rgb, depth=depth, segmentation=seg)
+
+    def render_state(self, object_poses=None, hand_joints=None, hand_present=(True, True),
+                     segmentation: bool = False) -> Frame:
+        self.set_state(object_poses, hand_joints, hand_present)
+        return self.render(segmentation=segmentation)
+
+    def hand_mask(self, seg: np.ndarray, side: int | None = None) -> np.ndarray:
+        """Pixels showing a hand capsule (of one side, or either) from a segmentation image."""
+        ids = self.hand_geom_ids if side is None else self._geoms[side]
+        return np.isin(seg, ids)
+
+    def close(self) -> None:
+        self._renderer.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# --- visibility ----------------------------------------------------------------------------------
+
+def joint_visibility(joints_world: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                     T_world_camera: np.ndarray, radii: np.ndarray, margin: float = 0.01):
+    """Per-joint visibility by a depth test against the exact rendered depth.
+
+    joints_world (..., 21, 3); radii broadcastable to (..., 21): the flesh radius around each joint.
+    A joint is visible when it projects inside the image, lies in front of the camera, and the
+    rendered depth at its (rounded) pixel is not more than radius + margin in front of the joint's
+    camera z. Returns (visible (..., 21) bool, px (..., 21, 2), camera points (..., 21, 3)).
+    """
+    pc = world_to_camera(joints_world, T_world_camera)
+    z = pc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = (pc[..., :2] / z[..., None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
+    h, w = depth.shape
+    ui = np.rint(np.nan_to_num(px[..., 0], nan=-1)).astype(int)
+    vi = np.rint(np.nan_to_num(px[..., 1], nan=-1)).astype(int)
+    inside = (z > 0) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    dz = depth[np.clip(vi, 0, h - 1), np.clip(ui, 0, w - 1)]
+    occluded = (dz > 0) & (dz < z - (np.asarray(radii) + margin))
+    return inside & ~occluded, px, pc
+
+
+__all__ = [
+    "WIDTH", "HEIGHT", "FX", "FY", "CX", "CY", "CAMERA_POS", "CAMERA_TARGET", "CAMERA_NAME",
+    "camera_K", "camera_T_world_camera", "camera_fovy_deg", "camera_xml", "world_to_camera", "project",
+    "hands_xml", "extra_worldbody_xml", "with_camera_and_hands", "add_depth_noise", "Frame",
+    "SceneRenderer", "joint_visibility",
+]
+
