@@ -18,6 +18,7 @@ import duckdb
 import pyarrow as pa
 
 from schemas.core import DATA_FILE, TableSchema, registry
+from schemas.reports import REPORT_VIEWS
 
 CATALOG_FILE = "catalog.duckdb"
 ENV_WAREHOUSE = "DEMOFORGE_WAREHOUSE"
@@ -69,6 +70,7 @@ def _view_sql(root: Path, schema: TableSchema) -> str:
 def catalog_fingerprint(root: Path) -> str:
     """Changes whenever a table gains or loses files, a contract changes, or the warehouse moves."""
     h = hashlib.sha256(str(root).encode())
+    h.update(repr(sorted(REPORT_VIEWS.items())).encode())
     for name, schema in sorted(registry().items()):
         h.update(f"{name}:{schema.version}:{[(c.name, str(c.type)) for c in schema.columns]}".encode())
         for f in sorted((root / name).glob("**/" + DATA_FILE)):
@@ -89,6 +91,8 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
         try:
             for schema in registry().values():
                 con.execute(_view_sql(root, schema))
+            for name, sql in REPORT_VIEWS.items():
+                con.execute(f'CREATE VIEW "{name}" AS {sql}')
             built = datetime.now(timezone.utc).isoformat(timespec="seconds")
             con.execute(
                 "CREATE VIEW _catalog AS SELECT "

@@ -1,0 +1,117 @@
+"""Write reports/: REPORT.md (read top to bottom), one CSV per report view, PNG figures."""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pyarrow.csv as pacsv
+
+from lib.benchmarking import git_commit
+from lib.markdown import markdown_table
+from schemas.catalog import build_catalog, query
+from schemas.reports import REPORT_VIEWS
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def _view(name: str, warehouse: Path):
+    return query(f"SELECT * FROM {name}", warehouse)
+
+
+def _section(title: str, name: str, warehouse: Path, reports: Path, stamp: str, intro: str = "") -> str:
+    t = _view(name, warehouse)
+    pacsv.write_csv(t, reports / f"{name}.csv")
+    rows = [list(r.values()) for r in t.to_pylist()]
+    parts = [f"## {title}", ""]
+    if intro:
+        parts += [intro, ""]
+    parts += [f"_{stamp} · SQL view `{name}` · CSV `{name}.csv`_", "", markdown_table(t.column_names, rows)]
+    return "\n".join(parts)
+
+
+def takes_figure(warehouse: Path, out_png: Path, columns: int = 3) -> Path | None:
+    """One rendered frame per task (first grasp of its first take) with GT skeletons and object keypoints."""
+    import cv2
+
+    from lib.visualize import draw_hand, draw_points, montage
+
+    takes = query(
+        "SELECT task, take, path FROM takes WHERE NOT mirror "
+        "QUALIFY row_number() OVER (PARTITION BY task ORDER BY seed) = 1 ORDER BY task", warehouse
+    ).to_pylist()
+    tiles, captions = [], []
+    for t in takes:
+        grasp = query(
+            "SELECT coalesce(min(frame), 0) AS f FROM gt_gripper "
+            f"WHERE take = '{t['take']}' AND closed", warehouse).column("f")[0].as_py()
+        frame = int(grasp) + 10
+        hands = query(
+            "SELECT hand, joints_px, visible, present FROM gt_hand_joints "
+            f"WHERE take = '{t['take']}' AND frame = {frame} ORDER BY hand", warehouse).to_pylist()
+        kps = query(
+            "SELECT keypoints_px FROM gt_object_keypoints "
+            f"WHERE take = '{t['take']}' AND frame = {frame}", warehouse).to_pylist()
+        png = Path(t["path"]) / "rgb" / f"{frame:06d}.png"
+        if not png.exists():
+            continue
+        rgb = cv2.cvtColor(cv2.imread(str(png)), cv2.COLOR_BGR2RGB)
+        for h in hands:
+            if h["present"]:
+                rgb = draw_hand(rgb, np.array(h["joints_px"]), np.array(h["visible"]), h["hand"])
+        if kps:
+            rgb = draw_points(rgb, np.array(kps[0]["keypoints_px"]))
+        tiles.append(rgb)
+        captions.append(f"{t['task']}  frame {frame}")
+    if not tiles:
+        return None
+    grid = montage(tiles, columns=min(columns, len(tiles)), captions=captions)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out_png), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
+    return out_png
+
+
+def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -> Path:
+    warehouse, reports = Path(warehouse), Path(reports_dir)
+    reports.mkdir(parents=True, exist_ok=True)
+    build_catalog(warehouse)
+    commit = git_commit(str(PROJECT_ROOT))
+    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    stamp = (f"data: synthetic (demoforge.synth, MuJoCo renders, exact ground truth) · "
+             f"seeds {params.get('seed')}..{params.get('seed', 0) + params.get('takes', 1) - 1} · commit {commit}")
+    md = [
+        "# demoforge report",
+        "",
+        f"Generated {now} by `make evaluate` (commit `{commit}`). Parameters: `{json.dumps(params, sort_keys=True)}`.",
+        "Every table below is a DuckDB view in `warehouse/catalog.duckdb`: run "
+        "`demoforge sql \"SELECT * FROM <view>\"` to query it yourself.",
+        "",
+    ]
+    fig = takes_figure(warehouse, reports / "synthetic_takes.png")
+    md += ["## The synthetic demonstrations", "",
+           "One frame per task at its first grasp, rendered by MuJoCo from the head camera "
+           "(640x480, fx = fy = 570.3422), with the ground-truth hand skeletons (filled dots: joint "
+           "visible in the depth test, hollow: occluded) and the 11 object keypoints (crosses).", ""]
+    md += [f"![synthetic takes]({fig.name})" if fig else "_(no take to show)_", ""]
+    md.append(_section("Takes", "report_takes", warehouse, reports, stamp,
+                       "Every generated take; `replay_success` is the task's success predicate after "
+                       "replaying the scripted demonstration in MuJoCo physics."))
+    md.append(_section("Scripted demonstrations in physics, per task", "report_replay_by_task", warehouse,
+                       reports, stamp))
+    md.append(_section("Ground-truth joint visibility", "report_visibility", warehouse, reports, stamp,
+                       "Mean fraction of the 21 joints that pass the depth test, per task and hand."))
+    bench = _view("report_benchmarks", warehouse)
+    if bench.num_rows:
+        md.append(_section("Benchmarks (latest `make bench` run)", "report_benchmarks", warehouse, reports,
+                           "measured on this machine"))
+    else:
+        md += ["## Benchmarks", "", "_No benchmark run in this warehouse yet: `make bench`._", ""]
+    unused = set(REPORT_VIEWS) - {"report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks"}
+    assert not unused, f"report views not in the report: {unused}"
+    out = reports / "REPORT.md"
+    tmp = out.with_name(".REPORT.md.tmp")
+    tmp.write_text("\n".join(md))
+    tmp.replace(out)
+    return out
