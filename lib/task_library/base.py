@@ -1,0 +1,512 @@
+"""Task library core: data classes, keyframe tracks, interpolation, mirroring and physics replay.
+
+Conventions (DESIGN.md section 3): world = table frame (origin on the table top, z up, y away from
+the robot / demonstrator, x to the right); quaternions scalar-last in our arrays, MuJoCo's
+scalar-first only in MJCF strings and mocap_quat; arm 0 = left hand, arm 1 = right hand.
+
+Pinch frame (= gripper frame) of a hand: origin midpoint of thumb tip and index tip, z = approach
+direction, x = thumb tip -> index tip, y = z x x.
+
+Mirroring: a mirrored take is the exact reflection of the non-mirrored take of the same seed across
+the plane x = 0 with the hands swapped.  With M = diag(-1, 1, 1, 1):
+  object poses   T' = M T M          (all objects are mirror-symmetric in their local x)
+  pinch poses    P' = M P D, D = diag(1, -1, 1, 1)   (a physical reflection of a hand: the thumb
+                 stays the thumb, x' = M x, z' = M z, y' = z' x x'); P' differs from M P M only
+                 by a 180 degree turn about the approach axis, which a parallel gripper does not see.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+from scipy.spatial.transform import Rotation
+
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
+HAND_FLIP = np.diag([1.0, -1.0, 1.0, 1.0])
+FPS = 30.0
+SUBSTEPS = 16  # physics steps per 30 fps frame -> timestep 1/480 s (about 2.1 ms)
+UP = np.array([0.0, 0.0, 1.0])
+
+
+# ------------------------------------------------------------------ small geometry helpers
+def make_pose(rot=None, pos=None) -> np.ndarray:
+    T = np.eye(4)
+    if rot is not None:
+        T[:3, :3] = rot.as_matrix() if isinstance(rot, Rotation) else rot
+    if pos is not None:
+        T[:3, 3] = pos
+    return T
+
+
+def inv_pose(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def translated(T: np.ndarray, d) -> np.ndarray:
+    out = T.copy()
+    out[:3, 3] += d
+    return out
+
+
+def unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def frame_zx(z, x) -> np.ndarray:
+    """Rotation matrix with approach z and (orthogonalised) closing axis x."""
+    z = unit(z)
+    x = unit(np.asarray(x, float) - np.dot(x, z) * z)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def side_pinch(point, approach, arm: int, pitch: float = 0.0) -> np.ndarray:
+    """Pinch pose approaching horizontally along `approach` (xy), pitched down by `pitch` rad.
+
+    Closing axis x is horizontal: for the left hand x = up x z, for the right hand z x up (mirror images).
+    """
+    h = unit([approach[0], approach[1], 0.0])
+    z = math.cos(pitch) * h - math.sin(pitch) * UP
+    x = np.cross(UP, h) if arm == 0 else np.cross(h, UP)
+    return make_pose(frame_zx(z, x), point)
+
+
+def top_pinch(point, xdir, tilt_toward=None, tilt: float = 0.0) -> np.ndarray:
+    """Pinch pose approaching straight down (optionally tilted), closing along horizontal xdir."""
+    z = -UP
+    if tilt_toward is not None and tilt:
+        h = unit([tilt_toward[0], tilt_toward[1], 0.0])
+        z = math.cos(tilt) * z + math.sin(tilt) * h
+    return make_pose(frame_zx(z, xdir), point)
+
+
+def yaw_dir(yaw: float) -> np.ndarray:
+    return np.array([math.cos(yaw), math.sin(yaw), 0.0])
+
+
+def object_pose(x: float, y: float, yaw: float, z: float = 0.0, rot: Rotation | None = None) -> np.ndarray:
+    r = Rotation.from_euler("z", yaw)
+    if rot is not None:
+        r = r * rot
+    return make_pose(r, [x, y, z])
+
+
+# ------------------------------------------------------------------ data classes
+@dataclass
+class Placement:
+    """Initial world poses of the task objects, (n_objects, 4, 4), in task.object_names order."""
+    object_poses: np.ndarray
+    mirror: bool = False
+
+    def mirrored(self) -> "Placement":
+        return Placement(MIRROR @ self.object_poses @ MIRROR, not self.mirror)
+
+
+@dataclass
+class Segment:
+    arm: int
+    kind: str  # "motion" | "skill"
+    start: int
+    end: int  # exclusive
+    object: int  # object the hand handles (skill) or moves towards / carries (motion); -1 = none
+
+
+@dataclass
+class Demo:
+    task: str
+    seed: int
+    mirror: bool
+    fps: float
+    placement: Placement
+    pinch_poses: np.ndarray  # (T, 2, 4, 4)
+    aperture: np.ndarray  # (T, 2)
+    closed: np.ndarray  # (T, 2) bool
+    held_object: np.ndarray  # (T, 2) int
+    object_poses: np.ndarray  # (T, n_objects, 4, 4) kinematic
+    segments: list[Segment]
+    fault: str | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.pinch_poses.shape[0])
+
+    @property
+    def duration(self) -> float:
+        return self.n_frames / self.fps
+
+    def keypoints(self) -> np.ndarray:
+        from . import get_task
+        return get_task(self.task).keypoints_world(self.object_poses)
+
+    def gripper_actions(self) -> np.ndarray:
+        """(T, 2, 8) [x, y, z, qx, qy, qz, qw, g] with g = 1 open, 0 closed (DESIGN.md)."""
+        T = self.n_frames
+        out = np.zeros((T, 2, 8))
+        out[..., :3] = self.pinch_poses[..., :3, 3]
+        out[..., 3:7] = Rotation.from_matrix(self.pinch_poses[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(T, 2, 4)
+        out[..., 7] = (~self.closed).astype(float)
+        return out
+
+
+@dataclass
+class ReplayResult:
+    success: bool
+    reason: str
+    object_poses: np.ndarray  # (T, n_objects, 4, 4) simulated
+    wall_time_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class TaskObject:
+    name: str
+    role: str  # "manipulated" (moved by the acting hand) | "receiving" (held in place by the other hand)
+    grasp_width: float  # thumb-index distance when holding, metres
+    keypoints: tuple  # ((name, (x, y, z)), ...) in the object's frame
+    build: object  # callable(pose) -> MJCF body string
+
+
+# ------------------------------------------------------------------ keyframe tracks
+class Track:
+    """Keyframes of one hand: pinch pose + aperture at knot times, gripper events, interval labels."""
+
+    def __init__(self, pose: np.ndarray, aperture: float):
+        self.t = [0.0]
+        self.poses = [pose.copy()]
+        self.ap = [float(aperture)]
+        self.labels: list[tuple[str, int]] = []  # one per interval between knots
+        self.events: list[tuple[float, int]] = []  # (time, held object or -1)
+        self.hold(0.25, "motion")  # start at rest (zero velocity at t = 0)
+
+    @property
+    def now(self) -> float:
+        return self.t[-1]
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self.poses[-1]
+
+    def move(self, dt: float, pose: np.ndarray | None = None, aperture: float | None = None,
+             kind: str = "motion", obj: int = -1) -> "Track":
+        assert dt > 1e-3
+        self.t.append(self.now + dt)
+        self.poses.append((self.pose if pose is None else pose).copy())
+        self.ap.append(self.ap[-1] if aperture is None else float(aperture))
+        self.labels.append((kind, obj))
+        return self
+
+    def hold(self, dt: float, kind: str, obj: int = -1) -> "Track":
+        return self.move(dt, None, None, kind, obj)
+
+    def until(self, t: float, kind: str, obj: int = -1) -> "Track":
+        if t > self.now + 0.02:
+            self.hold(t - self.now, kind, obj)
+        return self
+
+    def grip(self, obj: int) -> "Track":
+        self.events.append((self.now, obj))
+        return self
+
+    def release(self) -> "Track":
+        self.events.append((self.now, -1))
+        return self
+
+    def sample(self, times: np.ndarray):
+        knots = np.asarray(self.t)
+        poses = np.asarray(self.poses)
+        pos = PchipInterpolator(knots, poses[:, :3, 3], axis=0, extrapolate=False)(np.clip(times, 0, knots[-1]))
+        q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
+        for i in range(1, len(q)):  # same hemisphere as the previous knot
+            if np.dot(q[i], q[i - 1]) < 0:
+                q[i] = -q[i]
+        qi = PchipInterpolator(knots, q, axis=0, extrapolate=False)(np.clip(times, 0, knots[-1]))
+        qi /= np.linalg.norm(qi, axis=1, keepdims=True)
+        P = np.tile(np.eye(4), (len(times), 1, 1))
+        P[:, :3, :3] = Rotation.from_quat(qi).as_matrix()
+        P[:, :3, 3] = pos
+        ap = PchipInterpolator(knots, np.asarray(self.ap), extrapolate=False)(np.clip(times, 0, knots[-1]))
+        held = np.full(len(times), -1, int)
+        for te, obj in sorted(self.events, key=lambda e: e[0]):
+            held[times >= te - 1e-9] = obj
+        idx = np.clip(np.searchsorted(knots, times, side="right") - 1, 0, len(self.labels) - 1)
+        kinds = [self.labels[i][0] for i in idx]
+        objs = np.array([self.labels[i][1] for i in idx])
+        return P, ap, held, kinds, objs
+
+
+def segments_from_labels(arm: int, kinds: list[str], objs: np.ndarray) -> list[Segment]:
+    segs: list[Segment] = []
+    for i, k in enumerate(kinds):
+        if segs and segs[-1].kind == k:
+            segs[-1].end = i + 1
+            if k == "motion":  # a motion segment heads for the object of the next skill
+                segs[-1].object = int(objs[i])
+        else:
+            segs.append(Segment(arm, k, i, i + 1, int(objs[i])))
+    return segs
+
+
+def mirror_demo(demo: Demo) -> Demo:
+    swap = [1, 0]
+    segs = [Segment(1 - s.arm, s.kind, s.start, s.end, s.object) for s in demo.segments]
+    segs.sort(key=lambda s: (s.arm, s.start))
+    return Demo(
+        task=demo.task, seed=demo.seed, mirror=not demo.mirror, fps=demo.fps,
+        placement=demo.placement.mirrored(),
+        pinch_poses=MIRROR @ demo.pinch_poses[:, swap] @ HAND_FLIP,
+        aperture=demo.aperture[:, swap].copy(),
+        closed=demo.closed[:, swap].copy(),
+        held_object=demo.held_object[:, swap].copy(),
+        object_poses=MIRROR @ demo.object_poses @ MIRROR,
+        segments=segs, fault=demo.fault,
+    )
+
+
+# ------------------------------------------------------------------ the task base class
+class Task:
+    name: str = ""
+    objects: tuple[TaskObject, ...] = ()
+    # xyz min / max box holding every keypoint and pinch position of the scripted takes (hands start at
+    # y = -0.16, in front of the table edge), for bounding augmented trajectories
+    workspace = np.array([[-0.45, -0.2, 0.0], [0.45, 0.6, 0.65]])
+    # xy min / max region where object origins are placed (both the plain and the mirrored layouts)
+    placement_region = np.array([[-0.3, 0.12], [0.3, 0.45]])
+    faults: tuple[str, ...] = ()  # scripted failure variants for negative tests
+
+    # -------- static description
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.objects)
+
+    @property
+    def keypoint_names(self) -> tuple[str, ...]:
+        return tuple(k for o in self.objects for k, _ in o.keypoints)
+
+    @property
+    def keypoints_local(self) -> np.ndarray:
+        return np.array([p for o in self.objects for _, p in o.keypoints], float)
+
+    @property
+    def keypoint_object(self) -> np.ndarray:
+        return np.array([i for i, o in enumerate(self.objects) for _ in o.keypoints], int)
+
+    @property
+    def grasp_widths(self) -> np.ndarray:
+        return np.array([o.grasp_width for o in self.objects])
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return tuple(o.role for o in self.objects)
+
+    def object_arm(self, mirror: bool = False) -> np.ndarray:
+        """Which arm handles each object: manipulated -> left (0), receiving -> right (1); swapped if mirrored."""
+        arms = np.array([0 if o.role == "manipulated" else 1 for o in self.objects])
+        return 1 - arms if mirror else arms
+
+    def keypoints_world(self, object_poses: np.ndarray) -> np.ndarray:
+        object_poses = np.asarray(object_poses)
+        T = object_poses[..., self.keypoint_object, :, :]  # (..., 11, 4, 4)
+        return np.einsum("...ij,...j->...i", T[..., :3, :3], self.keypoints_local) + T[..., :3, 3]
+
+    # -------- scene
+    def sample_placement(self, rng: np.random.Generator, mirror: bool = False) -> Placement:
+        p = Placement(np.asarray(self._sample_poses(rng), float), False)
+        return p.mirrored() if mirror else p
+
+    def _sample_poses(self, rng) -> np.ndarray:  # non-mirrored
+        raise NotImplementedError
+
+    def _extra_bodies(self, placement: Placement) -> str:
+        return ""
+
+    def scene_xml(self, placement: Placement, extra_worldbody: str = "", extra_assets: str = "",
+                  extra_equality: str = "") -> str:
+        bodies = "\n".join(o.build(P) for o, P in zip(self.objects, placement.object_poses))
+        dt = 1.0 / (FPS * SUBSTEPS)
+        eq = f"<equality>\n{extra_equality}\n</equality>" if extra_equality else ""
+        legs = "\n".join(
+            f'<geom name="table_leg{i}" type="box" pos="{sx * 0.68} {0.3 + sy * 0.4} -0.385" size="0.03 0.03 0.365" '
+            f'material="table_mat" contype="0" conaffinity="0"/>'
+            for i, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))))
+        return f"""<mujoco model="demoforge_{self.name}">
+<compiler angle="radian" autolimits="true"/>
+<option timestep="{dt:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
+<default><geom solref="0.005 1"/></default>
+<visual><global offwidth="1280" offheight="960"/><quality shadowsize="2048"/>
+<headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/></visual>
+<asset>
+<texture name="floor_tex" type="2d" builtin="checker" rgb1="0.55 0.55 0.55" rgb2="0.45 0.45 0.45" width="256" height="256"/>
+<material name="floor_mat" texture="floor_tex" texrepeat="8 8"/>
+<material name="table_mat" rgba="0.62 0.48 0.33 1"/>
+{extra_assets}
+</asset>
+<worldbody>
+<light name="key" pos="0.3 -0.4 1.6" dir="-0.2 0.3 -1" diffuse="0.7 0.7 0.7" castshadow="true"/>
+<light name="fill" directional="true" pos="0 0 2" dir="0 0.2 -1" diffuse="0.3 0.3 0.3" castshadow="false"/>
+<geom name="floor" type="plane" pos="0 0 -0.75" size="3 3 0.1" material="floor_mat" contype="2" conaffinity="2"/>
+<geom name="table_top" type="box" pos="0 0.3 -0.02" size="0.75 0.45 0.02" material="table_mat" friction="1 0.01 0.001"
+ contype="2" conaffinity="2"/>
+{legs}
+{bodies}
+{self._extra_bodies(placement)}
+{extra_worldbody}
+</worldbody>
+{eq}
+</mujoco>"""
+
+    # -------- scripted demonstration
+    def _script(self, rng: np.random.Generator, poses: np.ndarray, fault: str | None) -> tuple[Track, Track]:
+        raise NotImplementedError
+
+    def scripted_demo(self, seed: int, mirror: bool = False, fault: str | None = None) -> Demo:
+        """Scripted human take.  `fault` (one of self.faults) makes a deliberately failing variant."""
+        if fault is not None and fault not in self.faults:
+            raise ValueError(f"unknown fault {fault!r} for {self.name}; known: {self.faults}")
+        rng = np.random.default_rng(seed)
+        placement = self.sample_placement(rng, mirror=False)
+        tracks = self._script(rng, placement.object_poses, fault)
+        t_end = max(tr.now for tr in tracks) + 0.3
+        T = int(round(t_end * FPS)) + 1
+        times = np.arange(T) / FPS
+        P = np.zeros((T, 2, 4, 4))
+        ap = np.zeros((T, 2))
+        held = np.zeros((T, 2), int)
+        segs: list[Segment] = []
+        for arm, tr in enumerate(tracks):
+            P[:, arm], ap[:, arm], held[:, arm], kinds, objs = tr.sample(times)
+            segs += segments_from_labels(arm, kinds, objs)
+        objp = self.kinematic_objects(placement.object_poses, P, held)
+        demo = Demo(self.name, seed, False, FPS, placement, P, ap, held >= 0, held, objp, segs, fault)
+        return mirror_demo(demo) if mirror else demo
+
+    @staticmethod
+    def kinematic_objects(initial: np.ndarray, P: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """Held objects keep their pose relative to the pinch frame from the grasp frame on; a released
+        object stays where it was released (kinematically: no falling; see replay for physics)."""
+        T = P.shape[0]
+        cur = initial.copy()
+        out = np.zeros((T,) + initial.shape)
+        rel = [None, None]
+        prev = [-1, -1]
+        for t in range(T):
+            for arm in range(2):
+                k = held[t, arm]
+                if k >= 0 and k != prev[arm]:
+                    rel[arm] = inv_pose(P[t, arm]) @ cur[k]
+                if k >= 0:
+                    cur[k] = P[t, arm] @ rel[arm]
+                prev[arm] = k
+            out[t] = cur
+        return out
+
+    # -------- success predicate
+    def success(self, model, data, history: np.ndarray) -> tuple[bool, str]:
+        """Predicate on the simulator: `data` is the final state, `history` the simulated object poses
+        (T, n_objects, 4, 4) of the whole run (task objects in object_names order)."""
+        raise NotImplementedError
+
+    # -------- physics replay
+    def replay(self, demo: Demo, settle_s: float = 0.8, trace_bodies: tuple[str, ...] = ()) -> ReplayResult:
+        """Physics replay: pinch frames drive mocap bodies; a held object is welded to its hand's mocap
+        body while held (relative pose taken from the simulator at the grasp frame).  After the last
+        frame the simulation runs `settle_s` more seconds, then the predicate is evaluated on the final
+        state and the history (T + 1 poses: the T frames and the settled state).  `trace_bodies`:
+        extra body names whose world positions are recorded per frame into extra['trace'] (T, k, 3)."""
+        import mujoco
+
+        t0 = time.perf_counter()
+        n_obj = len(self.objects)
+        P = demo.pinch_poses
+        q_all = Rotation.from_matrix(P[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(P.shape[0], 2, 4)
+        q_all = q_all[..., [3, 0, 1, 2]]  # MuJoCo scalar-first
+        mocap = "\n".join(
+            f'<body name="pinch_{a}" mocap="true" pos="{" ".join(map(str, P[0, a, :3, 3]))}">'
+            f'<geom type="sphere" size="0.008" rgba="{"0.2 0.2 1" if a == 0 else "1 0.2 0.2"} 0.5" '
+            f'contype="0" conaffinity="0" mass="0"/></body>' for a in range(2))
+        welds = "\n".join(
+            f'<weld name="hold_{a}_{o.name}" body1="pinch_{a}" body2="{o.name}" active="false" solref="0.01 1"/>'
+            for a in range(2) for o in self.objects)
+        model = mujoco.MjModel.from_xml_string(self.scene_xml(demo.placement, mocap, extra_equality=welds))
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        obj_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in self.object_names]
+        mids = [model.body_mocapid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"pinch_{a}")] for a in range(2)]
+        eq = {(a, k): mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"hold_{a}_{o.name}")
+              for a in range(2) for k, o in enumerate(self.objects)}
+
+        def set_mocap(t0_, t1_, alpha):
+            for a in range(2):
+                data.mocap_pos[mids[a]] = (1 - alpha) * P[t0_, a, :3, 3] + alpha * P[t1_, a, :3, 3]
+                q0, q1 = q_all[t0_, a], q_all[t1_, a]
+                if np.dot(q0, q1) < 0:
+                    q1 = -q1
+                q = (1 - alpha) * q0 + alpha * q1
+                data.mocap_quat[mids[a]] = q / np.linalg.norm(q)
+
+        def record():
+            out = np.tile(np.eye(4), (n_obj, 1, 1))
+            out[:, :3, :3] = data.xmat[obj_ids].reshape(-1, 3, 3)
+            out[:, :3, 3] = data.xpos[obj_ids]
+            return out
+
+        set_mocap(0, 0, 0.0)
+        mujoco.mj_step(model, data, nstep=max(1, int(0.3 / model.opt.timestep)))  # let contacts settle
+        T = demo.n_frames
+        hist = np.zeros((T, n_obj, 4, 4))
+        hist[0] = record()
+        tr_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in trace_bodies]
+        trace = np.zeros((T, len(tr_ids), 3))
+        trace[0] = data.xpos[tr_ids]
+        held_prev = demo.held_object[0].copy()
+        for a in range(2):
+            if held_prev[a] >= 0:
+                self._activate(model, data, eq[(a, held_prev[a])], mids[a], obj_ids[held_prev[a]])
+        chunks = 4
+        for t in range(1, T):
+            for a in range(2):
+                k = demo.held_object[t, a]
+                if k != held_prev[a]:
+                    if held_prev[a] >= 0:
+                        data.eq_active[eq[(a, held_prev[a])]] = 0
+                    if k >= 0:
+                        self._activate(model, data, eq[(a, k)], mids[a], obj_ids[k])
+                    held_prev[a] = k
+            for c in range(1, chunks + 1):
+                set_mocap(t - 1, t, c / chunks)
+                mujoco.mj_step(model, data, nstep=SUBSTEPS // chunks)
+            hist[t] = record()
+            trace[t] = data.xpos[tr_ids]
+        # after the take, let released objects come to rest
+        mujoco.mj_step(model, data, nstep=int(settle_s / model.opt.timestep))
+        hist = np.concatenate([hist, record()[None]], axis=0)
+        ok, reason = self.success(model, data, hist)
+        return ReplayResult(bool(ok), reason, hist[:-1], time.perf_counter() - t0,
+                            extra={"final_object_poses": hist[-1], "trace": trace})
+
+    @staticmethod
+    def _activate(model, data, eq_id, mocap_id, body_id):
+        """Weld the object to the hand at their current relative pose (set at run time)."""
+        pm = data.mocap_pos[mocap_id]
+        Rm = Rotation.from_quat(data.mocap_quat[mocap_id][[1, 2, 3, 0]])
+        Rb = Rotation.from_matrix(data.xmat[body_id].reshape(3, 3))
+        rel_p = Rm.inv().apply(data.xpos[body_id] - pm)
+        q = (Rm.inv() * Rb).as_quat()
+        model.eq_data[eq_id, 3:6] = rel_p
+        model.eq_data[eq_id, 6:10] = [q[3], q[0], q[1], q[2]]
+        data.eq_active[eq_id] = 1
+
+
+def body_pos(model, data, name: str) -> np.ndarray:
+    import mujoco
+    return data.xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)].copy()
+
+
+def local_point(T: np.ndarray, p_world: np.ndarray) -> np.ndarray:
+    return T[:3, :3].T @ (np.asarray(p_world) - T[:3, 3])

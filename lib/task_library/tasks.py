@@ -1,0 +1,555 @@
+"""The six thesis tasks: objects, keypoints, placement sampling, scripted takes and success predicates.
+
+Roles in the non-mirrored take: the left hand (arm 0) handles the manipulated object (object 0),
+the right hand (arm 1) holds the receiving object (object 1).  The mirrored take is the reflection.
+
+Segment.object: for skill segments the object the hand acts on / relative to (pour -> cup, drop ->
+bin, holding -> the held receiving object); for motion segments the object of the next skill.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from . import objects as ob
+from .base import (UP, Task, TaskObject, Track, inv_pose, local_point, make_pose, object_pose, side_pinch,
+                   top_pinch, translated, unit, yaw_dir)
+
+HOME = (np.array([-0.27, -0.14, 0.20]), np.array([0.27, -0.14, 0.20]))
+SHOULDER = (np.array([-0.2, -0.32]), np.array([0.2, -0.32]))
+AP_REST = 0.06
+
+
+class Style:
+    """Per-take timing and path style."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+        self.speed = rng.uniform(0.85, 1.1)
+
+    def d(self, seconds: float) -> float:
+        return float(seconds * self.speed * self.rng.uniform(0.9, 1.1))
+
+    def u(self, lo: float, hi: float) -> float:
+        return float(self.rng.uniform(lo, hi))
+
+    def jitter(self, scale: float) -> np.ndarray:
+        return self.rng.uniform(-scale, scale, 3)
+
+
+def home_pose(arm: int, st: Style) -> np.ndarray:
+    return side_pinch(HOME[arm] + st.jitter(0.02), [0.0, 1.0], arm, pitch=0.5)
+
+
+def approach_dir(arm: int, target, st: Style) -> np.ndarray:
+    d = unit(np.asarray(target[:2]) - SHOULDER[arm])
+    a = math.atan2(d[1], d[0]) + st.u(-0.12, 0.12)
+    return np.array([math.cos(a), math.sin(a)])
+
+
+def open_width(width: float) -> float:
+    return min(width + 0.04, 0.13)
+
+
+def grasp_sequence(tr: Track, grasp: np.ndarray, obj: int, width: float, st: Style,
+                   back: float = 0.07, up: float = 0.03) -> None:
+    """reach (motion) -> approach, close (skill); the hand holds `obj` afterwards."""
+    pre = translated(grasp, -grasp[:3, 2] * back + UP * up + st.jitter(0.01))
+    tr.move(st.d(1.0), pre, open_width(width), "motion", obj)
+    tr.move(st.d(0.6), grasp, open_width(width), "skill", obj)
+    tr.move(st.d(0.3), grasp, width, "skill", obj)
+    tr.grip(obj)
+
+
+def release_sequence(tr: Track, obj: int, width: float, st: Style, arm: int, retreat=None) -> None:
+    """open, back off (skill) -> home (motion)."""
+    tr.release()
+    tr.move(st.d(0.3), None, open_width(width), "skill", obj)
+    if retreat is None:
+        retreat = -tr.pose[:3, 2] * 0.06 + UP * 0.04
+    tr.move(st.d(0.5), translated(tr.pose, retreat), None, "skill", obj)
+    tr.move(st.d(1.0), home_pose(arm, st), AP_REST, "motion", -1)
+
+
+def holder_script(tr: Track, grasp: np.ndarray, obj: int, width: float, st: Style, lift: float):
+    """The receiving object's hand: grasp, lift slightly; returns a function finishing the track."""
+    grasp_sequence(tr, grasp, obj, width, st)
+    tr.move(st.d(0.5), translated(grasp, [0, 0, lift]), None, "skill", obj)
+
+    def finish(t_done: float):
+        tr.until(t_done, "skill", obj)
+        tr.move(st.d(0.5), translated(grasp, [0, 0, 0.002]), None, "skill", obj)
+        release_sequence(tr, obj, width, st, arm=1)
+
+    return finish
+
+
+def pinch_for(obj_pose: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    """Pinch pose that puts a held object (relative pose rel = P^-1 T) at obj_pose."""
+    return obj_pose @ inv_pose(rel)
+
+
+def _kp(*items):
+    return tuple((n, tuple(float(v) for v in p)) for n, p in items)
+
+
+def _rim4(prefix, r, z, ry=None):
+    ry = r if ry is None else ry
+    return [(f"{prefix}_rim_front", (0, -ry, z)), (f"{prefix}_rim_back", (0, ry, z)),
+            (f"{prefix}_rim_left", (-r, 0, z)), (f"{prefix}_rim_right", (r, 0, z))]
+
+
+def _tilt_deg(T: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip(T[2, 2], -1, 1)))
+
+
+# ============================================================ pouring
+class Pouring(Task):
+    name = "pouring"
+    faults = ("no_tilt",)
+    B, C = ob.BOTTLE, ob.CUP
+    objects = (
+        TaskObject("bottle", "manipulated", 2 * ob.BOTTLE["R"], _kp(
+            ("bottle_base", (0, 0, 0)), ("bottle_left", (-ob.BOTTLE["R"], 0, 0.08)),
+            ("bottle_right", (ob.BOTTLE["R"], 0, 0.08)), ("bottle_shoulder", (0, 0, ob.BOTTLE["body_h"])),
+            ("bottle_mouth", (0, 0, ob.BOTTLE["h"]))), ob.bottle),
+        TaskObject("cup", "receiving", 2 * ob.CUP["R"], _kp(
+            ("cup_base", (0, 0, 0)), ("cup_center", (0, 0, ob.CUP["h"] / 2)),
+            *_rim4("cup", ob.CUP["R"], ob.CUP["h"])), ob.cup),
+    )
+
+    def _sample_poses(self, rng):
+        return np.stack([object_pose(rng.uniform(-0.25, -0.14), rng.uniform(0.18, 0.34), rng.uniform(-0.5, 0.5)),
+                         object_pose(rng.uniform(0.03, 0.15), rng.uniform(0.22, 0.38), rng.uniform(-0.5, 0.5))])
+
+    def _extra_bodies(self, placement):
+        return ob.liquid(placement.object_poses[0])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        B0, C0 = poses
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        gC = side_pinch(C0[:3, 3] + [0, 0, st.u(0.04, 0.06)], approach_dir(1, C0[:3, 3], st), 1, st.u(0.0, 0.2))
+        lift = st.u(0.015, 0.035)
+        finish_holder = holder_script(R, gC, 1, self.objects[1].grasp_width, st, lift)
+        ready = R.now
+        C_task = translated(C0, [0, 0, lift])
+
+        wB = self.objects[0].grasp_width
+        gB = side_pinch(B0[:3, 3] + [0, 0, st.u(0.07, 0.10)], approach_dir(0, B0[:3, 3], st), 0, st.u(0.0, 0.2))
+        grasp_sequence(L, gB, 0, wB, st)
+        rel = inv_pose(gB) @ B0
+        L.move(st.d(0.6), translated(gB, [0, 0, st.u(0.08, 0.12)]), None, "skill", 0)
+        L.until(ready, "skill", 0)
+
+        c = C_task[:3, 3]
+        rim_z = c[2] + self.C["h"]
+        d = unit([c[0] - B0[0, 3], c[1] - B0[1, 3], 0.0])
+        axis = np.cross(UP, d)
+        RB0 = Rotation.from_matrix(B0[:3, :3])
+        mouth_local = np.array([0, 0, self.B["h"]])
+
+        def bottle_at(theta, mouth):
+            r = Rotation.from_rotvec(axis * theta) * RB0
+            return make_pose(r, mouth - r.apply(mouth_local))
+
+        m0 = c - d * st.u(0.115, 0.13) + [0, 0, rim_z - c[2] + st.u(0.02, 0.035) + self.B["h"]]
+        m1 = c - d * st.u(0.015, 0.03) + [0, 0, rim_z - c[2] + st.u(0.03, 0.045)]
+        th_max = math.radians(st.u(140, 150))
+        L.move(st.d(1.2), pinch_for(bottle_at(0.0, m0), rel), None, "motion", 1)
+        n_k = 8
+        t_tilt = st.d(1.6)
+        path = [(th_max * k / n_k, m0 + (m1 - m0) * (k / n_k)) for k in range(1, n_k + 1)]
+        if fault == "no_tilt":
+            L.hold(t_tilt + st.d(1.5) + st.d(1.2), "skill", 1)
+        else:
+            for th, m in path:
+                L.move(t_tilt / n_k, pinch_for(bottle_at(th, m), rel), None, "skill", 1)
+            L.hold(st.d(1.5), "skill", 1)
+            t_back = st.d(1.2)
+            for th, m in path[:-1][::-1] + [(0.0, m0)]:
+                L.move(t_back / n_k, pinch_for(bottle_at(th, m), rel), None, "skill", 1)
+        t_done = L.now
+        place = translated(B0, [0, 0, 0.004])
+        L.move(st.d(1.0), pinch_for(translated(place, [0, 0, st.u(0.05, 0.08)]), rel), None, "motion", 0)
+        L.move(st.d(0.6), pinch_for(place, rel), None, "skill", 0)
+        release_sequence(L, 0, wB, st, arm=0)
+        finish_holder(t_done + 0.3)
+        return L, R
+
+    def success(self, model, data, history):
+        import mujoco
+        cup_T = history[-1, 1]
+        n_in = 0
+        n = ob.LIQUID["n"]
+        r_in = self.C["R"] - self.C["t"] + 0.002
+        for i in range(n):
+            p = local_point(cup_T, data.xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"liquid_{i}")])
+            if math.hypot(p[0], p[1]) < r_in and -0.005 < p[2] < self.C["h"] + 0.005:
+                n_in += 1
+        tilt = max(_tilt_deg(T) for T in history[:, 1])
+        ok = n_in * 2 >= n and tilt < 30
+        return ok, f"{n_in}/{n} liquid spheres in the cup, max cup tilt {tilt:.0f} deg"
+
+
+# ============================================================ trash in bin
+class TrashInBin(Task):
+    name = "trash_in_bin"
+    faults = ("release_far",)
+    A = ob.BIN
+    objects = (
+        TaskObject("can", "manipulated", 2 * ob.CAN["R"], _kp(
+            ("can_bottom", (0, 0, 0)), ("can_center", (0, 0, ob.CAN["h"] / 2)), ("can_top", (0, 0, ob.CAN["h"])),
+            ("can_left", (-ob.CAN["R"], 0, ob.CAN["h"] / 2)), ("can_right", (ob.CAN["R"], 0, ob.CAN["h"] / 2))),
+            ob.can),
+        TaskObject("bin", "receiving", ob.BIN["t"], _kp(
+            ("bin_base", (0, 0, 0)), ("bin_center", (0, 0, ob.BIN["h"] / 2)),
+            *_rim4("bin", ob.BIN["half"], ob.BIN["h"])), ob.bin_),
+    )
+
+    def _sample_poses(self, rng):
+        return np.stack([object_pose(rng.uniform(-0.25, -0.13), rng.uniform(0.15, 0.32), rng.uniform(-0.6, 0.6)),
+                         object_pose(rng.uniform(0.08, 0.18), rng.uniform(0.26, 0.4), rng.uniform(-0.4, 0.4))])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        K0, B0 = poses
+        a, t, h = self.A["half"], self.A["t"], self.A["h"]
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        # right hand pinches the front wall top, thumb outside, index inside
+        p = B0 @ np.array([st.u(0.02, 0.06), -(a - t / 2), h - 0.01, 1.0])
+        gB = top_pinch(p[:3], B0[:3, 1])
+        lift = st.u(0.005, 0.015)
+        finish_holder = holder_script(R, gB, 1, self.objects[1].grasp_width, st, lift)
+        ready = R.now
+        wK = self.objects[0].grasp_width
+        gK = side_pinch(K0[:3, 3] + [0, 0, st.u(0.05, 0.08)], approach_dir(0, K0[:3, 3], st), 0, st.u(0.0, 0.2))
+        grasp_sequence(L, gK, 0, wK, st)
+        rel = inv_pose(gK) @ K0
+        z_drop = h + lift + st.u(0.05, 0.08)  # can bottom height over the bin
+        up = make_pose(K0[:3, :3], K0[:3, 3] + [0, 0, z_drop])
+        L.move(st.d(0.8), pinch_for(up, rel), None, "skill", 0)
+        L.until(ready, "skill", 0)
+        if fault == "release_far":
+            over = translated(up, [-st.u(0.04, 0.08), -0.03, 0.0])
+        else:
+            c = B0 @ np.array([st.u(-0.02, 0.02), st.u(-0.02, 0.02), 0, 1.0])
+            over = make_pose(K0[:3, :3], [c[0], c[1], z_drop])
+        L.move(st.d(1.3), pinch_for(over, rel), None, "motion", 1)
+        L.hold(st.d(0.2), "skill", 1)
+        release_sequence(L, 1, wK, st, arm=0, retreat=UP * 0.06 - L.pose[:3, 2] * 0.04)
+        finish_holder(L.now - st.d(1.0))
+        return L, R
+
+    def success(self, model, data, history):
+        p = local_point(history[-1, 1], history[-1, 0][:3, 3] + history[-1, 0][:3, 2] * ob.CAN["h"] / 2)
+        a = self.A["half"] - self.A["t"]
+        ok = abs(p[0]) < a and abs(p[1]) < a and p[2] < self.A["h"]
+        tilt = _tilt_deg(history[-1, 1])
+        ok = ok and tilt < 30
+        return ok, f"can centre in bin frame ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}); bin tilt {tilt:.0f} deg"
+
+
+# ============================================================ paper in case
+class PaperInCase(Task):
+    name = "paper_in_case"
+    faults = ("release_far",)
+    K = ob.CASE
+    objects = (
+        TaskObject("paper_ball", "manipulated", 2 * ob.BALL["r"], _kp(
+            ("ball_bottom", (0, 0, 0)), ("ball_center", (0, 0, ob.BALL["r"])), ("ball_top", (0, 0, 2 * ob.BALL["r"])),
+            ("ball_left", (-ob.BALL["r"], 0, ob.BALL["r"])), ("ball_right", (ob.BALL["r"], 0, ob.BALL["r"]))),
+            ob.paper_ball),
+        TaskObject("case", "receiving", ob.CASE["t"], _kp(
+            ("case_base", (0, 0, 0)),
+            ("case_front_left", (-ob.CASE["hx"], -ob.CASE["hy"], ob.CASE["h"])),
+            ("case_front_right", (ob.CASE["hx"], -ob.CASE["hy"], ob.CASE["h"])),
+            ("case_back_left", (-ob.CASE["hx"], ob.CASE["hy"], ob.CASE["h"])),
+            ("case_back_right", (ob.CASE["hx"], ob.CASE["hy"], ob.CASE["h"])),
+            ("case_lid_tip", tuple(ob.case_lid_tip_local()))), ob.case),
+    )
+
+    def _sample_poses(self, rng):
+        return np.stack([object_pose(rng.uniform(-0.26, -0.15), rng.uniform(0.15, 0.3), rng.uniform(-np.pi, np.pi)),
+                         object_pose(rng.uniform(0.03, 0.13), rng.uniform(0.26, 0.38), rng.uniform(-0.3, 0.3))])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        P0, K0 = poses
+        hx, hy, t, h = self.K["hx"], self.K["hy"], self.K["t"], self.K["h"]
+        r = ob.BALL["r"]
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        p = K0 @ np.array([st.u(0.04, 0.07), -(hy - t / 2), h - 0.008, 1.0])
+        gK = top_pinch(p[:3], K0[:3, 1])
+        lift = st.u(0.003, 0.01)
+        finish_holder = holder_script(R, gK, 1, self.objects[1].grasp_width, st, lift)
+        ready = R.now
+        wP = self.objects[0].grasp_width
+        gP = top_pinch(P0[:3, 3] + [0, 0, r], yaw_dir(math.pi / 2 + st.u(-0.3, 0.3)))
+        grasp_sequence(L, gP, 0, wP, st, back=0.08, up=0.0)
+        rel = inv_pose(gP) @ P0
+        z_carry = h + lift + st.u(0.04, 0.07)
+        up = make_pose(P0[:3, :3], P0[:3, 3] + [0, 0, z_carry])
+        L.move(st.d(0.7), pinch_for(up, rel), None, "skill", 0)
+        L.until(ready, "skill", 0)
+        if fault == "release_far":
+            over = translated(up, [-st.u(0.04, 0.08), -0.03, 0.0])
+            L.move(st.d(1.2), pinch_for(over, rel), None, "motion", 1)
+            L.hold(st.d(0.6), "skill", 1)
+        else:
+            c = K0 @ np.array([st.u(-0.03, 0.03), st.u(-0.01, 0.005), 0, 1.0])
+            over = make_pose(P0[:3, :3], [c[0], c[1], z_carry])
+            L.move(st.d(1.2), pinch_for(over, rel), None, "motion", 1)
+            L.move(st.d(0.6), pinch_for(translated(over, [0, 0, h + lift + st.u(0.008, 0.015) - z_carry]), rel),
+                   None, "skill", 1)
+        release_sequence(L, 1, wP, st, arm=0, retreat=UP * 0.08)
+        finish_holder(L.now - st.d(1.0))
+        return L, R
+
+    def success(self, model, data, history):
+        p = local_point(history[-1, 1], history[-1, 0][:3, 3] + history[-1, 0][:3, 2] * ob.BALL["r"])
+        ax, ay = self.K["hx"] - self.K["t"], self.K["hy"] - self.K["t"]
+        ok = abs(p[0]) < ax and abs(p[1]) < ay and p[2] < self.K["h"]
+        return ok, f"paper ball centre in case frame ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f})"
+
+
+# ============================================================ mix bowl
+class MixBowl(Task):
+    name = "mix_bowl"
+    faults = ("no_circle",)
+    W, BW = ob.WHISK, ob.BOWL
+    objects = (
+        TaskObject("whisk", "manipulated", 2 * ob.WHISK["handle_r"], _kp(
+            ("whisk_end", (0, 0, 0)), ("whisk_handle", (0, 0, 0.075)), ("whisk_neck", (0, 0, ob.WHISK["handle_len"])),
+            ("whisk_head", (0, 0, ob.WHISK["head_z"])), ("whisk_tip", (0, 0, ob.WHISK["head_z"] + ob.WHISK["head_r"]))),
+            ob.whisk),
+        TaskObject("bowl", "receiving", ob.BOWL["t"], _kp(
+            ("bowl_base", (0, 0, 0)), ("bowl_center", (0, 0, 0.04)), *_rim4("bowl", ob.BOWL["r_top"], ob.BOWL["h"])),
+            ob.bowl),
+    )
+    HANDLE_GRASP = 0.075
+
+    @staticmethod
+    def whisk_rest_pose(x, y, yaw):
+        """Whisk lying on the table, head towards the demonstrator; (x, y) = handle end."""
+        a = ob.whisk_rest_tilt()
+        r = Rotation.from_euler("z", yaw) * Rotation.from_euler("x", math.pi / 2 - a)
+        rh = ob.WHISK["handle_r"]
+        return make_pose(r, np.array([x, y, rh]) - r.apply([0, 0, rh]))
+
+    def _sample_poses(self, rng):
+        return np.stack([self.whisk_rest_pose(rng.uniform(-0.27, -0.16), rng.uniform(0.32, 0.42), rng.uniform(-0.35, 0.35)),
+                         object_pose(rng.uniform(0.04, 0.14), rng.uniform(0.25, 0.38), rng.uniform(-np.pi, np.pi))])
+
+    def head_local_in_bowl(self, W, B):
+        return local_point(B, W[:3, :3] @ [0, 0, self.W["head_z"]] + W[:3, 3])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        W0, B0 = poses
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        bw = self.BW
+        # right hand pinches the rim on the bowl's right-front, thumb outside
+        ang = math.radians(st.u(-50, -20))
+        Rz = Rotation.from_euler("z", math.atan2(B0[1, 0], B0[0, 0]))
+        radial = Rz.apply([math.cos(ang), math.sin(ang), 0])
+        p = B0[:3, 3] + radial * (bw["r_top"] + 0.0015) + [0, 0, bw["h"] - 0.008]
+        gB = top_pinch(p, -radial)
+        lift = st.u(0.003, 0.008)
+        finish_holder = holder_script(R, gB, 1, self.objects[1].grasp_width, st, lift)
+        ready = R.now
+        B_task = translated(B0, [0, 0, lift])
+
+        wW = self.objects[0].grasp_width
+        hp = W0 @ np.array([0, 0, self.HANDLE_GRASP, 1.0])
+        perp = W0[:3, 0]
+        gW = top_pinch(hp[:3], -perp)
+        grasp_sequence(L, gW, 0, wW, st, back=0.07, up=0.0)
+        rel = inv_pose(gW) @ W0
+        W_up = translated(W0, [0, 0, st.u(0.05, 0.08)])
+        L.move(st.d(0.6), pinch_for(W_up, rel), None, "skill", 0)
+        L.until(ready, "skill", 0)
+        # turn the whisk head-down (minimal rotation of its axis onto -z)
+        u = W0[:3, 2]
+        axis = unit(np.cross(u, [0, 0, -1.0]))
+        turn = Rotation.from_rotvec(axis * math.acos(np.clip(-u[2], -1, 1)))
+        R_vert = (turn * Rotation.from_matrix(W0[:3, :3])).as_matrix()
+        c = B_task[:3, 3]
+        head_z = c[2] + st.u(0.03, 0.04)
+        rc = st.u(0.025, 0.035)
+        phi0 = st.u(0, 2 * math.pi)
+        sgn = 1 if rng.random() < 0.5 else -1
+
+        def whisk_with_head_at(pt, rot=R_vert):
+            return make_pose(rot, pt - rot @ [0, 0, self.W["head_z"]])
+
+        start = c + [rc * math.cos(phi0), rc * math.sin(phi0), head_z - c[2]]
+        above = start + [0, 0, bw["h"] + 0.05 - (head_z - c[2]) + self.W["head_r"]]
+        mid_rot = (Rotation.from_rotvec(axis * 0.5 * math.acos(np.clip(-u[2], -1, 1))) * Rotation.from_matrix(W0[:3, :3])).as_matrix()
+        mid_head = 0.5 * (W_up[:3, :3] @ [0, 0, self.W["head_z"]] + W_up[:3, 3]) + 0.5 * above + [0, 0, 0.08]
+        L.move(st.d(0.8), pinch_for(whisk_with_head_at(mid_head, mid_rot), rel), None, "motion", 1)
+        L.move(st.d(0.8), pinch_for(whisk_with_head_at(above), rel), None, "motion", 1)
+        L.move(st.d(0.7), pinch_for(whisk_with_head_at(start), rel), None, "skill", 1)
+        n_circ = 2
+        per = st.d(1.3)
+        if fault == "no_circle":
+            L.hold(n_circ * per, "skill", 1)
+        else:
+            steps = 12 * n_circ
+            for k in range(1, steps + 1):
+                ph = phi0 + sgn * 2 * math.pi * k / 12
+                pt = c + [rc * math.cos(ph), rc * math.sin(ph), head_z - c[2]]
+                L.move(per / 12, pinch_for(whisk_with_head_at(pt), rel), None, "skill", 1)
+        L.move(st.d(0.7), pinch_for(whisk_with_head_at(above), rel), None, "skill", 1)
+        t_done = L.now
+        place = translated(W0, [0, 0, 0.004])
+        L.move(st.d(1.5), pinch_for(translated(place, [0, 0, st.u(0.05, 0.08)]), rel), None, "motion", 0)
+        L.move(st.d(0.6), pinch_for(place, rel), None, "skill", 0)
+        release_sequence(L, 0, wW, st, arm=0, retreat=UP * 0.07)
+        finish_holder(t_done + 0.2)
+        return L, R
+
+    def success(self, model, data, history):
+        bw = self.BW
+        sweep, best, prev = 0.0, 0.0, None
+        for W, B in zip(history[:, 0], history[:, 1]):
+            p = self.head_local_in_bowl(W, B)
+            r_in = bw["r_bot"] + p[2] * (bw["r_top"] - bw["r_bot"]) / bw["h"]
+            inside = 0.0 < p[2] < bw["h"] and math.hypot(p[0], p[1]) < r_in
+            if inside and math.hypot(p[0], p[1]) > 0.005:
+                ang = math.atan2(p[1], p[0])
+                if prev is not None:
+                    sweep += (ang - prev + math.pi) % (2 * math.pi) - math.pi
+                    best = max(best, abs(sweep))
+                prev = ang
+            else:
+                sweep, prev = 0.0, None
+        tilt = max(_tilt_deg(B) for B in history[:, 1])
+        ok = best >= 2 * math.pi - 1e-6 and tilt < 25
+        return ok, f"whisk head circled {math.degrees(best):.0f} deg inside the bowl; max bowl tilt {tilt:.0f} deg"
+
+
+# ============================================================ open container
+class OpenContainer(Task):
+    name = "open_container"
+    faults = ("no_lift",)
+    CT, LD = ob.CONTAINER, ob.LID
+    objects = (
+        TaskObject("lid", "manipulated", 2 * ob.LID["knob"][1], _kp(
+            ("lid_center", (0, 0, ob.LID["t"] / 2)), ("lid_knob", (0, 0, ob.LID["t"] + 2 * ob.LID["knob"][2])),
+            ("lid_front", (0, -ob.LID["hy"], ob.LID["t"] / 2)), ("lid_left", (-ob.LID["hx"], 0, ob.LID["t"] / 2)),
+            ("lid_right", (ob.LID["hx"], 0, ob.LID["t"] / 2))), ob.lid),
+        TaskObject("container", "receiving", 2 * ob.CONTAINER["hy"], _kp(
+            ("container_base", (0, 0, 0)), ("container_center", (0, 0, ob.CONTAINER["h"] / 2)),
+            ("container_front_left", (-ob.CONTAINER["hx"], -ob.CONTAINER["hy"], ob.CONTAINER["h"])),
+            ("container_front_right", (ob.CONTAINER["hx"], -ob.CONTAINER["hy"], ob.CONTAINER["h"])),
+            ("container_back_left", (-ob.CONTAINER["hx"], ob.CONTAINER["hy"], ob.CONTAINER["h"])),
+            ("container_back_right", (ob.CONTAINER["hx"], ob.CONTAINER["hy"], ob.CONTAINER["h"]))), ob.container),
+    )
+
+    def _sample_poses(self, rng):
+        C = object_pose(rng.uniform(-0.02, 0.09), rng.uniform(0.25, 0.38), rng.uniform(-0.3, 0.3))
+        return np.stack([translated(C, [0, 0, self.CT["h"]]), C])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        L0, C0 = poses
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        p = C0 @ np.array([self.CT["hx"] - st.u(0.02, 0.035), 0, st.u(0.035, 0.05), 1.0])
+        gC = side_pinch(p[:3], -C0[:2, 0], 1, st.u(0.0, 0.25))
+        finish_holder = holder_script(R, gC, 1, self.objects[1].grasp_width, st, st.u(0.002, 0.005))
+        ready = R.now
+        wL = self.objects[0].grasp_width
+        k = L0 @ np.array([0, 0, self.LD["t"] + self.LD["knob"][2], 1.0])
+        gL = top_pinch(k[:3], L0[:3, 1])
+        grasp_sequence(L, gL, 0, wL, st, back=0.08, up=0.0)
+        rel = inv_pose(gL) @ L0
+        L.until(ready, "skill", 0)
+        if fault == "no_lift":
+            L.hold(st.d(1.0), "skill", 0)
+            release_sequence(L, 0, wL, st, arm=0, retreat=UP * 0.08)
+        else:
+            up = translated(L0, [0, 0, st.u(0.07, 0.10)])
+            L.move(st.d(0.8), pinch_for(up, rel), None, "skill", 0)
+            yaw = math.atan2(C0[1, 0], C0[0, 0])
+            target_xy = C0[:3, 3] + Rotation.from_euler("z", yaw).apply([-st.u(0.2, 0.23), -st.u(0.0, 0.05), 0])
+            target = object_pose(target_xy[0], target_xy[1], yaw + st.u(-0.3, 0.3), z=self.LD["skirt"] + 0.004)
+            L.move(st.d(1.2), pinch_for(translated(target, [0, 0, st.u(0.05, 0.08)]), rel), None, "motion", 1)
+            L.move(st.d(0.6), pinch_for(target, rel), None, "skill", 1)
+            release_sequence(L, 1, wL, st, arm=0, retreat=UP * 0.08)
+        finish_holder(L.now - st.d(1.0))
+        return L, R
+
+    def success(self, model, data, history):
+        p = local_point(history[-1, 1], history[-1, 0][:3, 3])
+        mx = self.CT["hx"] + self.LD["hx"] + 0.01
+        my = self.CT["hy"] + self.LD["hy"] + 0.01
+        ok = abs(p[0]) > mx or abs(p[1]) > my
+        return ok, f"lid centre in container frame ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}); off if |x|>{mx:.3f} or |y|>{my:.3f}"
+
+
+# ============================================================ empty vase
+class EmptyVase(Task):
+    name = "empty_vase"
+    faults = ("no_pull",)
+    V, F = ob.VASE, ob.FLOWERS
+    objects = (
+        TaskObject("flowers", "manipulated", 0.03, _kp(
+            ("flowers_base", (0, 0, 0)), ("flowers_stem", (0, 0, 0.15)), ("flowers_top", (0, 0, ob.FLOWERS["top"])),
+            ("blossom_left", (-ob.FLOWERS["side"], 0, ob.FLOWERS["side_top"])),
+            ("blossom_right", (ob.FLOWERS["side"], 0, ob.FLOWERS["side_top"]))), ob.flowers),
+        TaskObject("vase", "receiving", 2 * ob.VASE["R"], _kp(
+            ("vase_base", (0, 0, 0)), ("vase_center", (0, 0, ob.VASE["h"] / 2)),
+            *_rim4("vase", ob.VASE["R"], ob.VASE["h"])), ob.vase),
+    )
+    STEM_GRASP = 0.21
+
+    def _sample_poses(self, rng):
+        V = object_pose(rng.uniform(0.0, 0.1), rng.uniform(0.26, 0.38), rng.uniform(-np.pi, np.pi))
+        F = translated(object_pose(V[0, 3], V[1, 3], rng.uniform(-0.4, 0.4)), [0, 0, 0.008])
+        return np.stack([F, V])
+
+    def _script(self, rng, poses, fault):
+        st = Style(rng)
+        F0, V0 = poses
+        L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
+        gV = side_pinch(V0[:3, 3] + [0, 0, st.u(0.07, 0.1)], approach_dir(1, V0[:3, 3], st), 1, st.u(0.0, 0.2))
+        finish_holder = holder_script(R, gV, 1, self.objects[1].grasp_width, st, st.u(0.002, 0.005))
+        ready = R.now
+        wF = self.objects[0].grasp_width
+        gF = side_pinch((F0 @ np.array([0, 0, self.STEM_GRASP + st.u(-0.01, 0.01), 1.0]))[:3],
+                        approach_dir(0, F0[:3, 3], st), 0, st.u(0.0, 0.25))
+        grasp_sequence(L, gF, 0, wF, st)
+        rel = inv_pose(gF) @ F0
+        L.until(ready, "skill", 0)
+        if fault == "no_pull":
+            L.hold(st.d(1.0), "skill", 1)
+            release_sequence(L, 1, wF, st, arm=0)
+        else:
+            up = translated(F0, [0, 0, self.V["h"] + st.u(0.05, 0.07)])
+            L.move(st.d(1.2), pinch_for(up, rel), None, "skill", 1)
+            side = translated(up, [-st.u(0.28, 0.32), st.u(-0.03, 0.03), 0.02])
+            L.move(st.d(1.0), pinch_for(side, rel), None, "motion", 1)
+            lay_rot = Rotation.from_euler("y", -math.pi / 2) * Rotation.from_matrix(F0[:3, :3])
+            base = np.array([V0[0, 3] - st.u(0.09, 0.11), side[1, 3], 0.062])
+            mid_rot = Rotation.from_euler("y", -math.pi / 4) * Rotation.from_matrix(F0[:3, :3])
+            L.move(st.d(0.6), pinch_for(make_pose(mid_rot, 0.5 * (side[:3, 3] + base) + [0, 0, 0.1]), rel),
+                   None, "motion", 1)
+            L.move(st.d(0.7), pinch_for(make_pose(lay_rot, base + [0, 0, 0.02]), rel), None, "motion", 1)
+            L.move(st.d(0.5), pinch_for(make_pose(lay_rot, base), rel), None, "skill", 1)
+            release_sequence(L, 1, wF, st, arm=0, retreat=UP * 0.08)
+        finish_holder(L.now - st.d(1.0))
+        return L, R
+
+    def success(self, model, data, history):
+        F, V = history[-1, 0], history[-1, 1]
+        pts = [local_point(V, F[:3, :3] @ [0, 0, z] + F[:3, 3]) for z in (0.0, 0.1)]
+        out = all(math.hypot(p[0], p[1]) > self.V["R"] + 0.005 or p[2] > self.V["h"] + 0.005 for p in pts)
+        p = pts[0]
+        return out, f"flower base in vase frame ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}); out of the vase: {out}"
+
+
+TASKS = {cls.name: cls() for cls in (Pouring, TrashInBin, PaperInCase, MixBowl, OpenContainer, EmptyVase)}
