@@ -5,10 +5,8 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
-export PREFECT_LOGGING_LEVEL ?= WARNING
-export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
 
-.PHONY: setup test evaluate bench catalog clean-warehouse help
+.PHONY: setup test evaluate bench catalog help
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'

@@ -37,18 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_JOINTS = 21
-FINGER_NAMES = ("thumb", "index", "middle", "ring", "pinky")
-FINGER_JOINTS = ((1, 2, 3, 4), (5, 6, 7, 8), (9, 10, 11, 12), (13, 14, 15, 16), (17, 18, 19, 20))
+from lib.joints import FINGER_JOINTS, FINGER_NAMES, HAND_CONNECTIONS, N_JOINTS
 
 #: Skeleton edges (parent, child): MediaPipe's HAND_CONNECTIONS.
-HAND_BONES: list[tuple[int, int]] = [
-    (0, 1), (1, 2), (2, 3), (3, 4),
-    (0, 5), (5, 6), (6, 7), (7, 8),
-    (5, 9), (9, 10), (10, 11), (11, 12),
-    (9, 13), (13, 14), (14, 15), (15, 16),
-    (13, 17), (0, 17), (17, 18), (18, 19), (19, 20),
-]
+HAND_BONES: list[tuple[int, int]] = list(HAND_CONNECTIONS)
 
 # --- geometry of the right hand at scale 1, hand-local frame (m) ---------------------------------
 _THUMB_CMC = np.array([0.033, 0.022, -0.014])

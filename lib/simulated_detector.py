@@ -110,10 +110,7 @@ __all__ = [
 #: Label that every table row produced from these outputs must carry in its ``detector`` column.
 DETECTOR_NAME = "simulated"
 
-N_JOINTS = 21
-
-#: Parent of each joint in the MediaPipe hand tree (-1 for the wrist).
-PARENTS = np.array([-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 0, 13, 14, 15, 0, 17, 18, 19])
+from lib.joints import N_JOINTS, PARENTS  # noqa: E402  (re-exported)
 
 
 def _ancestor_matrix() -> np.ndarray:

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# Parent of each of the 21 joints in the fixed (MediaPipe) order; the wrist has none.
-HAND_PARENTS = (-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 0, 13, 14, 15, 0, 17, 18, 19)
-HAND_BONES = tuple((p, c) for c, p in enumerate(HAND_PARENTS) if p >= 0)
+from lib.joints import HAND_CONNECTIONS
+
 # One colour per finger (thumb, index, middle, ring, pinky), RGB.
 FINGER_COLOURS = ((230, 60, 60), (240, 170, 30), (60, 190, 60), (40, 140, 230), (170, 70, 220))
 HAND_COLOURS = {"left": (40, 200, 255), "right": (255, 120, 40)}
@@ -26,7 +25,7 @@ def draw_hand(rgb: np.ndarray, joints_px: np.ndarray, visible: np.ndarray | None
     if not np.isfinite(pts).all():
         return out
     vis = np.ones(21, bool) if visible is None else np.asarray(visible, bool)
-    for parent, child in HAND_BONES:
+    for parent, child in HAND_CONNECTIONS:
         colour = FINGER_COLOURS[_finger_of(child)]
         p0 = tuple(int(round(v)) for v in pts[parent])
         p1 = tuple(int(round(v)) for v in pts[child])

@@ -1,13 +1,11 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
-import os
 from pathlib import Path
 
 import pytest
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+import lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
+import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
