@@ -175,15 +175,20 @@ def paper_ball(pose):
     return body_xml("paper_ball", pose, g.xml(BALL["mass"]))
 
 
-def case(pose):
-    g = GeomSet("case", "0.15 0.2 0.6 1")
-    c = CASE
-    hx, hy, t, h = c["hx"], c["hy"], c["t"], c["h"]
+def _open_box(g, hx, hy, t, h):
+    """A bottom plate and four thin walls: an open box of half-extents hx, hy, wall t, height h."""
     g.box([0, 0, t / 2], [hx, hy, t / 2])
     for sx in (1, -1):
         g.box([sx * (hx - t / 2), 0, h / 2], [t / 2, hy, h / 2], wall=True)
     for sy in (1, -1):
         g.box([0, sy * (hy - t / 2), h / 2], [hx - t, t / 2, h / 2], wall=True)
+
+
+def case(pose):
+    g = GeomSet("case", "0.15 0.2 0.6 1")
+    c = CASE
+    hx, hy, t, h = c["hx"], c["hy"], c["t"], c["h"]
+    _open_box(g, hx, hy, t, h)
     # open lid hinged at the back top edge, leaning back by lid_angle from the closed position
     ang = c["lid_angle"]
     d = np.array([0.0, math.cos(math.pi - ang), math.sin(math.pi - ang)])  # direction away from the hinge
@@ -228,11 +233,7 @@ def container(pose):
     g = GeomSet("container", "0.85 0.85 0.3 1")
     c = CONTAINER
     hx, hy, t, h = c["hx"], c["hy"], c["t"], c["h"]
-    g.box([0, 0, t / 2], [hx, hy, t / 2])
-    for sx in (1, -1):
-        g.box([sx * (hx - t / 2), 0, h / 2], [t / 2, hy, h / 2], wall=True)
-    for sy in (1, -1):
-        g.box([0, sy * (hy - t / 2), h / 2], [hx - t, t / 2, h / 2], wall=True)
+    _open_box(g, hx, hy, t, h)
     return body_xml("container", pose, g.xml(c["mass"]))
 
 
