@@ -28,7 +28,11 @@ def _replace_dir(tmp: Path, final: Path) -> None:
         shutil.rmtree(trash)
 
 
-@stage_task(name="synthesize_take", version="1")
+from lib.synth.take import GENERATOR_VERSION  # noqa: E402
+from lib.task_library import TASK_LIBRARY_VERSION  # noqa: E402
+
+
+@stage_task(name="synthesize_take", version=f"1/gen{GENERATOR_VERSION}/tasks{TASK_LIBRARY_VERSION}")
 def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehouse: str,
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
                     show_progress: bool = True) -> Manifest:

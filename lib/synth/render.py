@@ -252,6 +252,9 @@ class SceneRenderer:
 
         self._renderer = mujoco.Renderer(self.model, height=height, width=width)
         self._option = mujoco.MjvOption()
+        from lib.task_library.objects import SIM_ONLY_GROUP
+
+        self._option.geomgroup[SIM_ONLY_GROUP] = 0  # the un-simulated liquid is not drawn
         scn = self._renderer.scene
         scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False

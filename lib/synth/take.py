@@ -58,7 +58,7 @@ from lib.synth.render import (
 from schemas.core import write_table_file
 
 GENERATOR = "demoforge.synth"
-GENERATOR_VERSION = "1.0.0"
+GENERATOR_VERSION = "1.1.0"
 PROVENANCE = "ground truth (synthetic)"
 SIDES = ("left", "right")
 PNG_COMPRESSION = 1

@@ -11,6 +11,9 @@ See base.py for conventions (frames, mirroring) and tasks.py for the tasks.
 from .base import Demo, Placement, ReplayResult, Segment, Task, TaskObject
 from .tasks import TASKS
 
+#: Bump when scenes, scripts or predicates change: it is part of every dependent stage's cache key.
+TASK_LIBRARY_VERSION = "1.1.0"
+
 TASK_NAMES = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 
 

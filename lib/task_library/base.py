@@ -344,7 +344,7 @@ class Task:
 <asset>
 <texture name="floor_tex" type="2d" builtin="checker" rgb1="0.55 0.55 0.55" rgb2="0.45 0.45 0.45" width="256" height="256"/>
 <material name="floor_mat" texture="floor_tex" texrepeat="8 8"/>
-<material name="table_mat" rgba="0.62 0.48 0.33 1"/>
+<material name="table_mat" rgba="0.42 0.46 0.50 1"/>
 {extra_assets}
 </asset>
 <worldbody>

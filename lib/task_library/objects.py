@@ -127,6 +127,11 @@ def bottle(pose):
     return body_xml("bottle", pose, g.xml(b["mass"]))
 
 
+#: Geom group of simulation-only geoms (the liquid): the kinematic renders of a take do not simulate
+#: them, so the renderer hides this group instead of drawing spheres where the scene file put them.
+SIM_ONLY_GROUP = 3
+
+
 def liquid(bottle_pose):
     """Small spheres stacked inside the bottle (layers of 4)."""
     out = []
@@ -137,7 +142,7 @@ def liquid(bottle_pose):
         p_local = np.array([0.014 * math.cos(ang), 0.014 * math.sin(ang), 0.008 + lq["r"] + 0.001 + layer * 0.0145])
         pose = np.eye(4)
         pose[:3, 3] = bottle_pose[:3, :3] @ p_local + bottle_pose[:3, 3]
-        g = GeomSet(f"liquid_{i}", "0.2 0.4 1 1", friction="0.3 0.005 0.0001")
+        g = GeomSet(f"liquid_{i}", "0.2 0.4 1 1", friction="0.3 0.005 0.0001", extra=f'group="{SIM_ONLY_GROUP}"')
         g.sphere([0, 0, 0], lq["r"])
         out.append(body_xml(f"liquid_{i}", pose, g.xml(lq["mass"])))
     return "\n".join(out)
