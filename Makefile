@@ -13,7 +13,8 @@ help:  ## list the targets
 
 setup: $(STAMP)  ## create .venv and install pinned dependencies (fast when nothing changed)
 
-$(STAMP): pyproject.toml requirements/lock.txt requirements/torch.txt scripts/setup.sh
+$(STAMP): pyproject.toml requirements/lock.txt requirements/torch.txt requirements/mediapipe.txt \
+          scripts/setup.sh scripts/fetch_mediapipe_model.py
 	bash scripts/setup.sh
 	@touch $@
 

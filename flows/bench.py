@@ -154,6 +154,48 @@ def _geometry_cases(quick: bool) -> list[BenchCase]:
     ]
 
 
+@register("synth")
+def _synth_cases(quick: bool) -> list[BenchCase]:
+    frames = 10 if quick else 40
+
+    def setup(n: int):
+        import mujoco
+
+        from lib.hand_model import hand_from_pinch
+        from lib.synth.render import SceneRenderer, extra_worldbody_xml, hands_assets_xml
+        from lib.synth.take import hand_styles_for
+        from lib.task_library import get_task
+
+        task = get_task("pouring")
+        demo = task.scripted_demo(0)
+        styles = hand_styles_for(0)
+        xml = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles),
+                             extra_assets=hands_assets_xml())
+        idx = np.linspace(0, demo.n_frames - 1, n).astype(int)
+        joints = np.stack([hand_from_pinch(demo.pinch_poses[idx, h], demo.aperture[idx, h],
+                                           ("left", "right")[h], styles[h])[0] for h in range(2)], 1)
+        ours = SceneRenderer(xml, task.object_names, styles)
+        naive = SceneRenderer(xml, task.object_names, styles, multisamples=4)
+        scn = naive._renderer.scene
+        scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = True
+        scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = True
+        scn.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = True
+
+        def run(renderer):
+            def go():
+                depth_sum = 0.0
+                for k, i in enumerate(idx):
+                    renderer.set_state(demo.object_poses[i], joints[k])
+                    depth_sum += float(renderer.render().depth.sum())
+                return depth_sum
+            return go
+
+        return run(ours), run(naive)
+
+    return [BenchCase("synth", "render RGB-D 640x480 (pouring scene)", frames, "frames",
+                      "MuJoCo defaults: shadows, reflections, skybox, 4x multisampling", setup, repeats=1)]
+
+
 @flow(name="benchmarks", log_prints=True)
 def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: bool = False) -> list[dict]:
     """Run the benchmark cases of the given stages (all by default) and append them to `benchmarks`."""

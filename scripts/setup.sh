@@ -32,6 +32,12 @@ if ! "$VENV/bin/python" -c "import torch, sys; sys.exit(0 if torch.__version__.s
 fi
 say "installing pinned dependencies"
 $PIP install -q -r requirements/lock.txt
+# mediapipe 1.2.2 without its declared deps: they would replace opencv-python-headless with
+# opencv-contrib-python (same cv2 module) and add audio packages; its hand model is built from the
+# 0.10.21 wheel's tflite files (idempotent; see scripts/fetch_mediapipe_model.py).
+say "installing mediapipe (no deps) and its hand landmarker model"
+$PIP install -q --no-deps -r requirements/mediapipe.txt
+"$VENV/bin/python" scripts/fetch_mediapipe_model.py
 say "installing demoforge (editable)"
 $PIP install -q --no-deps --no-build-isolation -e .
 "$VENV/bin/python" -c "import open3d, mujoco, prefect, duckdb, torch; print('[setup] ok: prefect', prefect.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"
