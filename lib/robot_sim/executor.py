@@ -1,0 +1,393 @@
+"""Execute (n, 2, 8) gripper action sequences with the two physical grippers in MuJoCo.
+
+    from lib.robot_sim import execute, execute_many, SimOptions
+    r = execute("pouring", demo.placement.object_poses, demo.gripper_actions())
+    r.success, r.failure, r.detail
+
+Pipeline per episode: validate actions -> object poses (given, or estimated from the 11 object
+keypoints by Kabsch against the task's local keypoints) -> reset the cached model's MjData ->
+pre-roll (`preroll_s`, grippers held at the first pose, objects settle) -> for each action frame,
+`ctrl_per_frame` control steps: mocap targets interpolated (positions linear or cubic, rotations
+slerp: lib.geometry.interpolate_poses), finger commands rate-limited to the gripper's speed, physics
+substeps, contacts summarised (which finger touches which object, gripper-gripper, gripper-table
+normal force) -> `settle_s` more seconds holding the last pose -> task predicate on the final state
+and the per-frame object history -> failure classification (failures.py).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+import lib  # noqa: F401
+from lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
+
+from .failures import FAILURES, classify
+from .gripper import GripperSpec
+from .scene import CODE_GRIPPER, CODE_OBJECT, CODE_TABLE, PhysicsOptions, SimScene, get_scene
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    gripper: GripperSpec = GripperSpec()
+    physics: PhysicsOptions = PhysicsOptions()
+    ctrl_per_frame: int = 4  # control (mocap / finger command) updates per action frame: 120 Hz at 30 fps
+    position_interp: str = "linear"  # "linear" | "cubic"
+    preroll_s: float = 0.3
+    settle_s: float = 0.8  # after the last action, like Task.replay
+    quat_tol: float = 1e-2  # | |q| - 1 | beyond this is an invalid action
+    workspace_margin: float = 0.05  # m around task.workspace
+    table_force_limit: float = 15.0  # N gripper-table normal force -> "table_collision"
+    keep_trajectory: bool = True  # keep per-frame arrays in SimResult
+
+
+@dataclass
+class SimResult:
+    task: str
+    success: bool
+    failure: str | None  # None on success, else one of failures.FAILURES
+    detail: str
+    predicate_ok: bool | None
+    predicate_detail: str
+    duration_s: float  # simulated seconds (pre-roll + actions + settle)
+    physics_steps: int
+    wall_s: float
+    n_frames: int
+    events: list = field(default_factory=list)  # [(time_s, failure, detail)] all detected, earliest first
+    # per recorded frame (action frames + settle frames), when keep_trajectory:
+    gripper_poses: np.ndarray | None = None  # (T, 2, 8) actual pinch pose [x y z qx qy qz qw width_m]
+    object_poses: np.ndarray | None = None  # (T, n_obj, 4, 4)
+    touch: np.ndarray | None = None  # (T, 2 arms, 3 parts (left finger, right finger, palm), n_obj) bool
+    arm_contact: np.ndarray | None = None  # (T,) bool
+    table_force: np.ndarray | None = None  # (T, 2) max gripper-table normal force, N
+    command_g: np.ndarray | None = None  # (T, 2) commanded g per frame
+
+    def row(self) -> dict:
+        """Flat summary (no arrays), e.g. for a table."""
+        return {"task": self.task, "success": self.success, "failure": self.failure, "detail": self.detail,
+                "predicate_ok": self.predicate_ok, "predicate_detail": self.predicate_detail,
+                "duration_s": self.duration_s, "physics_steps": self.physics_steps, "wall_s": self.wall_s,
+                "n_frames": self.n_frames}
+
+    def strip(self) -> "SimResult":
+        return replace(self, gripper_poses=None, object_poses=None, touch=None, arm_contact=None,
+                       table_force=None, command_g=None)
+
+
+# ------------------------------------------------------------------ validation and inputs
+def validate_actions(actions, quat_tol: float = 1e-2) -> str | None:
+    """None if valid, else a human-readable reason."""
+    try:
+        a = np.asarray(actions, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        return f"actions not numeric: {e}"
+    if a.ndim != 3 or a.shape[1:] != (2, 8):
+        return f"actions must have shape (n, 2, 8), got {a.shape}"
+    if a.shape[0] < 1:
+        return "empty action sequence"
+    bad = ~np.isfinite(a)
+    if bad.any():
+        t, arm, c = np.argwhere(bad)[0]
+        return f"non-finite value in {int(bad.sum())} entries (first: step {t}, arm {arm}, column {c})"
+    n = np.linalg.norm(a[..., 3:7], axis=-1)
+    off = np.abs(n - 1.0)
+    if (off > quat_tol).any():
+        t, arm = np.argwhere(off > quat_tol)[0]
+        return (f"non-unit quaternion in {int((off > quat_tol).sum())} poses (first: step {t}, arm {arm}, "
+                f"|q| = {n[t, arm]:.4f}, tolerance {quat_tol})")
+    g = a[..., 7]
+    if ((g < -0.01) | (g > 1.01)).any():
+        return f"gripper state g outside [0, 1] (min {g.min():.3f}, max {g.max():.3f})"
+    return None
+
+
+def object_poses_from_keypoints(task, keypoints: np.ndarray) -> np.ndarray:
+    """(n_obj, 4, 4) object poses from the task's (k, 3) world keypoints (Kabsch, no scale)."""
+    kp = np.asarray(keypoints, float)
+    local = task.keypoints_local
+    owner = task.keypoint_object
+    out = np.tile(np.eye(4), (len(task.objects), 1, 1))
+    for k in range(len(task.objects)):
+        idx = owner == k
+        _, R, t = umeyama(local[idx], kp[idx], with_scale=False)
+        out[k, :3, :3] = R
+        out[k, :3, 3] = t
+    return out
+
+
+def as_object_poses(task, poses_or_keypoints) -> np.ndarray:
+    x = np.asarray(poses_or_keypoints, float)
+    n_obj = len(task.objects)
+    if x.shape == (n_obj, 4, 4):
+        return x
+    if x.shape == (len(task.keypoint_names), 3):
+        return object_poses_from_keypoints(task, x)
+    raise ValueError(f"expected object poses ({n_obj}, 4, 4) or keypoints ({len(task.keypoint_names)}, 3), "
+                     f"got {x.shape}")
+
+
+def _invalid(task_name: str, detail: str, t0: float) -> SimResult:
+    return SimResult(task_name, False, "invalid_action", detail, None, "", 0.0, 0, time.perf_counter() - t0, 0,
+                     events=[(0.0, "invalid_action", detail)])
+
+
+# ------------------------------------------------------------------ finger command (the g mapping)
+class _FingerCommand:
+    """Aperture command per arm from the binary g (documented mapping, gripper.py):
+    closed (g < 0.5) -> -squeeze (force-limited squeeze); open -> `opening`, except that a release
+    (closed -> open) opens only to the measured held width + release_margin until the pinch target
+    has moved reopen_distance away (so releasing near the table does not ram a finger into it);
+    the command moves at most `speed` m/s (the gripper's closing speed)."""
+
+    def __init__(self, spec: GripperSpec, closed0: np.ndarray, dt_ctrl: float):
+        self.spec = spec
+        self.w = np.where(closed0, 0.0, spec.opening).astype(float)
+        self.closed = np.asarray(closed0, bool).copy()
+        self.goal_open = np.full(2, spec.opening)
+        self.release_pos: list = [None, None]
+        self.wmax = spec.speed * dt_ctrl
+
+    def update(self, closed: np.ndarray, target_pos: np.ndarray, finger_q: np.ndarray) -> np.ndarray:
+        sp = self.spec
+        for a in range(2):
+            if closed[a]:
+                goal = -sp.squeeze
+                self.release_pos[a] = None
+                self.goal_open[a] = sp.opening
+            else:
+                if self.closed[a]:  # release now
+                    width = max(sp.stroke - float(finger_q[a, 0] + finger_q[a, 1]), 0.0)
+                    self.goal_open[a] = min(sp.opening, width + sp.release_margin)
+                    self.release_pos[a] = np.array(target_pos[a], float)
+                rp = self.release_pos[a]
+                if rp is not None and np.linalg.norm(target_pos[a] - rp) > sp.reopen_distance:
+                    self.goal_open[a] = sp.opening
+                    self.release_pos[a] = None
+                goal = self.goal_open[a]
+            self.closed[a] = closed[a]
+            self.w[a] += min(max(goal - self.w[a], -self.wmax), self.wmax)
+        return sp.stroke - self.w
+
+
+# ------------------------------------------------------------------ one episode
+def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
+            options: SimOptions | None = None) -> SimResult:
+    """Run one episode; never raises for bad actions or object input (-> failure "invalid_action")."""
+    t_wall = time.perf_counter()
+    opt = options or SimOptions()
+    reason = validate_actions(actions, opt.quat_tol)
+    if reason is None and not (np.isfinite(fps) and fps > 0):
+        reason = f"fps must be positive, got {fps}"
+    sc = get_scene(task_name, opt.gripper, opt.physics)
+    if reason is None:
+        try:
+            obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
+            if not np.isfinite(obj0).all():
+                raise ValueError("object poses contain non-finite values")
+        except ValueError as e:
+            reason = f"bad object input: {e}"
+    if reason is not None:
+        return _invalid(task_name, reason, t_wall)
+    return _run(sc, obj0, np.asarray(actions, float), float(fps), opt, t_wall)
+
+
+def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float) -> SimResult:
+    mj, m, d = sc.mj, sc.model, sc.data
+    spec = sc.spec
+    n = actions.shape[0]
+    steps_per_frame = max(1, int(round(1.0 / (fps * opt.physics.timestep))))
+    m.opt.timestep = 1.0 / (fps * steps_per_frame)
+    cpf = max(1, min(opt.ctrl_per_frame, steps_per_frame))
+    sub = np.diff(np.round(np.linspace(0, steps_per_frame, cpf + 1)).astype(int))
+    dt_ctrl = 1.0 / (fps * cpf)
+
+    # ---- targets at control rate
+    pos = actions[..., :3]
+    quat = actions[..., 3:7] / np.linalg.norm(actions[..., 3:7], axis=-1, keepdims=True)
+    closed_cmd = actions[..., 7] < 0.5  # (n, 2)
+    lead = int(round(spec.close_lead_s * fps))
+    if lead > 0 and n > 1:  # issue each close `lead` frames early (gripper.py, mapping)
+        early = closed_cmd.copy()
+        for a in range(2):
+            onsets = np.flatnonzero(closed_cmd[1:, a] & ~closed_cmd[:-1, a]) + 1
+            for o in onsets:
+                early[max(0, o - lead):o, a] = True
+        closed_cmd = early
+    K = (n - 1) * cpf
+    if n > 1:
+        tq = (np.arange(1, K + 1)) / cpf  # in frames
+        tp, tqu = interpolate_poses(np.arange(n, dtype=float), pos, quat, tq, rotation="slerp",
+                                    position=opt.position_interp)
+    else:
+        tp, tqu = pos[:0], quat[:0]
+    tqu_wxyz = xyzw_to_wxyz(tqu)
+    # finger command: g of the frame being driven to; see _FingerCommand
+    frame_of_ctrl = np.minimum(np.ceil(np.arange(1, K + 1) / cpf).astype(int), n - 1)
+    settle_frames = int(round(opt.settle_s * fps))
+    fc = _FingerCommand(spec, closed_cmd[0], dt_ctrl)
+
+    pose0 = np.concatenate([pos[0], quat[0]], axis=-1)
+    sc.reset(obj0, pose0, np.where(closed_cmd[0], 0.0, spec.opening))
+    steps = 0
+    pre = int(round(opt.preroll_s / m.opt.timestep))
+    if pre:
+        mj.mj_step(m, d, nstep=pre)
+        steps += pre
+
+    T = n + settle_frames
+    n_obj = sc.n_obj
+    hist = np.zeros((T, n_obj, 4, 4))
+    hist[:, :, 3, 3] = 1.0
+    gp = np.zeros((T, 2, 8))
+    touch = np.zeros((T, 2, 3, n_obj), bool)
+    arm_contact = np.zeros(T, bool)
+    table_force = np.zeros((T, 2))
+    code = sc.geom_code
+    obj_body, base_body = sc.obj_body, sc.base_body
+    fq = sc.finger_qadr
+    force6 = np.zeros(6)
+    diag = {"arm_pair": []}
+    mocap = sc.mocap
+    act = sc.act
+
+    hook = _FRAME_HOOK
+
+    def record(i):
+        if hook is not None:
+            hook(d)
+        hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
+        hist[i, :, :3, 3] = d.xpos[obj_body]
+        gp[i, :, :3] = d.xpos[base_body]
+        gp[i, :, 3:7] = d.xquat[base_body][:, [1, 2, 3, 0]]
+        gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
+
+    def contacts(i):
+        nc = d.ncon
+        if nc == 0:
+            return
+        c = code[d.contact.geom[:nc]]  # (nc, 2)
+        c1, c2 = c[:, 0], c[:, 1]
+        g1, g2 = c1 >= CODE_GRIPPER, c2 >= CODE_GRIPPER
+        anyg = g1 | g2
+        if not anyg.any():
+            return
+        both = g1 & g2
+        if both.any() and ((c1[both] // 10) != (c2[both] // 10)).any():
+            if not diag["arm_pair"]:
+                j = np.flatnonzero(both & ((c1 // 10) != (c2 // 10)))[0]
+                diag["arm_pair"] = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in d.contact.geom[j]]
+            arm_contact[i] = True
+        one = anyg & ~both
+        if one.any():
+            gc = np.where(g1, c1, c2)[one]
+            oc = np.where(g1, c2, c1)[one]
+            isobj = (oc >= CODE_OBJECT) & (oc < CODE_GRIPPER)
+            if isobj.any():
+                g_ = gc[isobj] - CODE_GRIPPER
+                touch[i, g_ // 10, g_ % 10, oc[isobj] - CODE_OBJECT] = True
+            ist = oc == CODE_TABLE
+            if ist.any():
+                for ci, arm in zip(np.flatnonzero(one)[ist], (gc[ist] - CODE_GRIPPER) // 10):
+                    mj.mj_contactForce(m, d, int(ci), force6)
+                    table_force[i, arm] = max(table_force[i, arm], abs(force6[0]))
+
+    record(0)
+    k = 0
+    for i in range(1, n):
+        for c in range(cpf):
+            d.mocap_pos[mocap] = tp[k]
+            d.mocap_quat[mocap] = tqu_wxyz[k]
+            d.ctrl[act] = fc.update(closed_cmd[frame_of_ctrl[k]], tp[k], d.qpos[fq])
+            mj.mj_step(m, d, nstep=int(sub[c]))
+            contacts(i)
+            k += 1
+        steps += steps_per_frame
+        record(i)
+    for i in range(n, T):
+        for c in range(cpf):
+            d.ctrl[act] = fc.update(closed_cmd[-1], pos[-1], d.qpos[fq])
+            mj.mj_step(m, d, nstep=int(sub[c]))
+            contacts(i)
+        steps += steps_per_frame
+        record(i)
+
+    ok, pdetail = sc.task.success(m, d, hist)
+    g_cmd = np.concatenate([(~closed_cmd).astype(float), np.repeat((~closed_cmd[-1:]).astype(float), settle_frames, 0)])
+    failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), hist, gp, touch, arm_contact,
+                                       table_force, g_cmd, n, diag)
+    res = SimResult(sc.task.name, failure is None, failure, detail, bool(ok), str(pdetail),
+                    steps * m.opt.timestep, steps, time.perf_counter() - t_wall, n, events,
+                    gp, hist, touch, arm_contact, table_force, g_cmd)
+    return res if opt.keep_trajectory else res.strip()
+
+
+_FRAME_HOOK = None  # render.py: callable(data) per recorded frame
+
+
+# ------------------------------------------------------------------ many episodes
+_WORKER_STATE: dict = {}
+
+
+def _episode_args(ep) -> tuple[Any, Any, float]:
+    if isinstance(ep, dict):
+        objs = ep.get("object_poses")
+        if objs is None:
+            objs = ep.get("keypoints")
+        return objs, ep["actions"], float(ep.get("fps", 30.0))
+    if len(ep) == 3:
+        return ep[0], ep[1], float(ep[2])
+    return ep[0], ep[1], 30.0
+
+
+def _work(job):
+    idx, ep = job
+    task_name, opt = _WORKER_STATE["task"], _WORKER_STATE["opt"]
+    objs, acts, fps = _episode_args(ep)
+    try:
+        return idx, execute(task_name, objs, acts, fps, opt)
+    except Exception as e:  # never lose a batch to one bad episode
+        return idx, SimResult(task_name, False, "invalid_action", f"{type(e).__name__}: {e}", None, "", 0.0, 0,
+                              0.0, 0, events=[(0.0, "invalid_action", str(e))])
+
+
+def _init_worker(task_name, opt):
+    _WORKER_STATE["task"] = task_name
+    _WORKER_STATE["opt"] = opt
+    get_scene(task_name, opt.gripper, opt.physics)  # compile once per process
+
+
+def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
+                 progress: Callable[[int, int], None] | None = None, options: SimOptions | None = None,
+                 keep_trajectory: bool = False, chunksize: int = 4) -> list[SimResult]:
+    """Execute episodes (each a dict {object_poses | keypoints, actions, fps?} or a tuple
+    (object_poses_or_keypoints, actions[, fps])) over `workers` processes, each with its own cached
+    compiled model; results in input order, identical for any worker count.  progress(done, total)
+    is called in the calling process as results arrive."""
+    opt = replace(options or SimOptions(), keep_trajectory=keep_trajectory)
+    jobs = list(enumerate(episodes))
+    total = len(jobs)
+    out: list[SimResult | None] = [None] * total
+    if workers <= 1 or total <= 1:
+        _init_worker(task_name, opt)
+        for done, job in enumerate(jobs, 1):
+            i, r = _work(job)
+            out[i] = r
+            if progress:
+                progress(done, total)
+        return out  # type: ignore[return-value]
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(task_name, opt)) as pool:
+        for done, (i, r) in enumerate(pool.imap_unordered(_work, jobs, chunksize=chunksize), 1):
+            out[i] = r
+            if progress:
+                progress(done, total)
+    return out  # type: ignore[return-value]
+
+
+__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "validate_actions", "as_object_poses",
+           "object_poses_from_keypoints", "FAILURES"]

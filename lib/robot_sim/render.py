@@ -1,0 +1,63 @@
+"""Offscreen MP4 of the grippers executing an episode (mujoco.Renderer, shadows off, cv2 'mp4v')."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+import lib  # noqa: F401  (MUJOCO_GL=egl before mujoco)
+
+from .executor import SimOptions, SimResult, execute
+from .scene import get_scene
+
+
+def render_episode(task_name: str, object_poses, actions, out_mp4, fps: float = 30.0, width: int = 640,
+                   height: int = 480, options: SimOptions | None = None,
+                   camera: dict | None = None) -> SimResult:
+    """Execute the episode, then replay the recorded per-frame state (grippers, fingers, objects,
+    liquid) into the model and render one image per action frame.  Returns the SimResult."""
+    import cv2
+    import mujoco
+
+    opt = options or SimOptions()
+    states, res = _resimulate_states(task_name, object_poses, actions, fps, opt)
+    out_mp4 = Path(out_mp4)
+    out_mp4.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(out_mp4), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
+    if res.failure == "invalid_action" or res.n_frames == 0:
+        frame = np.zeros((height, width, 3), np.uint8)
+        cv2.putText(frame, f"invalid action: {res.detail[:60]}", (10, height // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (255, 255, 255), 1)
+        writer.write(frame)
+        writer.release()
+        return res
+    sc = get_scene(task_name, opt.gripper, opt.physics)
+    m = sc.model
+    d = mujoco.MjData(m)  # separate data: the scene's own data belongs to the executor
+    cam = mujoco.MjvCamera()
+    c = camera or {"lookat": (0.0, 0.25, 0.1), "distance": 1.25, "azimuth": 90.0, "elevation": -35.0}
+    cam.lookat[:] = c["lookat"]
+    cam.distance, cam.azimuth, cam.elevation = c["distance"], c["azimuth"], c["elevation"]
+    with mujoco.Renderer(m, height=height, width=width) as r:
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        for qpos in states:
+            d.qpos[:] = qpos
+            mujoco.mj_forward(m, d)
+            r.update_scene(d, camera=cam)
+            writer.write(cv2.cvtColor(r.render(), cv2.COLOR_RGB2BGR))
+    writer.release()
+    return res
+
+
+def _resimulate_states(task_name, obj0, actions, fps, opt):
+    """(qpos per recorded frame, SimResult): execute with a frame hook."""
+    from . import executor
+
+    states: list[np.ndarray] = []
+    executor._FRAME_HOOK = lambda d: states.append(d.qpos.copy())
+    try:
+        res = execute(task_name, obj0, actions, fps, opt)
+    finally:
+        executor._FRAME_HOOK = None
+    return states, res
