@@ -253,6 +253,93 @@ def evaluate(
     typer.echo(f"report: {report}")
 
 
+@app.command()
+def ingest(
+    path: Path = typer.Argument(..., exists=True, file_okay=False, help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
+    predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
+    task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
+    state_method: str = typer.Option("auto", help="Open/close when the take has no labelled ranges: auto, otsu or threshold."),
+    smoothing: int = typer.Option(0, help="Segment-wise pose smoothing window in frames (0 = off)."),
+) -> None:
+    """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
+
+    Results go to the warehouse tables frames, hand_keypoints, aligned_keypoints, gripper_poses,
+    object_keypoints (and ingest_metrics for synthetic takes, against their ground truth).
+    """
+    from flows.ingest import ingest_take
+    from lib.ingest import TakeError
+
+    options = {}
+    if detector == "precomputed":
+        if predictions is None:
+            raise fail("--detector precomputed needs --predictions FILE")
+        options["path"] = str(predictions)
+    try:
+        result = ingest_take(str(path), str(current_warehouse()), detector=detector, task=task,
+                             detector_options=options, state_method=state_method, smoothing=smoothing)
+    except (TakeError, ValueError) as e:
+        raise fail(str(e))
+    for name, m in result.items():
+        if m is not None:
+            typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
+
+
+@app.command()
+def augment(
+    path: Path = typer.Argument(..., exists=True, file_okay=False, help="Take folder of the demonstration."),
+    task: Optional[str] = typer.Option(None, help="Task of the take (synthetic takes know theirs)."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector used to ingest it."),
+    episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes to generate."),
+    mirrored: int = typer.Option(5_000, help="How many of them are mirrored (arms' roles swapped)."),
+    seed: int = typer.Option(0, help="Sampling seed."),
+    mode: str = typer.Option("object", help="object (timing kept, segments follow their objects) or thesis (the thesis's 3.2 schedule)."),
+    independent: bool = typer.Option(False, help="Place the two objects independently (each arm follows its own)."),
+    yaw: float = typer.Option(0.0, help="Max rotation about the vertical, rad (the thesis translates only: 0)."),
+) -> None:
+    """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3)."""
+    from flows.augment import augment_take_flow
+    from lib.ingest import TakeError
+
+    options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
+    try:
+        result = augment_take_flow(str(path), str(current_warehouse()), task=task, detector=detector,
+                                   n=episodes, n_mirrored=mirrored, seed=seed, options=options)
+    except (TakeError, ValueError) as e:
+        raise fail(str(e))
+    typer.echo(f"episodes: {result['episodes'].path}")
+    from schemas.catalog import query
+
+    t = query("SELECT kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid FROM episodes "
+              f"WHERE take = '{Path(path).resolve().name}' GROUP BY kind ORDER BY kind", current_warehouse())
+    _emit(t, OutputFormat.table, None, 10)
+
+
+@app.command()
+def retrieve(
+    task: str = typer.Option(..., "--task", "-t", help="Task whose episodes to search."),
+    scene: Path = typer.Option(..., "--scene", exists=True, dir_okay=False, help='JSON {"object_keypoints": 11 x 3 world m}.'),
+    k: int = typer.Option(3, "-k", min=1, help="How many episodes."),
+    strategy: str = typer.Option("retrieval", help="retrieval (top-k keypoint MSE), random, or single (the original demo)."),
+    metric: str = typer.Option("mse", help="mse, mse_mirrored (against the mirror image) or min (of both)."),
+    take: Optional[str] = typer.Option(None, help="Only episodes generated from this take."),
+    seed: int = typer.Option(0, help="Seed of the random strategy."),
+    format: OutputFormat = typer.Option(OutputFormat.table, "--format", "-f"),
+) -> None:
+    """Pick episodes for a new scene: the thesis's top-k by object-keypoint MSE, or a baseline."""
+    import pyarrow as pa
+
+    from flows.augment import read_scene, retrieve as run_retrieve
+
+    try:
+        sc = read_scene(scene)
+        rows = run_retrieve(str(current_warehouse()), task, sc["object_keypoints"], k=k, strategy=strategy,
+                            metric=metric, take=take, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    _emit(pa.Table.from_pylist(rows), format, None, k)
+
+
 def main() -> None:
     app()
 

@@ -912,6 +912,26 @@ def iter_frames(take: Take, batch_size: int = 16, *, frames: Sequence[int] | Non
             pool.shutdown(wait=True)
 
 
+def iter_depth(take: Take, batch_size: int = 32, *, num_workers: int = 2
+               ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Depth only, every frame in order: yields (indices (B,), depth float32 (B, H, W) m, invalid = 0).
+
+    Frames without usable depth come as all-zero (and are flagged on ``take.frames``), so the
+    batches cover the whole take whatever the state of its RGB.
+    """
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    idx = np.arange(take.n_frames)
+
+    def load(i: int) -> np.ndarray:
+        return _decode_depth(take.frames[int(i)], take.camera)
+
+    with ThreadPoolExecutor(max_workers=max(1, num_workers)) as pool:
+        for start in range(0, len(idx), batch_size):
+            chunk = idx[start:start + batch_size]
+            yield chunk, np.stack(list(pool.map(load, chunk)))
+
+
 def read_frame(take: Take, index: int) -> tuple[np.ndarray | None, np.ndarray]:
     """One frame: (rgb uint8 (H, W, 3) or None if unusable, depth float32 metres, invalid = 0)."""
     for b in iter_frames(take, batch_size=1, frames=[index], num_workers=1):

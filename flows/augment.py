@@ -1,0 +1,101 @@
+"""Flows: one ingested demonstration -> segments -> the task's episode database; retrieval over it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from prefect import flow
+
+import lib  # noqa: F401
+from flows.ingest import ingest_take
+from tasks.augment import augment_take, segment_take
+from tasks.common import Manifest, run_stage
+
+
+@flow(name="augment-take")
+def augment_take_flow(
+    path: str,
+    warehouse: str,
+    task: str | None = None,
+    detector: str = "simulated",
+    n: int = 10_000,
+    n_mirrored: int = 5_000,
+    seed: int = 0,
+    manual_segments: dict | None = None,
+    options: dict | None = None,
+    show_progress: bool = True,
+) -> dict[str, Manifest | None]:
+    """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
+
+    manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
+    options: generate_episodes keyword arguments, e.g. {"translation_range": [[-0.1, 0.1], [-0.1, 0.1]],
+    "yaw_range": [-0.5, 0.5], "independent": true, "safety_distance": 0.04, "mode": "thesis"}.
+    """
+    if n < 1 or not 0 <= n_mirrored <= n:
+        raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
+    ingested = ingest_take(path, warehouse, detector=detector, task=task, show_progress=show_progress)
+    common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
+                  grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
+    segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
+    episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=n, n_mirrored=n_mirrored,
+                         seed=seed, options=options or {})
+    return {**ingested, "segments": segments, "episodes": episodes}
+
+
+def read_scene(path: str | Path) -> dict:
+    """A query scene: {"object_keypoints": 11 x 3 world m, "initial_poses": 2 x 8 (optional)}."""
+    try:
+        scene = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: cannot read the scene JSON: {e}") from None
+    kp = np.asarray(scene.get("object_keypoints"), dtype=float)
+    if kp.shape != (11, 3) or not np.isfinite(kp).all():
+        raise ValueError(f"{path}: object_keypoints must be 11 x 3 finite numbers (world frame, m), "
+                         f"got shape {kp.shape}")
+    return {"object_keypoints": kp, "initial_poses": scene.get("initial_poses")}
+
+
+def retrieve(warehouse: str, task: str, keypoints: np.ndarray, k: int = 3, strategy: str = "retrieval",
+             metric: str = "mse", take: str | None = None, seed: int = 0) -> list[dict]:
+    """Episodes for a scene: top-k by keypoint MSE (`retrieval`), k random valid ones (`random`), or
+    the original demonstration (`single`). Only valid episodes are candidates."""
+    import re
+
+    from lib.retrieval import KeypointIndex, select_original, select_random
+    from lib.task_library import TASK_NAMES
+    from schemas.catalog import query
+
+    if task not in TASK_NAMES:
+        raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    if take is not None and not re.fullmatch(r"[A-Za-z0-9_.\-]+", take):
+        raise ValueError(f"invalid take name {take!r}")
+    where = f"task = '{task}' AND valid" + (f" AND take = '{take}'" if take else "")
+    t = query(f"SELECT take, episode_id, kind, object_keypoints FROM episodes WHERE {where} "
+              "ORDER BY take, episode_id", warehouse)
+    if t.num_rows == 0:
+        raise ValueError(f"no valid episodes of task {task!r}{' from take ' + take if take else ''} in "
+                         f"{warehouse}; run `demoforge augment` first")
+    takes = np.array(t.column("take").to_pylist())
+    ids = np.asarray(t.column("episode_id").to_numpy())
+    kinds = np.array(t.column("kind").to_pylist())
+    rows = np.arange(t.num_rows)
+    mse = np.full(t.num_rows, np.nan)
+    if strategy == "retrieval":
+        kp = np.asarray(t.column("object_keypoints").to_pylist(), float)
+        res = KeypointIndex(kp, ids=rows).query(np.asarray(keypoints, float), k=k, metric=metric)
+        picked, mse_picked = np.asarray(res.ids).ravel(), np.asarray(res.mse).ravel()
+        mse[picked] = mse_picked
+        mirrored = dict(zip(picked.tolist(), np.asarray(res.mirrored).ravel().tolist()))
+    elif strategy == "random":
+        picked = select_random(rows, k, seed)
+    elif strategy == "single":
+        picked = select_original(rows, kinds)
+    else:
+        raise ValueError(f"unknown strategy {strategy!r}: retrieval, random or single")
+    if strategy != "retrieval":
+        mirrored = {}
+    return [{"take": str(takes[r]), "episode_id": int(ids[r]), "kind": str(kinds[r]),
+             "mse": None if np.isnan(mse[r]) else float(mse[r]), "matched_mirrored": bool(mirrored.get(r, False))}
+            for r in np.atleast_1d(picked)]

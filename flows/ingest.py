@@ -1,0 +1,58 @@
+"""Flow: one RGB-D take -> frames, hand keypoints, aligned keypoints, gripper poses, object keypoints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, get_run_logger
+
+import lib  # noqa: F401
+from tasks.common import Manifest, run_stage
+from tasks.ingest import (align_keypoints, detect_hands, index_frames, ingest_metrics, map_grippers,
+                          object_keypoints)
+
+
+@flow(name="ingest-take")
+def ingest_take(
+    path: str,
+    warehouse: str,
+    detector: str = "simulated",
+    task: str | None = None,
+    detector_options: dict | None = None,
+    alignment: dict | None = None,
+    state_method: str = "auto",
+    smoothing: int = 0,
+    show_progress: bool = True,
+) -> dict[str, Manifest | None]:
+    """Ingest one take folder (layout: README 'Take folders') into the warehouse.
+
+    detector: `simulated` (synthetic takes), `mediapipe` (real detector, CPU) or `precomputed`
+    (detector_options={"path": ...}: the thesis code's keypoint JSON, or Parquet/NPZ predictions).
+    Every stage is cached on the content of its inputs: a second run is served from the cache.
+    """
+    from lib.detectors import available_detectors
+    from lib.ingest import open_take
+
+    logger = get_run_logger()
+    if detector not in available_detectors():
+        raise ValueError(f"unknown detector {detector!r}; choose one of: {', '.join(available_detectors())}")
+    take_dir = Path(path).resolve()
+    take = open_take(take_dir)  # fails early, with a clear message, on a take that cannot be read
+    bad = take.status_counts()
+    if set(bad) - {"ok"}:
+        logger.warning("take %s: frame problems %s (recorded in `frames`)", take.take_id, bad)
+    options = dict(detector_options or {})
+    if "path" in options:  # a predictions file: its content, not its name, is part of the cache key
+        options["path"] = Path(options["path"]).resolve()
+    common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
+    frames = run_stage(index_frames, warehouse, **common)
+    hands = run_stage(detect_hands, warehouse, **common, detector=detector,
+                      detector_options=options, frames=frames, show_progress=show_progress)
+    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {})
+    grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
+                         smoothing=smoothing)
+    objects = run_stage(object_keypoints, warehouse, **common)
+    metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
+                        grippers=grippers)
+    return {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
+            "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}

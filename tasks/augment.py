@@ -1,0 +1,130 @@
+"""Prefect tasks of segmentation and augmentation (thesis 3.2-3.3) over an ingested take."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+import lib  # noqa: F401
+from schemas.core import read_table, write_table
+from tasks.common import Manifest, stage_task
+from tasks.ingest import arrays, take_task_name
+
+AUGMENT_VERSION = "1"
+
+
+def _demo_arrays(take, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
+    """The take's gripper trajectory (T, 2, 8) with undetected frames filled, and its object keypoints."""
+    from lib.segmentation import fill_invalid_poses
+
+    part = dict(task=task, take=take.take_id)
+    _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "valid")
+    traj = fill_invalid_poses(gp["pose"], gp["valid"])
+    ok = read_table("object_keypoints", warehouse, **part).sort_by("keypoint")
+    kp = np.array(ok.column("point_world").to_pylist(), float)
+    if not np.isfinite(kp).all():
+        bad = [n for n, v in zip(ok.column("name").to_pylist(), ok.column("valid").to_pylist()) if not v]
+        raise ValueError(f"take {take.take_id}: object keypoints without depth: {bad}; fix the annotation "
+                         "(click points on valid depth) before augmenting")
+    return traj, kp
+
+
+def _require_task(task: str):
+    from lib.task_library import TASK_NAMES, get_task
+
+    if task not in TASK_NAMES:
+        raise ValueError(f"task {task!r} is not in the task library ({', '.join(TASK_NAMES)}); ingest the "
+                         "take with --task NAME so its objects and keypoints are known")
+    return get_task(task)
+
+
+@stage_task(name="segment_take", version=AUGMENT_VERSION)
+def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
+                 manual: dict | None = None) -> Manifest:
+    """Motion/skill segments per arm; on synthetic takes also the boundary error against the script."""
+    from lib.ingest import open_take
+    from lib.segmentation import boundaries, boundary_error, segment_trajectory
+    from schemas.core import read_table_file
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    spec = _require_task(name)
+    traj, kp = _demo_arrays(take, name, warehouse)
+    manual_arms = {int(k): list(v) for k, v in (manual or {}).items()}
+    segs = segment_trajectory(traj, kp, spec.keypoint_object, manual=manual_arms or None)
+    written = write_table("segments", {
+        "take": [take.take_id] * len(segs), "task": [name] * len(segs),
+        "arm": [s.arm for s in segs], "kind": [s.kind for s in segs], "start": [s.start for s in segs],
+        "end": [s.end for s in segs], "object": [s.object for s in segs],
+        "method": ["manual" if s.arm in manual_arms else "auto" for s in segs],
+    }, warehouse)
+    if take.has_ground_truth:
+        gt = read_table_file("gt_segments", take.ground_truth_dir / "gt_segments.parquet").to_pylist()
+        ref = [_Seg(0 if r["hand"] == "left" else 1, r["kind"], r["start"], r["end"]) for r in gt]
+        rows = []
+        for arm in (0, 1):
+            mine = [s for s in segs if s.arm == arm]
+            theirs = [s for s in ref if s.arm == arm]
+            e = boundary_error(mine, theirs)
+            n_true = len(boundaries(theirs, arm))
+            rows.append({"take": take.take_id, "task": name, "arm": arm, "boundaries_true": n_true,
+                         "boundaries_found": len(boundaries(mine, arm)), "matched": n_true - e["missed"],
+                         "mean_error_frames": None if np.isnan(e["mean"]) else e["mean"],
+                         "max_error_frames": None if np.isnan(e["max"]) else e["max"]})
+        written += write_table("segmentation_metrics", pa.Table.from_pylist(rows), warehouse)
+    return Manifest.from_written("segments", written, written[0].path)
+
+
+class _Seg:
+    def __init__(self, arm, kind, start, end, obj=-1):
+        self.arm, self.kind, self.start, self.end, self.object = arm, kind, start, end, obj
+
+
+@stage_task(name="augment_take", version=AUGMENT_VERSION)
+def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
+                 segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
+                 options: dict | None = None) -> Manifest:
+    """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes."""
+    from lib.augmentation import DemoSource, generate_episodes
+    from lib.ingest import open_take
+    from lib.segmentation import infer_object_arm
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    spec = _require_task(name)
+    traj, kp = _demo_arrays(take, name, warehouse)
+    seg_rows = read_table("segments", warehouse, task=name, take=take.take_id).to_pylist()
+    segs = [_Seg(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in seg_rows]
+    source = DemoSource(task=name, trajectory=traj, keypoints=kp, keypoint_object=spec.keypoint_object,
+                        keypoints_local=spec.keypoints_local, segments=segs,
+                        object_arm=infer_object_arm(traj, kp, spec.keypoint_object))
+    opts = dict(options or {})
+    opts.setdefault("workspace", np.asarray(spec.workspace))
+    batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
+    N = len(batch)
+    written = write_table("episodes", {
+        "task": [name] * N, "take": [take.take_id] * N, "episode_id": batch.episode_id.astype(np.int64),
+        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
+        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
+        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
+        "reject_reason": batch.reject_reason.astype(str).tolist(),
+        "min_gripper_distance": batch.min_gripper_distance,
+    }, warehouse)
+    written += write_table("episode_steps", episode_steps_columns(name, take.take_id, batch), warehouse)
+    return Manifest.from_written("episodes", written, written[0].path)
+
+
+def episode_steps_columns(task: str, take: str, batch) -> dict:
+    """One row per (episode, step) from the padded (N, L, 2, 8) actions, without Python loops."""
+    actions = batch.actions
+    L = actions.shape[1]
+    keep = np.arange(L)[None, :] < batch.lengths[:, None]                      # (N, L)
+    ep = np.broadcast_to(batch.episode_id[:, None], keep.shape)[keep]
+    step = np.broadcast_to(np.arange(L, dtype=np.int32)[None, :], keep.shape)[keep]
+    rows = len(ep)
+    return {"task": pa.array([task] * 1).take(np.zeros(rows, np.int64)),
+            "take": pa.array([take] * 1).take(np.zeros(rows, np.int64)),
+            "episode_id": ep.astype(np.int64), "step": step,
+            "action": actions[keep].astype(np.float32)}

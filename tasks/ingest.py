@@ -1,0 +1,330 @@
+"""Prefect tasks of the ingest stage (thesis 3.1): each reads its inputs, calls lib/, writes one table.
+
+Per-frame, per-hand arrays (T, 2, ...) are stored one row per (frame, hand), frame-major with the
+left hand first; :func:`rows` and :func:`arrays` convert between the two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+import lib  # noqa: F401
+from schemas.core import read_table, write_table
+from tasks.common import Manifest, stage_task
+
+HANDS = ("left", "right")
+INGEST_VERSION = "1"
+
+
+def take_task_name(take: Any, task: str | None) -> str:
+    """The task a take belongs to: given explicitly, else from the synthetic take.json, else unknown."""
+    if task:
+        return task
+    return str((take.meta or {}).get("task") or "unknown")
+
+
+def rows(take: str, task: str, T: int, **columns: Any) -> dict[str, Any]:
+    """(T, 2, ...) arrays -> one row per frame and hand, frame-major, left first."""
+    out: dict[str, Any] = {
+        "take": [take] * (2 * T), "task": [task] * (2 * T),
+        "frame": np.repeat(np.arange(T, dtype=np.int32), 2), "hand": list(HANDS) * T,
+    }
+    for name, value in columns.items():
+        if isinstance(value, np.ndarray) and value.ndim >= 2 and value.shape[:2] == (T, 2):
+            out[name] = value.reshape((2 * T,) + value.shape[2:])
+        else:
+            out[name] = value
+    return out
+
+
+def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
+    """Rows of one take (any order) -> T and {name: (T, 2, ...)} arrays."""
+    frame = np.asarray(table.column("frame").to_numpy())
+    hand = np.array([HANDS.index(h) for h in table.column("hand").to_pylist()], dtype=np.int64)
+    T = int(frame.max()) + 1 if frame.size else 0
+    out = {}
+    for n in names:
+        col = table.column(n).combine_chunks()
+        shape: list[int] = []
+        t = col.type
+        while pa.types.is_fixed_size_list(t):
+            shape.append(t.list_size)
+            t = t.value_type
+        flat = col
+        for _ in shape:
+            flat = flat.flatten()
+        values = np.asarray(flat.to_numpy(zero_copy_only=False)).reshape((len(col),) + tuple(shape))
+        full = np.empty((T, 2) + values.shape[1:], dtype=values.dtype)
+        full[frame, hand] = values
+        out[n] = full
+    return T, out
+
+
+def _manifest(table: str, written) -> Manifest:
+    return Manifest.from_written(table, written, written[0].path if written else table)
+
+
+# --- 1. frames -----------------------------------------------------------------------------------
+
+@stage_task(name="index_frames", version=INGEST_VERSION)
+def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode: bool = True) -> Manifest:
+    """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
+    files are reported here, per frame, instead of surfacing later."""
+    from lib.ingest import iter_depth, iter_frames, open_take
+
+    take = open_take(take_dir)
+    if verify_decode:
+        for _ in iter_frames(take, batch_size=32):
+            pass
+        for _ in iter_depth(take):
+            pass
+    f = take.frames
+    written = write_table("frames", {
+        "take": [take.take_id] * len(f), "task": [take_task_name(take, task)] * len(f),
+        "frame": [x.index for x in f], "time_s": take.timestamps_s,
+        "status": [x.status for x in f], "message": [x.message or "" for x in f],
+        "rgb_source": [str(x.rgb_source or "") for x in f], "depth_source": [str(x.depth_source or "") for x in f],
+    }, warehouse)
+    return _manifest("frames", written)
+
+
+# --- 2. hand keypoints ---------------------------------------------------------------------------
+
+@stage_task(name="detect_hands", version=INGEST_VERSION)
+def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str = "simulated",
+                 detector_options: dict | None = None, frames: Manifest | None = None,
+                 show_progress: bool = True) -> Manifest:
+    """Run a detector backend over the take and keep the most confident left and right hand per frame."""
+    from lib.detectors import get_detector
+    from lib.ingest import open_take
+
+    take = open_take(take_dir)
+    det = get_detector(detector, **(detector_options or {}))
+    bar = None
+    if show_progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=take.n_frames, desc=f"{take.take_id} {detector}", unit="frame", leave=False)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    try:
+        track = det.detect_take(take, progress=progress)
+    finally:
+        det.close()
+        if bar is not None:
+            bar.close()
+    T = track.n_frames
+    written = write_table("hand_keypoints", rows(
+        take.take_id, take_task_name(take, task), T,
+        detector=[track.detector] * (2 * T), detector_version=[track.detector_version] * (2 * T),
+        present=track.present, confidence=np.nan_to_num(track.confidence),
+        joints_cam=track.joints_cam, joints_px=track.joints_px,
+        n_candidates=track.n_candidates.astype(np.int32),
+    ), warehouse)
+    _save_detector_extra(take, track, warehouse)
+    return _manifest("hand_keypoints", written)
+
+
+def _save_detector_extra(take, track, warehouse: str) -> None:
+    """Simulated detections carry what was injected (swaps, misses): kept for the metrics stage."""
+    injected = track.extra.get("injected_swap")
+    if injected is None:
+        return
+    d = Path(warehouse) / "_diagnostics" / "detector"
+    d.mkdir(parents=True, exist_ok=True)
+    tmp = d / f".{take.take_id}.{track.detector}.npz.tmp"
+    with open(tmp, "wb") as fh:
+        np.savez(fh, injected_swap=np.asarray(injected, bool))
+    tmp.replace(d / f"{take.take_id}.{track.detector}.npz")
+
+
+# --- 3. aligned keypoints ------------------------------------------------------------------------
+
+@stage_task(name="align_keypoints", version=INGEST_VERSION)
+def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
+                    alignment: dict | None = None) -> Manifest:
+    """Depth alignment (thesis 3.1.2), swap repair, outlier freeze; depth is streamed per batch."""
+    from lib.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
+    from lib.geometry import transform_points
+    from lib.ingest import iter_depth, open_take
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    hk = read_table("hand_keypoints", warehouse, task=name, take=take.take_id)
+    T, a = arrays(hk, "joints_cam", "joints_px", "present")
+    detector = hk.column("detector")[0].as_py()
+    cfg = AlignmentConfig(**(alignment or {}))
+    joints_cam = np.where(a["present"][..., None, None], a["joints_cam"], np.nan)
+    joints_px = np.where(a["present"][..., None, None], a["joints_px"], np.nan)
+    have_px = np.isfinite(joints_px).all(axis=(2, 3)) | ~a["present"]
+    uv_src = joints_px if have_px.all() else project(joints_cam, take.K)
+    uv = uv_src[:, :, list(cfg.anchors), :]
+    anchor_depth = np.full(uv.shape[:-1], np.nan)
+    for idx, depth in iter_depth(take):
+        anchor_depth[idx], _ = read_depth_robust(depth, uv[idx], cfg.window, cfg.min_valid)
+    res = align_to_depth(joints_cam, None, take.K, uv_src if have_px.all() else None, cfg,
+                         anchor_depth=anchor_depth)
+    world = transform_points(take.camera.T_world_camera, res.joints_cam.reshape(T, 2 * 21, 3)).reshape(T, 2, 21, 3)
+    written = write_table("aligned_keypoints", rows(
+        take.take_id, name, T, detector=[detector] * (2 * T),
+        present=res.present, detected=res.detected, joints_cam=res.joints_cam, joints_world=world,
+        translation=res.translation, anchors_used=res.anchors_used.astype(np.int64),
+        n_anchors_valid=res.n_anchors_valid.astype(np.int32), no_depth=res.no_depth,
+        depth_outlier=res.depth_outlier, outlier_frozen=res.outlier_frozen,
+        swap_repaired=res.swap_repaired, filled_missing=res.filled_missing,
+    ), warehouse)
+    return _manifest("aligned_keypoints", written)
+
+
+# --- 4. gripper poses ----------------------------------------------------------------------------
+
+@stage_task(name="map_grippers", version=INGEST_VERSION)
+def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
+                 state_method: str = "auto", smoothing: int = 0) -> Manifest:
+    """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods."""
+    from lib.gripper_mapping import gripper_state, hand_to_gripper, smooth_poses, to_pose8
+    from lib.ingest import open_take
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    al = read_table("aligned_keypoints", warehouse, task=name, take=take.take_id)
+    T, a = arrays(al, "joints_world", "present")
+    detector = al.column("detector")[0].as_py()
+    pose7, dist = hand_to_gripper(a["joints_world"])
+    g_thr = gripper_state(dist, "threshold")
+    g_auto = gripper_state(dist, "auto")
+    ranges = take.annotations.gripper_closed_ranges if take.annotations is not None else None
+    ranges = ranges if ranges and any(ranges.values()) else None
+    g_man = gripper_state(dist, "manual", closed_ranges=ranges) if ranges else None
+    chosen_method = "manual" if g_man is not None else state_method
+    g = g_man if g_man is not None else gripper_state(dist, state_method)
+    if smoothing:
+        pose7 = smooth_poses(pose7, g, window=int(smoothing))
+    valid = a["present"] & np.isfinite(pose7).all(-1)
+    pose = np.where(valid[..., None], to_pose8(pose7, g), np.nan)
+    written = write_table("gripper_poses", rows(
+        take.take_id, name, T, detector=[detector] * (2 * T), pose=pose, valid=valid,
+        fingertip_distance=dist, g_threshold=g_thr.astype(np.int8), g_auto=g_auto.astype(np.int8),
+        g_manual=None if g_man is None else g_man.astype(np.int8),
+        state_method=[chosen_method] * (2 * T),
+    ) | ({"g_manual": pa.nulls(2 * T, pa.int8())} if g_man is None else {}), warehouse)
+    return _manifest("gripper_poses", written)
+
+
+# --- 5. object keypoints -------------------------------------------------------------------------
+
+@stage_task(name="object_keypoints", version=INGEST_VERSION)
+def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manifest:
+    """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
+    back-projected with depth."""
+    from lib.ingest import open_take, read_frame
+    from lib.object_keypoints import backproject_keypoints_detailed
+    from schemas.core import read_table_file
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    if take.has_ground_truth:
+        gt = read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet")
+        first = gt.filter(pa.compute.equal(gt.column("frame"), 0))
+        pts = np.array(first.column("keypoints_world")[0].as_py())
+        names = _keypoint_names(take, len(pts))
+        uv = np.full((len(pts), 1, 2), np.nan)
+        data = {"point_world": pts, "valid": [True] * len(pts), "reason": ["ok"] * len(pts),
+                "source": ["ground truth"] * len(pts)}
+    else:
+        ann = take.annotations
+        if ann is None or len(ann.object_keypoints_uv) == 0:
+            raise ValueError(
+                f"{take.path}: no annotations.json with object_keypoints_2d; annotate the first frame's "
+                "object keypoints (see README: take folders) to ingest object keypoints")
+        _, depth = read_frame(take, ann.object_keypoints_frame or 0)
+        r = backproject_keypoints_detailed(ann.object_keypoints_uv, depth, take.K, take.camera.T_world_camera)
+        names = _keypoint_names(take, len(ann.object_keypoints_uv))
+        uv = np.asarray(ann.object_keypoints_uv, float)[:, None, :]
+        data = {"point_world": r.points_world, "valid": r.valid, "reason": r.reasons,
+                "source": ["annotation+depth"] * len(names)}
+    n = len(names)
+    written = write_table("object_keypoints", {
+        "take": [take.take_id] * n, "task": [name] * n, "keypoint": np.arange(n, dtype=np.int32),
+        "name": list(names), "uv": uv, **data}, warehouse)
+    return _manifest("object_keypoints", written)
+
+
+def _keypoint_names(take: Any, n: int) -> list[str]:
+    ann = take.annotations
+    if ann is not None and len(ann.object_keypoint_names) == n:
+        return list(ann.object_keypoint_names)
+    return [f"keypoint_{i}" for i in range(n)]
+
+
+def alignment_options(config: Any) -> dict:
+    """A JSON-able dict of an AlignmentConfig (for cache keys and task parameters)."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+
+
+# --- 6. accuracy against ground truth (synthetic takes) ------------------------------------------
+
+@stage_task(name="ingest_metrics", version=INGEST_VERSION)
+def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
+                   aligned: Manifest, grippers: Manifest) -> Manifest | None:
+    """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps."""
+    from lib import metrics as M
+    from lib.ingest import open_take
+    from schemas.core import read_table_file
+
+    take = open_take(take_dir)
+    if not take.has_ground_truth:
+        return None
+    name = take_task_name(take, task)
+    part = dict(task=name, take=take.take_id)
+    _, raw = arrays(read_table("hand_keypoints", warehouse, **part), "joints_cam", "joints_px", "present")
+    al_t = read_table("aligned_keypoints", warehouse, **part)
+    _, al = arrays(al_t, "joints_cam", "detected", "swap_repaired")
+    _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "g_threshold", "g_auto", "g_manual")
+    gt_dir = take.ground_truth_dir
+    _, gt = arrays(read_table_file("gt_hand_joints", gt_dir / "gt_hand_joints.parquet"),
+                   "joints_camera", "joints_px", "present")
+    _, gg = arrays(read_table_file("gt_gripper", gt_dir / "gt_gripper.parquet"), "pose", "closed")
+    detector = al_t.column("detector")[0].as_py()
+    g_true = 1.0 - gg["closed"].astype(float)
+
+    diag = Path(warehouse) / "_diagnostics" / "detector" / f"{take.take_id}.{detector}.npz"
+    injected = np.load(diag)["injected_swap"] if diag.exists() else np.zeros(len(g_true), bool)
+    repaired = al["swap_repaired"].any(axis=1)
+    out = []
+    for h, hand in enumerate(HANDS):
+        in_view = gt["present"][:, h]
+        det = in_view & raw["present"][:, h]
+        aligned_ok = in_view & al["detected"][:, h]  # frozen/filled frames are not measurements
+        g_man = gp["g_manual"][:, h]
+        out.append({
+            "take": take.take_id, "task": name, "detector": detector, "hand": hand,
+            "frames": int(in_view.sum()),
+            "detected_fraction": float(det.sum() / max(in_view.sum(), 1)),
+            "mpjpe_raw_m": M.mpjpe(raw["joints_cam"][det, h], gt["joints_camera"][det, h]),
+            "mpjpe_aligned_m": M.mpjpe(al["joints_cam"][aligned_ok, h], gt["joints_camera"][aligned_ok, h]),
+            "pa_mpjpe_m": M.pa_mpjpe(al["joints_cam"][aligned_ok, h], gt["joints_camera"][aligned_ok, h]),
+            "root_relative_mpjpe_m": M.root_relative_mpjpe(al["joints_cam"][aligned_ok, h], gt["joints_camera"][aligned_ok, h]),
+            "mpjpe_2d_px": M.mpjpe_2d(raw["joints_px"][det, h], gt["joints_px"][det, h]),
+            "pck_005": M.pck(raw["joints_px"][det, h], gt["joints_px"][det, h], 0.05),
+            "pck_015": M.pck(raw["joints_px"][det, h], gt["joints_px"][det, h], 0.15),
+            "gripper_position_error_mm": float(np.nanmean(M.gripper_position_error_mm(gp["pose"][:, h], gg["pose"][:, h], in_view))),
+            "gripper_orientation_error_deg": float(np.nanmean(M.gripper_orientation_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view))),
+            "approach_axis_error_deg": float(np.nanmean(M.approach_axis_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view))),
+            "open_close_acc_threshold": M.open_close_accuracy(gp["g_threshold"][:, h], g_true[:, h], in_view),
+            "open_close_acc_auto": M.open_close_accuracy(gp["g_auto"][:, h], g_true[:, h], in_view),
+            "open_close_acc_manual": (None if np.isnan(g_man.astype(float)).all()
+                                      else M.open_close_accuracy(g_man.astype(float), g_true[:, h], in_view)),
+            "swap_frames_injected": int(injected.sum()), "swap_frames_repaired": int(repaired.sum()),
+            "swap_frames_repaired_correctly": int((repaired & injected).sum()),
+        })
+    written = write_table("ingest_metrics", pa.Table.from_pylist(out), warehouse)
+    return _manifest("ingest_metrics", written)
