@@ -196,6 +196,63 @@ def _synth_cases(quick: bool) -> list[BenchCase]:
                       "MuJoCo defaults: shadows, reflections, skybox, 4x multisampling", setup, repeats=1)]
 
 
+@register("ingest")
+def _ingest_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_ingest import cases
+
+    return cases(quick)
+
+
+@register("augmentation")
+def _augmentation_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_augmentation import cases
+
+    out = [c for c in cases(quick) if c.stage == "augmentation"]
+    n = 2_000 if quick else 10_000
+
+    def write_setup(k: int):
+        from lib.augmentation import from_scripted_demo, generate_episodes
+        from lib.task_library import get_task
+        from tasks.augment import episode_steps_columns
+
+        task = get_task("empty_vase")
+        batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1,
+                                  n_mirrored=(k - 1) // 2, seed=0, materialize=True)
+        tmp = Path(tempfile.mkdtemp(prefix="demoforge-bench-"))
+
+        def fast():
+            return write_table("episode_steps", episode_steps_columns("empty_vase", "bench", batch), tmp)[0].rows
+
+        def baseline():  # one Python row per step, then pyarrow and Parquet
+            rows = [{"task": "empty_vase", "take": "bench", "episode_id": int(e), "step": s,
+                     "action": batch.actions[e, s].astype(np.float32).tolist()}
+                    for e in range(len(batch)) for s in range(int(batch.lengths[e]))]
+            (tmp / "base").mkdir(exist_ok=True)
+            pq.write_table(pa.Table.from_pylist(rows), tmp / "base" / "data.parquet")
+            return len(rows)
+
+        return fast, baseline
+
+    out.append(BenchCase("augmentation", "write episode_steps of 10k episodes (validated, atomic)", n + 1 if not quick else n,
+                         "episodes", "one Python dict per step -> pyarrow -> Parquet", write_setup,
+                         repeats=1, baseline_size=200))
+    return out
+
+
+@register("retrieval")
+def _retrieval_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_augmentation import cases
+
+    return [c for c in cases(quick) if c.stage == "retrieval"]
+
+
+@register("sim")
+def _sim_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_sim import cases
+
+    return cases(quick)
+
+
 @flow(name="benchmarks", log_prints=True)
 def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: bool = False) -> list[dict]:
     """Run the benchmark cases of the given stages (all by default) and append them to `benchmarks`."""

@@ -119,12 +119,17 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 def episode_steps_columns(task: str, take: str, batch) -> dict:
     """One row per (episode, step) from the padded (N, L, 2, 8) actions, without Python loops."""
     actions = batch.actions
-    L = actions.shape[1]
-    keep = np.arange(L)[None, :] < batch.lengths[:, None]                      # (N, L)
-    ep = np.broadcast_to(batch.episode_id[:, None], keep.shape)[keep]
-    step = np.broadcast_to(np.arange(L, dtype=np.int32)[None, :], keep.shape)[keep]
+    N, L = actions.shape[:2]
+    if (batch.lengths == L).all():  # the usual case (timing kept): no padding, a free reshape
+        ep = np.repeat(batch.episode_id.astype(np.int64), L)
+        step = np.tile(np.arange(L, dtype=np.int32), N)
+        action = actions.reshape(N * L, 2, 8)
+    else:
+        keep = np.arange(L)[None, :] < batch.lengths[:, None]                  # (N, L)
+        ep = np.broadcast_to(batch.episode_id.astype(np.int64)[:, None], keep.shape)[keep]
+        step = np.broadcast_to(np.arange(L, dtype=np.int32)[None, :], keep.shape)[keep]
+        action = actions[keep]
     rows = len(ep)
-    return {"task": pa.array([task] * 1).take(np.zeros(rows, np.int64)),
-            "take": pa.array([take] * 1).take(np.zeros(rows, np.int64)),
-            "episode_id": ep.astype(np.int64), "step": step,
-            "action": actions[keep].astype(np.float32)}
+    return {"task": pa.array([task]).take(np.zeros(rows, np.int64)),
+            "take": pa.array([take]).take(np.zeros(rows, np.int64)),
+            "episode_id": ep, "step": step, "action": action.astype(np.float32, copy=False)}
