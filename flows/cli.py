@@ -237,6 +237,7 @@ def evaluate(
     task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six)."),
     takes: int = typer.Option(1, "--takes", min=1, envvar="TAKES", help="Synthetic takes per task and mirror flag."),
     seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
+    episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
@@ -249,7 +250,7 @@ def evaluate(
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
     report = evaluate_flow(str(current_warehouse()), str(reports.resolve()), tasks=task or None,
-                           takes=takes, seed=seed)
+                           takes=takes, seed=seed, episodes=episodes)
     typer.echo(f"report: {report}")
 
 

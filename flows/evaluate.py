@@ -7,6 +7,8 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
+from flows.augment import augment_take_flow
+from flows.ingest import ingest_take
 from flows.report import write_report
 from flows.synth import synthesize_takes
 
@@ -19,15 +21,25 @@ def evaluate(
     takes: int = 1,
     seed: int = 0,
     mirror: str = "both",
+    episodes: int = 10_000,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
-    on them and write reports/REPORT.md. Everything already computed comes from the cache."""
+    on them and write reports/REPORT.md. Everything already computed comes from the cache.
+
+    Every take is ingested with the simulated detector (and measured against its ground truth);
+    the first plain take of each task becomes that task's database of `episodes` episodes."""
     from lib.task_library import TASK_NAMES
 
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
-    synthesize_takes(warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
-    report = write_report(warehouse, reports_dir,
-                          {"tasks": tasks, "takes": takes, "seed": seed, "mirror": mirror})
+    manifests = synthesize_takes(warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
+    for m in manifests:
+        name = Path(m.path).name
+        if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
+            augment_take_flow(m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
+        else:
+            ingest_take(m.path, warehouse)
+    report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
+                                                   "mirror": mirror, "episodes": episodes})
     logger.info("report written: %s", report)
     return str(report)

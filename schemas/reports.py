@@ -30,6 +30,48 @@ REPORT_VIEWS: dict[str, str] = {
                round(avg(CASE WHEN present THEN 1.0 ELSE 0.0 END), 3) AS in_view_fraction
         FROM gt_hand_joints GROUP BY task, hand ORDER BY task, hand
     """,
+    # Ingest accuracy against the synthetic ground truth (thesis Table 1/2 quantities + gripper).
+    "report_ingest_accuracy": """
+        SELECT task, take, hand, detector,
+               round(mpjpe_raw_m, 3) AS mpjpe_raw_m,
+               round(1000 * mpjpe_aligned_m, 1) AS mpjpe_aligned_mm,
+               round(1000 * pa_mpjpe_m, 1) AS pa_mpjpe_mm,
+               round(mpjpe_2d_px, 1) AS mpjpe_2d_px, round(pck_005, 3) AS pck_005, round(pck_015, 3) AS pck_015,
+               round(gripper_position_error_mm, 1) AS gripper_pos_mm,
+               round(gripper_orientation_error_deg, 1) AS gripper_rot_deg,
+               round(approach_axis_error_deg, 1) AS approach_deg,
+               round(open_close_acc_threshold, 3) AS oc_threshold, round(open_close_acc_auto, 3) AS oc_auto,
+               round(open_close_acc_manual, 3) AS oc_manual,
+               swap_frames_injected AS swaps_injected, swap_frames_repaired_correctly AS swaps_repaired
+        FROM ingest_metrics ORDER BY task, take, hand
+    """,
+    # The same, averaged per task (the goals: aligned within 5 mm of PA-MPJPE, auto open/close >= 95 %).
+    "report_ingest_by_task": """
+        SELECT task, detector, count(*) AS hands,
+               round(1000 * avg(mpjpe_aligned_m), 1) AS mpjpe_aligned_mm,
+               round(1000 * avg(pa_mpjpe_m), 1) AS pa_mpjpe_mm,
+               round(1000 * avg(mpjpe_aligned_m - pa_mpjpe_m), 1) AS aligned_minus_pa_mm,
+               round(avg(gripper_position_error_mm), 1) AS gripper_pos_mm,
+               round(min(open_close_acc_threshold), 3) AS worst_oc_threshold,
+               round(min(open_close_acc_auto), 3) AS worst_oc_auto
+        FROM ingest_metrics GROUP BY task, detector ORDER BY task
+    """,
+    # Segment boundaries found on the ingested takes against the scripted ones.
+    "report_segmentation": """
+        SELECT task, take, arm, boundaries_true, boundaries_found, matched,
+               round(mean_error_frames, 1) AS mean_error_frames, max_error_frames
+        FROM segmentation_metrics ORDER BY task, take, arm
+    """,
+    # Validity of the augmented episodes per task and kind, with the reasons for rejections.
+    "report_augmentation": """
+        SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid,
+               round(avg(CASE WHEN valid THEN 1.0 ELSE 0.0 END), 3) AS valid_rate,
+               count(*) FILTER (WHERE reject_reason = 'left_workspace') AS left_workspace,
+               count(*) FILTER (WHERE reject_reason = 'grippers_too_close') AS grippers_too_close,
+               count(*) FILTER (WHERE reject_reason = 'objects_overlap') AS objects_overlap,
+               round(min(min_gripper_distance), 3) AS min_gripper_distance_m
+        FROM episodes GROUP BY task, take, kind ORDER BY task, take, kind
+    """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """
         SELECT stage, case_name, size, unit, round(seconds, 4) AS seconds,

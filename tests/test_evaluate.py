@@ -1,0 +1,32 @@
+"""The main job end to end on one task: every stage, the report, and a second run from the cache."""
+
+from pathlib import Path
+
+import pytest
+
+from flows.evaluate import evaluate
+
+
+def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse, tmp_path, monkeypatch):
+    reports = tmp_path / "reports"
+    out = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
+    text = out.read_text()
+    for heading in ("## Takes", "## Scripted demonstrations in physics", "## Ingest accuracy per task",
+                    "## Segmentation against the scripted boundaries", "## Augmented episodes"):
+        assert heading in text
+    assert "synth_paper_in_case_s0000" in text and "simulated" in text
+    assert "![synthetic takes](synthetic_takes.png)" in text and (reports / "synthetic_takes.png").stat().st_size > 10_000
+    for csv in ("report_takes", "report_ingest_accuracy", "report_augmentation", "report_segmentation"):
+        lines = (reports / f"{csv}.csv").read_text().splitlines()
+        assert len(lines) >= 2, csv
+    aug = (reports / "report_augmentation.csv").read_text()
+    assert '"original"' in aug and '"mirrored"' in aug and '"translated"' in aug
+
+    def must_not_run(*a, **k):
+        raise AssertionError("a cached stage ran again")
+
+    for target in ("lib.synth.take.generate_take", "lib.detectors.get_detector",
+                   "lib.alignment.align_to_depth", "lib.augmentation.generate_episodes"):
+        monkeypatch.setattr(target, must_not_run)
+    again = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
+    assert again == out and "synth_paper_in_case_s0000" in again.read_text()
