@@ -262,6 +262,7 @@ def ingest(
     task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
     state_method: str = typer.Option("auto", help="Open/close when the take has no labelled ranges: auto, otsu or threshold."),
     smoothing: int = typer.Option(0, help="Segment-wise pose smoothing window in frames (0 = off)."),
+    video: bool = typer.Option(False, "--video", help="Also write an MP4 with the skeletons and gripper frames drawn on the frames."),
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
 
@@ -278,7 +279,8 @@ def ingest(
         options["path"] = str(predictions)
     try:
         result = ingest_take(str(path), str(current_warehouse()), detector=detector, task=task,
-                             detector_options=options, state_method=state_method, smoothing=smoothing)
+                             detector_options=options, state_method=state_method, smoothing=smoothing,
+                             video=video)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     for name, m in result.items():

@@ -9,7 +9,7 @@ from prefect import flow, get_run_logger
 import lib  # noqa: F401
 from tasks.common import Manifest, run_stage
 from tasks.ingest import (align_keypoints, detect_hands, index_frames, ingest_metrics, map_grippers,
-                          object_keypoints)
+                          object_keypoints, overlay_video)
 
 
 @flow(name="ingest-take")
@@ -23,12 +23,14 @@ def ingest_take(
     state_method: str = "auto",
     smoothing: int = 0,
     show_progress: bool = True,
+    video: bool = False,
 ) -> dict[str, Manifest | None]:
     """Ingest one take folder (layout: README 'Take folders') into the warehouse.
 
     detector: `simulated` (synthetic takes), `mediapipe` (real detector, CPU) or `precomputed`
     (detector_options={"path": ...}: the thesis code's keypoint JSON, or Parquet/NPZ predictions).
     Every stage is cached on the content of its inputs: a second run is served from the cache.
+    video: also write warehouse/videos/<take>.<detector>.mp4 with the skeletons and gripper frames.
     """
     from lib.detectors import available_detectors
     from lib.ingest import open_take
@@ -54,5 +56,8 @@ def ingest_take(
     objects = run_stage(object_keypoints, warehouse, **common)
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
                         grippers=grippers)
-    return {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
-            "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
+    result = {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
+              "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
+    if video:
+        result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers)
+    return result

@@ -72,3 +72,34 @@ def montage(images: list[np.ndarray], columns: int = 3, captions: list[str] | No
             cv2.putText(tile, captions[i], (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         grid[r * h:(r + 1) * h, c * w:(c + 1) * w] = tile
     return grid
+
+
+AXIS_COLOURS = ((230, 40, 40), (40, 200, 40), (50, 90, 255))  # gripper x (closing), y, z (approach)
+
+
+def draw_gripper(rgb: np.ndarray, pose8: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
+                 length: float = 0.04, label: str | None = None) -> np.ndarray:
+    """Draw a gripper frame (world pose [x, y, z, qx, qy, qz, qw, g]) as three projected axes; the
+    origin is a filled dot when open (g = 1) and a ring when closed."""
+    import cv2
+
+    from lib.geometry import pose8_to_transform, transform_inverse, transform_points
+
+    out = np.ascontiguousarray(rgb.copy())
+    p = np.asarray(pose8, float)
+    if not np.isfinite(p).all():
+        return out
+    T, g = pose8_to_transform(p)
+    pts_w = np.vstack([T[:3, 3], T[:3, 3] + length * T[:3, :3].T])            # origin, x, y, z tips
+    pts_c = transform_points(transform_inverse(np.asarray(T_world_camera, float)), pts_w)
+    if (pts_c[:, 2] <= 1e-6).any():
+        return out
+    uv = (pts_c[:, :2] / pts_c[:, 2:3]) @ np.asarray(K, float)[:2, :2].T + np.asarray(K, float)[:2, 2]
+    o = tuple(int(round(v)) for v in uv[0])
+    for k in range(3):
+        cv2.line(out, o, tuple(int(round(v)) for v in uv[k + 1]), AXIS_COLOURS[k], 2, cv2.LINE_AA)
+    cv2.circle(out, o, 4, (255, 255, 255), -1 if float(g) >= 0.5 else 2, cv2.LINE_AA)
+    if label:
+        cv2.putText(out, label, (o[0] + 6, o[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    return out

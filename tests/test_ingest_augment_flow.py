@@ -98,3 +98,18 @@ def test_cli_reports_bad_takes_with_exit_2(warehouse, take_dir, tmp_path):
     assert r.exit_code == 2 and "11 x 3" in r.stderr
     r = runner.invoke(app, ["ingest", str(take_dir), "--detector", "precomputed"])
     assert r.exit_code == 2 and "--predictions" in r.stderr
+
+
+def test_overlay_video_is_one_flag_away(prefect_api, warehouse, take_dir):
+    import cv2
+
+    result = ingest_take(str(take_dir), str(warehouse), show_progress=False, video=True)
+    video = Path(result["overlay_video"].path)
+    assert video.parent == warehouse / "videos" and video.name == "synth_trash_in_bin_s0000.simulated.mp4"
+    cap = cv2.VideoCapture(str(video))
+    try:
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 238
+        ok, frame = cap.read()
+        assert ok and frame.shape == (480, 640, 3)
+    finally:
+        cap.release()
