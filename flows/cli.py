@@ -343,6 +343,37 @@ def retrieve(
     _emit(pa.Table.from_pylist(rows), format, None, k)
 
 
+@app.command("evaluate-keypoints")
+def evaluate_keypoints_cmd(
+    dataset: str = typer.Option("synthetic", "--dataset", help="synthetic (the warehouse's synthetic takes), arctic, or real_photos."),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Default: simulated (synthetic/ARCTIC), mediapipe (real photos)."),
+    arctic_root: Optional[Path] = typer.Option(None, "--arctic-root", envvar="ARCTIC_ROOT", help="Where ARCTIC was downloaded."),
+    take: Optional[List[str]] = typer.Option(None, "--take", help="Only these takes/sequences (default: the thesis's 18 ARCTIC takes)."),
+    subject: Optional[str] = typer.Option(None, help="ARCTIC subject (default: the first that has the sequence)."),
+    predictions_dir: Optional[Path] = typer.Option(None, help="For --detector precomputed: one <seq>.parquet/.npz/.json per take."),
+    stride: int = typer.Option(1, min=1, help="Evaluate every n-th ARCTIC frame."),
+) -> None:
+    """Hand-keypoint accuracy as the thesis reports it: Tables 1 and 2, Appendix B, big vs small objects.
+
+    Rows go to `keypoint_metrics` (or `real_photo_metrics`); the tables are the SQL views report_table1,
+    report_table2, report_appendix_b, report_big_vs_small and report_real_photos.
+    """
+    from flows.keypoint_eval import evaluate_keypoints
+    from lib.arctic import ArcticError
+
+    try:
+        evaluate_keypoints(str(current_warehouse()), dataset=dataset, detector=detector,
+                           arctic_root=str(arctic_root) if arctic_root else None, takes=take or None,
+                           subject=subject, predictions_dir=str(predictions_dir) if predictions_dir else None,
+                           stride=stride)
+    except (ArcticError, ValueError, FileNotFoundError) as e:
+        raise fail(str(e))
+    from schemas.catalog import query
+
+    view = "report_real_photos" if dataset == "real_photos" else "report_table1"
+    _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
+
+
 def main() -> None:
     app()
 

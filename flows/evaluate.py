@@ -9,6 +9,7 @@ from prefect import flow, get_run_logger
 
 from flows.augment import augment_take_flow
 from flows.ingest import ingest_take
+from flows.keypoint_eval import evaluate_keypoints
 from flows.report import write_report
 from flows.synth import synthesize_takes
 
@@ -22,12 +23,18 @@ def evaluate(
     seed: int = 0,
     mirror: str = "both",
     episodes: int = 10_000,
+    arctic_root: str | None = None,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
 
     Every take is ingested with the simulated detector (and measured against its ground truth);
-    the first plain take of each task becomes that task's database of `episodes` episodes."""
+    the first plain take of each task becomes that task's database of `episodes` episodes.
+    Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
+    labelled real photos, and on ARCTIC when `arctic_root` (or $ARCTIC_ROOT) is given."""
+    import os
+
+    arctic_root = arctic_root or os.environ.get("ARCTIC_ROOT") or None
     from lib.task_library import TASK_NAMES
 
     logger = get_run_logger()
@@ -39,7 +46,12 @@ def evaluate(
             augment_take_flow(m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
         else:
             ingest_take(m.path, warehouse)
+    evaluate_keypoints(warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
+    evaluate_keypoints(warehouse, dataset="real_photos")
+    if arctic_root:
+        evaluate_keypoints(warehouse, dataset="arctic", arctic_root=arctic_root)
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
-                                                   "mirror": mirror, "episodes": episodes})
+                                                   "mirror": mirror, "episodes": episodes,
+                                                   "arctic_root": arctic_root})
     logger.info("report written: %s", report)
     return str(report)

@@ -73,6 +73,41 @@ def takes_figure(warehouse: Path, out_png: Path, columns: int = 3) -> Path | Non
     return out_png
 
 
+def keypoint_sections(warehouse: Path, reports: Path, commit: str) -> list[str]:
+    """Thesis Tables 1, 2, Appendix B and the big/small comparison per dataset, plus the real photos."""
+    from lib.keypoint_eval import plot_big_vs_small, plot_per_take_bars
+
+    md = []
+    rows = query("SELECT * FROM keypoint_metrics", warehouse).to_pylist()
+    datasets = sorted({(r["dataset"], r["detector"]) for r in rows})
+    for dataset, detector in datasets:
+        src = {"arctic": "ARCTIC (egocentric view; anchor depth from ground truth: ARCTIC has no depth camera)",
+               "synthetic": "synthetic renders (depth alignment on the rendered depth)"}.get(dataset, dataset)
+        stamp = f"data: {src} · detector: {detector} · commit {commit}"
+        where = f"WHERE dataset = '{dataset}' AND detector = '{detector}'"
+        for title, view in (("Table 1: MPJPE and PA-MPJPE (m)", "report_table1"),
+                            ("Table 2: 2D MPJPE (px) and PCK", "report_table2"),
+                            ("Appendix B: per take", "report_appendix_b")):
+            t = query(f"SELECT * FROM {view} {where}", warehouse)
+            name = f"{view}_{dataset}_{detector}"
+            pacsv.write_csv(t, reports / f"{name}.csv")
+            md += [f"## {title} — {dataset}, {detector} detector", "",
+                   f"_{stamp} · SQL view `{view}` · CSV `{name}.csv`_", "",
+                   markdown_table(t.column_names, [list(r.values()) for r in t.to_pylist()])]
+        sel = [r for r in rows if r["dataset"] == dataset and r["detector"] == detector]
+        png = plot_per_take_bars(sel, "mpjpe_aligned_m", reports / f"keypoints_per_take_{dataset}_{detector}.png")
+        md += [f"![aligned MPJPE per take]({Path(png).name})", ""]
+        if any(r.get("size_group") for r in sel):
+            png = plot_big_vs_small(sel, reports / f"keypoints_big_vs_small_{dataset}_{detector}.png")
+            md += [f"![big vs small objects]({Path(png).name})", ""]
+    md.append(_section("A real detector on labelled real photos", "report_real_photos", warehouse, reports,
+                       f"data: real photos (../shared/data/real_hands) · commit {commit}",
+                       "MediaPipe on FreiHAND, OneHand10K, CMU Panoptic and COCO-WholeBody samples: PCK by "
+                       "the labelled box size over the hands it found; `pck20_all_hands` counts the joints "
+                       "of missed hands as wrong."))
+    return md
+
+
 def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -> Path:
     warehouse, reports = Path(warehouse), Path(reports_dir)
     reports.mkdir(parents=True, exist_ok=True)
@@ -113,6 +148,7 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
                        "position/rotation/approach-axis error, open/close accuracy of the thesis's fixed "
                        "threshold (0.06 m), the automatic per-take method and the labelled ranges, and the "
                        "left/right swaps injected by the detector and repaired."))
+    md += keypoint_sections(warehouse, reports, commit)
     md.append(_section("Segmentation against the scripted boundaries", "report_segmentation", warehouse, reports,
                        stamp, "Boundaries matched within 30 frames; errors in frames (30 fps)."))
     md.append(_section("Augmented episodes", "report_augmentation", warehouse, reports, stamp,
@@ -126,7 +162,8 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
         md += ["## Benchmarks", "", "_No benchmark run in this warehouse yet: `make bench`._", ""]
     unused = set(REPORT_VIEWS) - {"report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks",
                                   "report_ingest_by_task", "report_ingest_accuracy", "report_segmentation",
-                                  "report_augmentation"}
+                                  "report_augmentation", "report_table1", "report_table2", "report_appendix_b",
+                                  "report_big_vs_small", "report_real_photos"}
     assert not unused, f"report views not in the report: {unused}"
     out = reports / "REPORT.md"
     tmp = out.with_name(".REPORT.md.tmp")

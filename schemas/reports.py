@@ -5,6 +5,12 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+def _wavg(metric: str, weight: str) -> str:
+    """Frame-weighted mean over takes, skipping NaN (the thesis's eq. 4 pooled over all frames)."""
+    ok = f"NOT isnan({metric}) AND {weight} > 0"
+    return f"sum({metric} * {weight}) FILTER (WHERE {ok}) / sum({weight}) FILTER (WHERE {ok})"
+
+
 REPORT_VIEWS: dict[str, str] = {
     # One line per take: what was generated and whether its scripted demo passes in physics.
     "report_takes": """
@@ -71,6 +77,67 @@ REPORT_VIEWS: dict[str, str] = {
                count(*) FILTER (WHERE reject_reason = 'objects_overlap') AS objects_overlap,
                round(min(min_gripper_distance), 3) AS min_gripper_distance_m
         FROM episodes GROUP BY task, take, kind ORDER BY task, take, kind
+    """,
+    # Thesis Table 1: MPJPE / PA-MPJPE per hand, raw and depth-aligned (m), pooled over frames.
+    "report_table1": f"""
+        SELECT dataset, detector,
+               CASE hand WHEN 'left' THEN 'Left Hand' ELSE 'Right Hand' END AS method, hand, false AS aligned,
+               round({_wavg("mpjpe_m", "n_eval")}, 4) AS mpjpe_m,
+               round({_wavg("pa_mpjpe_m", "n_eval")}, 4) AS pa_mpjpe_m,
+               count(*) AS takes
+        FROM keypoint_metrics GROUP BY dataset, detector, hand
+        UNION ALL
+        SELECT dataset, detector,
+               CASE hand WHEN 'left' THEN 'Left Hand (Aligned)' ELSE 'Right Hand (Aligned)' END, hand, true,
+               round({_wavg("mpjpe_aligned_m", "n_eval_aligned")}, 4),
+               round({_wavg("pa_mpjpe_aligned_m", "n_eval_aligned")}, 4),
+               count(*)
+        FROM keypoint_metrics GROUP BY dataset, detector, hand
+        ORDER BY dataset, detector, hand, aligned
+    """,
+    # Thesis Table 2: 2D MPJPE (px) and PCK@0.05 / PCK@0.15 per hand (the 3D prediction projected with K).
+    "report_table2": f"""
+        SELECT dataset, detector, CASE hand WHEN 'left' THEN 'Left Hand' ELSE 'Right Hand' END AS hand,
+               round({_wavg("mpjpe_2d_px", "n_eval")}, 2) AS mpjpe_2d_px,
+               round({_wavg("pck05", "n_eval")}, 4) AS pck05,
+               round({_wavg("pck15", "n_eval")}, 4) AS pck15,
+               round({_wavg("mpjpe_2d_pred_px", "n_eval")}, 2) AS detector_2d_mpjpe_px,
+               round({_wavg("pck05_pred", "n_eval")}, 4) AS detector_2d_pck05,
+               count(*) AS takes
+        FROM keypoint_metrics GROUP BY dataset, detector, hand ORDER BY dataset, detector, hand
+    """,
+    # Thesis Appendix B: every take, both hands.
+    "report_appendix_b": """
+        SELECT l.dataset, l.detector, l.take, l.object,
+               round(l.mpjpe_m, 4) AS mpjpe_left, round(l.mpjpe_aligned_m, 4) AS mpjpe_left_aligned,
+               round(r.mpjpe_m, 4) AS mpjpe_right, round(r.mpjpe_aligned_m, 4) AS mpjpe_right_aligned,
+               round(l.pa_mpjpe_m, 4) AS pa_mpjpe_left, round(r.pa_mpjpe_m, 4) AS pa_mpjpe_right,
+               round(l.mpjpe_2d_px, 2) AS mpjpe_2d_left_px, round(r.mpjpe_2d_px, 2) AS mpjpe_2d_right_px,
+               round(l.pck05, 4) AS pck05_l, round(l.pck15, 4) AS pck15_l,
+               round(r.pck05, 4) AS pck05_r, round(r.pck15, 4) AS pck15_r
+        FROM keypoint_metrics l JOIN keypoint_metrics r
+          ON l.dataset = r.dataset AND l.detector = r.detector AND l.take = r.take
+         AND l.hand = 'left' AND r.hand = 'right'
+        ORDER BY l.dataset, l.detector, l.take
+    """,
+    # The thesis's big vs small objects (Figure 21), both hands pooled.
+    "report_big_vs_small": f"""
+        SELECT dataset, detector, size_group, count(DISTINCT take) AS takes,
+               round({_wavg("mpjpe_aligned_m", "n_eval_aligned")}, 4) AS mpjpe_aligned_m,
+               round({_wavg("pa_mpjpe_m", "n_eval")}, 4) AS pa_mpjpe_m,
+               round({_wavg("pck05", "n_eval")}, 4) AS pck05,
+               round({_wavg("pck15", "n_eval")}, 4) AS pck15
+        FROM keypoint_metrics WHERE size_group <> '' GROUP BY dataset, detector, size_group
+        ORDER BY dataset, detector, size_group
+    """,
+    # A real detector on labelled real photos.
+    "report_real_photos": """
+        SELECT detector, dataset, images, hands, detected, round(detection_rate, 3) AS detection_rate,
+               handedness_known, round(handedness_acc, 3) AS handedness_acc,
+               round(mpjpe_2d_px, 1) AS mpjpe_2d_px, round(pck05, 3) AS pck05, round(pck15, 3) AS pck15,
+               round(pck20, 3) AS pck20, round(pck20_all, 3) AS pck20_all_hands
+        FROM real_photo_metrics
+        ORDER BY detector, CASE WHEN dataset = 'all' THEN 1 ELSE 0 END, dataset
     """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """

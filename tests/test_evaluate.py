@@ -12,11 +12,16 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
     out = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
     text = out.read_text()
     for heading in ("## Takes", "## Scripted demonstrations in physics", "## Ingest accuracy per task",
-                    "## Segmentation against the scripted boundaries", "## Augmented episodes"):
+                    "## Segmentation against the scripted boundaries", "## Augmented episodes",
+                    "## Table 1: MPJPE and PA-MPJPE (m) — synthetic, simulated detector",
+                    "## Table 2: 2D MPJPE (px) and PCK", "## Appendix B: per take",
+                    "## A real detector on labelled real photos"):
         assert heading in text
     assert "synth_paper_in_case_s0000" in text and "simulated" in text
     assert "![synthetic takes](synthetic_takes.png)" in text and (reports / "synthetic_takes.png").stat().st_size > 10_000
-    for csv in ("report_takes", "report_ingest_accuracy", "report_augmentation", "report_segmentation"):
+    assert (reports / "keypoints_per_take_synthetic_simulated.png").stat().st_size > 5_000
+    for csv in ("report_takes", "report_ingest_accuracy", "report_augmentation", "report_segmentation",
+                "report_table1_synthetic_simulated", "report_real_photos"):
         lines = (reports / f"{csv}.csv").read_text().splitlines()
         assert len(lines) >= 2, csv
     aug = (reports / "report_augmentation.csv").read_text()
