@@ -164,6 +164,26 @@ def test_replay_succeeds(name, demos):
                 assert np.median(err) < 0.01, f"{name} arm {arm}: median tracking error {np.median(err):.3f} m"
 
 
+def _replay(job):
+    name, mirror, seed = job
+    t = get_task(name)
+    r = t.replay(t.scripted_demo(seed, mirror=mirror))
+    return name, mirror, seed, r.success, r.reason
+
+
+@pytest.mark.parametrize("name", TASK_NAMES)
+def test_replay_succeeds_more_seeds(name):
+    """The acceptance criterion over seeds 2-11 as well (success only; 2 worker processes)."""
+    import multiprocessing as mp
+
+    jobs = [(name, m, s) for s in range(2, 12) for m in (False, True)]
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with ctx.Pool(2) as pool:
+        res = pool.map(_replay, jobs)
+    bad = [r for r in res if not r[3]]
+    assert not bad, bad
+
+
 @pytest.mark.parametrize("name,fault", [(n, f) for n in TASK_NAMES for f in get_task(n).faults])
 def test_faulty_demo_fails(name, fault):
     """Predicates can fail: no pour tilt, can/paper released away from the receiver, lid never lifted,

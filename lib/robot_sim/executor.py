@@ -11,11 +11,15 @@ pre-roll (`preroll_s`, grippers held at the first pose, objects settle) -> for e
 slerp: lib.geometry.interpolate_poses), finger commands rate-limited to the gripper's speed, physics
 substeps, contacts summarised (which finger touches which object, gripper-gripper, gripper-table
 normal force) -> `settle_s` more seconds holding the last pose -> task predicate on the final state
-and the per-frame object history -> failure classification (failures.py).
+and the per-frame object history -> failure classification (failures.py).  With
+`stop_on_hard_failure` (default) the simulation stops at the first frame with an arm collision, a table
+collision or a workspace exit: the episode has failed whatever follows, so the remaining physics is
+skipped (the per-frame records end there and the predicate is not evaluated).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
@@ -27,7 +31,7 @@ from lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
 
 from .failures import FAILURES, classify
 from .gripper import GripperSpec
-from .scene import CODE_GRIPPER, CODE_OBJECT, CODE_TABLE, PhysicsOptions, SimScene, get_scene
+from .scene import PAIR_ARMS, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,10 @@ class SimOptions:
     workspace_margin: float = 0.05  # m around task.workspace
     table_force_limit: float = 15.0  # N gripper-table normal force -> "table_collision"
     keep_trajectory: bool = True  # keep per-frame arrays in SimResult
+    # stop simulating at the first frame with a hard failure (arm / table collision, left workspace):
+    # the episode has failed whatever follows (failures.py); the per-frame records end there, events
+    # list only what happened up to then, and predicate_ok is None (not evaluated)
+    stop_on_hard_failure: bool = True
 
 
 @dataclass
@@ -149,9 +157,14 @@ class _FingerCommand:
         self.goal_open = np.full(2, spec.opening)
         self.release_pos: list = [None, None]
         self.wmax = spec.speed * dt_ctrl
+        self.steady = False
+        self.out = spec.stroke - self.w
 
     def update(self, closed: np.ndarray, target_pos: np.ndarray, finger_q: np.ndarray) -> np.ndarray:
+        if self.steady and closed[0] == self.closed[0] and closed[1] == self.closed[1]:
+            return self.out  # nothing can change: same g, commands at their goals, no release pending
         sp = self.spec
+        steady = True
         for a in range(2):
             if closed[a]:
                 goal = -sp.squeeze
@@ -168,8 +181,12 @@ class _FingerCommand:
                     self.release_pos[a] = None
                 goal = self.goal_open[a]
             self.closed[a] = closed[a]
-            self.w[a] += min(max(goal - self.w[a], -self.wmax), self.wmax)
-        return sp.stroke - self.w
+            dw = goal - self.w[a]
+            self.w[a] = goal if abs(dw) <= self.wmax else self.w[a] + math.copysign(self.wmax, dw)
+            steady = steady and self.w[a] == goal and self.release_pos[a] is None
+        self.steady = steady
+        self.out = sp.stroke - self.w
+        return self.out
 
 
 # ------------------------------------------------------------------ one episode
@@ -250,8 +267,8 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     fq = sc.finger_qadr
     force6 = np.zeros(6)
     diag = {"arm_pair": []}
-    mocap = sc.mocap
-    act = sc.act
+    mocap = _as_index(sc.mocap)
+    act = _as_index(sc.act)
 
     hook = _FRAME_HOOK
 
@@ -264,38 +281,48 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         gp[i, :, 3:7] = d.xquat[base_body][:, [1, 2, 3, 0]]
         gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
 
+    ng = m.ngeom
+    pk, pa, pp, po = (x.ravel() for x in (sc.pair_kind, sc.pair_arm, sc.pair_part, sc.pair_obj))
+
     def contacts(i):
+        # called every control step: one table look-up per contact (scene.py pair tables), plain Python
+        # on the few relevant contacts (numpy calls on arrays of ~10 elements cost more than the work)
         nc = d.ncon
         if nc == 0:
             return
-        c = code[d.contact.geom[:nc]]  # (nc, 2)
-        c1, c2 = c[:, 0], c[:, 1]
-        g1, g2 = c1 >= CODE_GRIPPER, c2 >= CODE_GRIPPER
-        anyg = g1 | g2
-        if not anyg.any():
-            return
-        both = g1 & g2
-        if both.any() and ((c1[both] // 10) != (c2[both] // 10)).any():
-            if not diag["arm_pair"]:
-                j = np.flatnonzero(both & ((c1 // 10) != (c2 // 10)))[0]
-                diag["arm_pair"] = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in d.contact.geom[j]]
-            arm_contact[i] = True
-        one = anyg & ~both
-        if one.any():
-            gc = np.where(g1, c1, c2)[one]
-            oc = np.where(g1, c2, c1)[one]
-            isobj = (oc >= CODE_OBJECT) & (oc < CODE_GRIPPER)
-            if isobj.any():
-                g_ = gc[isobj] - CODE_GRIPPER
-                touch[i, g_ // 10, g_ % 10, oc[isobj] - CODE_OBJECT] = True
-            ist = oc == CODE_TABLE
-            if ist.any():
-                for ci, arm in zip(np.flatnonzero(one)[ist], (gc[ist] - CODE_GRIPPER) // 10):
-                    mj.mj_contactForce(m, d, int(ci), force6)
-                    table_force[i, arm] = max(table_force[i, arm], abs(force6[0]))
+        geom = d.contact.geom[:nc]
+        flat = (geom[:, 0] * ng + geom[:, 1]).tolist()
+        for j, f in enumerate(flat):
+            k = pk[f]
+            if k == PAIR_TOUCH:
+                touch[i, pa[f], pp[f], po[f]] = True
+            elif k == PAIR_TABLE:
+                mj.mj_contactForce(m, d, j, force6)
+                arm = pa[f]
+                if abs(force6[0]) > table_force[i, arm]:
+                    table_force[i, arm] = abs(force6[0])
+            elif k == PAIR_ARMS:
+                if not diag["arm_pair"]:
+                    diag["arm_pair"] = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in geom[j]]
+                arm_contact[i] = True
+
+    lo = sc.workspace[0] - opt.workspace_margin
+    hi = sc.workspace[1] + opt.workspace_margin
+
+    def hard_failure(i) -> bool:
+        """The outcome is decided (failures.py: a hard failure fails the episode whatever follows).
+        Collisions are checked every frame, the workspace every 6th frame (0.2 s at 30 fps) and at
+        the last: classify() finds the first offending frame in the records."""
+        if arm_contact[i] or table_force[i, 0] > opt.table_force_limit or table_force[i, 1] > opt.table_force_limit:
+            return True
+        if i % 6 and i != T - 1:
+            return False
+        p = np.concatenate([gp[i - 5:i + 1, :, :3], hist[i - 5:i + 1, :, :3, 3]], axis=1)
+        return bool(((p < lo) | (p > hi)).any())
 
     record(0)
     k = 0
+    stop = None  # frame after which the simulation was stopped (stop_on_hard_failure)
     for i in range(1, n):
         for c in range(cpf):
             d.mocap_pos[mocap] = tp[k]
@@ -306,25 +333,46 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
             k += 1
         steps += steps_per_frame
         record(i)
-    for i in range(n, T):
-        for c in range(cpf):
-            d.ctrl[act] = fc.update(closed_cmd[-1], pos[-1], d.qpos[fq])
-            mj.mj_step(m, d, nstep=int(sub[c]))
-            contacts(i)
-        steps += steps_per_frame
-        record(i)
+        if opt.stop_on_hard_failure and hard_failure(i):
+            stop = i
+            break
+    if stop is None:
+        for i in range(n, T):
+            for c in range(cpf):
+                d.ctrl[act] = fc.update(closed_cmd[-1], pos[-1], d.qpos[fq])
+                mj.mj_step(m, d, nstep=int(sub[c]))
+                contacts(i)
+            steps += steps_per_frame
+            record(i)
+            if opt.stop_on_hard_failure and hard_failure(i):
+                stop = i
+                break
 
-    ok, pdetail = sc.task.success(m, d, hist)
     g_cmd = np.concatenate([(~closed_cmd).astype(float), np.repeat((~closed_cmd[-1:]).astype(float), settle_frames, 0)])
+    if stop is None:
+        ok, pdetail = sc.task.success(m, d, hist)
+        ok = bool(ok)
+    else:  # truncate the per-frame records at the stop; the predicate is not evaluated
+        hist, gp, touch, arm_contact, table_force, g_cmd = (
+            x[:stop + 1] for x in (hist, gp, touch, arm_contact, table_force, g_cmd))
+        ok, pdetail = None, f"not evaluated: simulation stopped at t = {stop / fps:.2f} s after a hard failure"
     failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), hist, gp, touch, arm_contact,
                                        table_force, g_cmd, n, diag)
-    res = SimResult(sc.task.name, failure is None, failure, detail, bool(ok), str(pdetail),
+    res = SimResult(sc.task.name, failure is None, failure, detail, ok, str(pdetail),
                     steps * m.opt.timestep, steps, time.perf_counter() - t_wall, n, events,
                     gp, hist, touch, arm_contact, table_force, g_cmd)
     return res if opt.keep_trajectory else res.strip()
 
 
 _FRAME_HOOK = None  # render.py: callable(data) per recorded frame
+
+
+def _as_index(ids):
+    """A slice for contiguous ids (cheaper MjData writes than fancy indexing), else the array."""
+    ids = np.asarray(ids)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
 
 
 # ------------------------------------------------------------------ many episodes

@@ -20,7 +20,7 @@ def render_episode(task_name: str, object_poses, actions, out_mp4, fps: float = 
     import cv2
     import mujoco
 
-    opt = options or SimOptions()
+    opt = options or SimOptions(stop_on_hard_failure=False)  # show the whole episode, past a failure
     states, res = _resimulate_states(task_name, object_poses, actions, fps, opt)
     out_mp4 = Path(out_mp4)
     out_mp4.parent.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,8 @@ CODE_OTHER = 0
 CODE_TABLE = 1  # table top and floor
 CODE_OBJECT = 10  # + object index
 CODE_GRIPPER = 100  # + 10 * arm + part (0 left finger, 1 right finger, 2 palm / wrist)
+# geom pair kinds (SimScene.pair_kind)
+PAIR_NONE, PAIR_ARMS, PAIR_TOUCH, PAIR_TABLE = 0, 1, 2, 3  # -, left-right gripper, gripper-object, gripper-table
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,24 @@ class SimScene:
                 part = 0 if name.endswith("_l") else 1 if name.endswith("_r") else 2
                 code[g] = CODE_GRIPPER + 10 * a + part
         self.geom_code = code
+        # per geom pair (symmetric): what a contact between them means for the executor's bookkeeping,
+        # so that the per-control-step contact scan is one table look-up (executor.contacts)
+        g = code >= CODE_GRIPPER
+        arm = np.where(g, (code - CODE_GRIPPER) // 10, -1)
+        obj = np.where((code >= CODE_OBJECT) & (code < CODE_GRIPPER), code - CODE_OBJECT, -1)
+        kind = np.zeros((m.ngeom, m.ngeom), np.int8)
+        kind[np.ix_(g, g)] = PAIR_ARMS * (arm[g][:, None] != arm[g][None, :])
+        for a_, b_ in ((g, obj >= 0), (obj >= 0, g)):
+            kind[np.ix_(a_, b_)] = PAIR_TOUCH
+        for a_, b_ in ((g, code == CODE_TABLE), (code == CODE_TABLE, g)):
+            kind[np.ix_(a_, b_)] = PAIR_TABLE
+        gi, gj = np.meshgrid(np.arange(m.ngeom), np.arange(m.ngeom), indexing="ij")
+        grip_geom = np.where(g[gi], gi, gj)  # the gripper geom of a gripper-x pair
+        other = np.where(g[gi], gj, gi)
+        self.pair_kind = kind
+        self.pair_arm = arm[grip_geom].astype(np.int64)
+        self.pair_part = np.where(g[grip_geom], (code[grip_geom] - CODE_GRIPPER) % 10, 0).astype(np.int64)
+        self.pair_obj = np.maximum(obj[other], 0).astype(np.int64)
         self.workspace = np.asarray(task.workspace, float)
 
     # ------------------------------------------------------------------ placement

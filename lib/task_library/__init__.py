@@ -12,7 +12,7 @@ from .base import Demo, Placement, ReplayResult, Segment, Task, TaskObject
 from .tasks import TASKS
 
 #: Bump when scenes, scripts or predicates change: it is part of every dependent stage's cache key.
-TASK_LIBRARY_VERSION = "1.1.0"
+TASK_LIBRARY_VERSION = "1.2.0"
 
 TASK_NAMES = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 

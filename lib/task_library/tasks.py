@@ -55,9 +55,9 @@ def open_width(width: float) -> float:
 
 
 def grasp_sequence(tr: Track, grasp: np.ndarray, obj: int, width: float, st: Style,
-                   back: float = 0.07, up: float = 0.03) -> None:
+                   back: float = 0.07, up: float = 0.03, jitter: float = 0.01) -> None:
     """reach (motion) -> approach, close (skill); the hand holds `obj` afterwards."""
-    pre = translated(grasp, -grasp[:3, 2] * back + UP * up + st.jitter(0.01))
+    pre = translated(grasp, -grasp[:3, 2] * back + UP * up + st.jitter(jitter))
     tr.move(st.d(1.0), pre, open_width(width), "motion", obj)
     tr.move(st.d(0.6), grasp, open_width(width), "skill", obj)
     tr.move(st.d(0.3), grasp, width, "skill", obj)
@@ -74,9 +74,10 @@ def release_sequence(tr: Track, obj: int, width: float, st: Style, arm: int, ret
     tr.move(st.d(1.0), home_pose(arm, st), AP_REST, "motion", -1)
 
 
-def holder_script(tr: Track, grasp: np.ndarray, obj: int, width: float, st: Style, lift: float):
-    """The receiving object's hand: grasp, lift slightly; returns a function finishing the track."""
-    grasp_sequence(tr, grasp, obj, width, st)
+def holder_script(tr: Track, grasp: np.ndarray, obj: int, width: float, st: Style, lift: float, **approach):
+    """The receiving object's hand: grasp, lift slightly; returns a function finishing the track.
+    `approach`: keyword arguments of grasp_sequence (back, up, jitter)."""
+    grasp_sequence(tr, grasp, obj, width, st, **approach)
     tr.move(st.d(0.5), translated(grasp, [0, 0, lift]), None, "skill", obj)
 
     def finish(t_done: float):
@@ -219,9 +220,11 @@ class TrashInBin(Task):
         K0, B0 = poses
         a, t, h = self.A["half"], self.A["t"], self.A["h"]
         L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
-        # right hand pinches the front wall top, thumb outside, index inside
-        p = B0 @ np.array([st.u(0.02, 0.06), -(a - t / 2), h - 0.01, 1.0])
-        gB = top_pinch(p[:3], B0[:3, 1])
+        # right hand pinches the top of the bin's right wall near its back corner, thumb outside, index
+        # inside: the side away from the can hand, so that the two hands keep a clearance that two robot
+        # grippers (housings reaching ~20 cm behind the pinch point) can also keep
+        p = B0 @ np.array([a - t / 2, st.u(0.03, 0.06), h - 0.01, 1.0])
+        gB = top_pinch(p[:3], B0[:3, 0])
         lift = st.u(0.005, 0.015)
         finish_holder = holder_script(R, gB, 1, self.objects[1].grasp_width, st, lift)
         ready = R.now
@@ -236,7 +239,7 @@ class TrashInBin(Task):
         if fault == "release_far":
             over = translated(up, [-st.u(0.04, 0.08), -0.03, 0.0])
         else:
-            c = B0 @ np.array([st.u(-0.02, 0.02), st.u(-0.02, 0.02), 0, 1.0])
+            c = B0 @ np.array([st.u(-0.035, -0.015), st.u(-0.03, -0.01), 0, 1.0])  # away from the holding hand
             over = make_pose(K0[:3, :3], [c[0], c[1], z_drop])
         L.move(st.d(1.3), pinch_for(over, rel), None, "motion", 1)
         L.hold(st.d(0.2), "skill", 1)
@@ -282,8 +285,9 @@ class PaperInCase(Task):
         hx, hy, t, h = self.K["hx"], self.K["hy"], self.K["t"], self.K["h"]
         r = ob.BALL["r"]
         L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
-        p = K0 @ np.array([st.u(0.04, 0.07), -(hy - t / 2), h - 0.008, 1.0])
-        gK = top_pinch(p[:3], K0[:3, 1])
+        # right hand pinches the top of the case's right wall (away from the ball hand; the back is the lid)
+        p = K0 @ np.array([hx - t / 2, st.u(-0.02, 0.015), h - 0.008, 1.0])
+        gK = top_pinch(p[:3], K0[:3, 0])
         lift = st.u(0.003, 0.01)
         finish_holder = holder_script(R, gK, 1, self.objects[1].grasp_width, st, lift)
         ready = R.now
@@ -300,7 +304,7 @@ class PaperInCase(Task):
             L.move(st.d(1.2), pinch_for(over, rel), None, "motion", 1)
             L.hold(st.d(0.6), "skill", 1)
         else:
-            c = K0 @ np.array([st.u(-0.03, 0.03), st.u(-0.01, 0.005), 0, 1.0])
+            c = K0 @ np.array([st.u(-0.045, -0.02), st.u(-0.01, 0.005), 0, 1.0])  # away from the holding hand
             over = make_pose(P0[:3, :3], [c[0], c[1], z_carry])
             L.move(st.d(1.2), pinch_for(over, rel), None, "motion", 1)
             L.move(st.d(0.6), pinch_for(translated(over, [0, 0, h + lift + st.u(0.008, 0.015) - z_carry]), rel),
@@ -352,12 +356,12 @@ class MixBowl(Task):
         W0, B0 = poses
         L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
         bw = self.BW
-        # right hand pinches the rim on the bowl's right-front, thumb outside
-        ang = math.radians(st.u(-50, -20))
-        Rz = Rotation.from_euler("z", math.atan2(B0[1, 0], B0[0, 0]))
-        radial = Rz.apply([math.cos(ang), math.sin(ang), 0])
+        # right hand pinches the rim on the bowl's right-back (world frame: the bowl is round, its yaw is
+        # arbitrary), thumb outside: away from the whisk hand, whose hand reaches over the front of the bowl
+        ang = math.radians(st.u(10, 45))
+        radial = np.array([math.cos(ang), math.sin(ang), 0.0])
         p = B0[:3, 3] + radial * (bw["r_top"] + 0.0015) + [0, 0, bw["h"] - 0.008]
-        gB = top_pinch(p, -radial)
+        gB = top_pinch(p, -radial, tilt_toward=-radial, tilt=0.35)  # fingers along the flaring wall
         lift = st.u(0.003, 0.008)
         finish_holder = holder_script(R, gB, 1, self.objects[1].grasp_width, st, lift)
         ready = R.now
@@ -458,9 +462,14 @@ class OpenContainer(Task):
         st = Style(rng)
         L0, C0 = poses
         L, R = Track(home_pose(0, st), AP_REST), Track(home_pose(1, st), AP_REST)
-        p = C0 @ np.array([self.CT["hx"] - st.u(0.02, 0.035), 0, st.u(0.035, 0.05), 1.0])
-        gC = side_pinch(p[:3], -C0[:2, 0], 1, st.u(0.0, 0.25))
-        finish_holder = holder_script(R, gC, 1, self.objects[1].grasp_width, st, st.u(0.002, 0.005))
+        # the right hand grips the container across its width near its right end, below the lid's skirt;
+        # it comes in level (not from above) and well aligned: the container (10 cm) leaves an opened
+        # robot gripper (11 cm) half a centimetre each side, and the lid's skirt is wider than both
+        # (height and downward pitch also keep the back of the hand / wrist off the table)
+        p = C0 @ np.array([self.CT["hx"] - st.u(0.02, 0.035), 0, st.u(0.036, 0.044), 1.0])
+        gC = side_pinch(p[:3], -C0[:2, 0], 1, st.u(0.08, 0.22))
+        finish_holder = holder_script(R, gC, 1, self.objects[1].grasp_width, st, st.u(0.002, 0.005),
+                                      up=0.0, jitter=0.002)
         ready = R.now
         wL = self.objects[0].grasp_width
         k = L0 @ np.array([0, 0, self.LD["t"] + self.LD["knob"][2], 1.0])
@@ -520,8 +529,11 @@ class EmptyVase(Task):
         finish_holder = holder_script(R, gV, 1, self.objects[1].grasp_width, st, st.u(0.002, 0.005))
         ready = R.now
         wF = self.objects[0].grasp_width
+        # the left hand pinches the main stem from the side along the flowers' local x (the plane of the
+        # side stems): the side stems lie ahead of / behind the pinch, only the main stem is squeezed
+        h = unit([F0[0, 0], F0[1, 0], 0.0])
         gF = side_pinch((F0 @ np.array([0, 0, self.STEM_GRASP + st.u(-0.01, 0.01), 1.0]))[:3],
-                        approach_dir(0, F0[:3, 3], st), 0, st.u(0.0, 0.25))
+                        h, 0, st.u(0.0, 0.12))
         grasp_sequence(L, gF, 0, wF, st)
         rel = inv_pose(gF) @ F0
         L.until(ready, "skill", 0)
@@ -532,15 +544,22 @@ class EmptyVase(Task):
             up = translated(F0, [0, 0, self.V["h"] + st.u(0.05, 0.07)])
             L.move(st.d(1.2), pinch_for(up, rel), None, "skill", 1)
             side = translated(up, [-st.u(0.28, 0.32), st.u(-0.03, 0.03), 0.02])
-            L.move(st.d(1.0), pinch_for(side, rel), None, "motion", 1)
-            lay_rot = Rotation.from_euler("y", -math.pi / 2) * Rotation.from_matrix(F0[:3, :3])
-            base = np.array([V0[0, 3] - st.u(0.09, 0.11), side[1, 3], 0.062])
-            mid_rot = Rotation.from_euler("y", -math.pi / 4) * Rotation.from_matrix(F0[:3, :3])
-            L.move(st.d(0.6), pinch_for(make_pose(mid_rot, 0.5 * (side[:3, 3] + base) + [0, 0, 0.1]), rel),
-                   None, "motion", 1)
-            L.move(st.d(0.7), pinch_for(make_pose(lay_rot, base + [0, 0, 0.02]), rel), None, "motion", 1)
-            L.move(st.d(0.5), pinch_for(make_pose(lay_rot, base), rel), None, "skill", 1)
-            release_sequence(L, 1, wF, st, arm=0, retreat=UP * 0.08)
+            P_side = pinch_for(side, rel)
+            L.move(st.d(1.0), P_side, None, "motion", 1)
+            # lay the flowers down by rolling the hand 90 degrees about its (horizontal) approach
+            # direction: the stem turns horizontal (blossoms away from the demonstrator), the back of the
+            # hand stays level, and the pinch stays high enough (z_lay) for a gripper's housing
+            z_lay = st.u(0.066, 0.072)
+
+            def rolled(angle, z):
+                return make_pose(Rotation.from_rotvec(h * -angle).as_matrix() @ P_side[:3, :3],
+                                 [P_side[0, 3], P_side[1, 3], z])
+
+            L.move(st.d(0.7), rolled(math.pi / 4, 0.5 * (P_side[2, 3] + z_lay) + 0.03), None, "motion", 1)
+            L.move(st.d(0.7), rolled(math.pi / 2, z_lay + 0.03), None, "motion", 1)
+            L.move(st.d(0.5), rolled(math.pi / 2, z_lay), None, "skill", 1)
+            # open and slide the fingers back off the stem along the approach direction
+            release_sequence(L, 1, wF, st, arm=0, retreat=-L.pose[:3, 2] * 0.08 + UP * 0.01)
         finish_holder(L.now - st.d(1.0))
         return L, R
 
