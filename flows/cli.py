@@ -238,6 +238,7 @@ def evaluate(
     takes: int = typer.Option(1, "--takes", min=1, envvar="TAKES", help="Synthetic takes per task and mirror flag."),
     seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
+    sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
@@ -250,7 +251,7 @@ def evaluate(
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
     report = evaluate_flow(str(current_warehouse()), str(reports.resolve()), tasks=task or None,
-                           takes=takes, seed=seed, episodes=episodes)
+                           takes=takes, seed=seed, episodes=episodes, sim_episodes=sim_episodes)
     typer.echo(f"report: {report}")
 
 
@@ -372,6 +373,73 @@ def evaluate_keypoints_cmd(
 
     view = "report_real_photos" if dataset == "real_photos" else "report_table1"
     _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
+
+
+@app.command("llm-eval")
+def llm_eval_cmd(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples."),
+    strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval, replay_top1, transform_demo (repeatable; default all)."),
+    backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL)."),
+    model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model name for the openai backend."),
+    trials: int = typer.Option(3, envvar="TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
+    seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),
+    waypoints: int = typer.Option(20, help="Waypoints per example action sequence in the prompt."),
+    precision: int = typer.Option(3, help="Decimals of the numbers in the prompt."),
+) -> None:
+    """Predict trajectories with an LLM for new scenes and judge them in MuJoCo (thesis Table 3)."""
+    from flows.llm_eval import ALL_STRATEGIES, llm_eval
+
+    options = {"model": model} if model else {}
+    try:
+        llm_eval(str(current_warehouse()), task=task, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
+                 backend_options=options, trials=trials, seed=seed, n_waypoints=waypoints, precision=precision)
+    except ValueError as e:
+        raise fail(str(e))
+    from schemas.catalog import query
+
+    _emit(query(f"SELECT * FROM report_table3 WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+
+
+@app.command()
+def simulate(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    episodes: str = typer.Option("100", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take); default: the task's first."),
+    workers: int = typer.Option(2, min=1, help="Worker processes."),
+    chunk_size: int = typer.Option(100, min=1, help="Episodes per cached chunk (a crash loses at most one chunk)."),
+    seed: int = typer.Option(0, help="Seed of the episode sample."),
+) -> None:
+    """Execute episodes with two parallel-jaw grippers in MuJoCo physics and record success and failure reasons."""
+    from flows.sim import simulate_episodes
+
+    n: int | str = episodes if episodes == "all" else int(episodes) if episodes.isdigit() else -1
+    if n == -1:
+        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    try:
+        simulate_episodes(str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
+                          workers=workers, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    from schemas.catalog import query
+
+    _emit(query(f"SELECT * FROM report_sim WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+
+
+@app.command("render-episode")
+def render_episode_cmd(
+    task: str = typer.Option(..., "--task", "-t"),
+    episode: int = typer.Option(..., "--episode", "-e", help="Episode id (see the `episodes` table)."),
+    out: Path = typer.Option(Path("episode.mp4"), "--out", "-o", help="Output MP4."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take)."),
+) -> None:
+    """Render an offscreen video of the robot executing one episode."""
+    from flows.sim import render_episode_video
+
+    try:
+        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take)
+    except ValueError as e:
+        raise fail(str(e))
+    typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
 
 
 def main() -> None:

@@ -11,6 +11,7 @@ from flows.augment import augment_take_flow
 from flows.ingest import ingest_take
 from flows.keypoint_eval import evaluate_keypoints
 from flows.report import write_report
+from flows.sim import simulate_episodes
 from flows.synth import synthesize_takes
 
 
@@ -24,12 +25,14 @@ def evaluate(
     mirror: str = "both",
     episodes: int = 10_000,
     arctic_root: str | None = None,
+    sim_episodes: int = 20,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
 
     Every take is ingested with the simulated detector (and measured against its ground truth);
-    the first plain take of each task becomes that task's database of `episodes` episodes.
+    the first plain take of each task becomes that task's database of `episodes` episodes, of which
+    `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo.
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
     labelled real photos, and on ARCTIC when `arctic_root` (or $ARCTIC_ROOT) is given."""
     import os
@@ -44,6 +47,9 @@ def evaluate(
         name = Path(m.path).name
         if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
             augment_take_flow(m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
+            task = name.split("_s")[0].removeprefix("synth_")
+            if sim_episodes:
+                simulate_episodes(warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
         else:
             ingest_take(m.path, warehouse)
     evaluate_keypoints(warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
@@ -52,6 +58,6 @@ def evaluate(
         evaluate_keypoints(warehouse, dataset="arctic", arctic_root=arctic_root)
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
                                                    "mirror": mirror, "episodes": episodes,
-                                                   "arctic_root": arctic_root})
+                                                   "arctic_root": arctic_root, "sim_episodes": sim_episodes})
     logger.info("report written: %s", report)
     return str(report)

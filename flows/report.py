@@ -154,6 +154,11 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
     md.append(_section("Augmented episodes", "report_augmentation", warehouse, reports, stamp,
                        "The task databases: episode 0 is the ingested demonstration, then translated and "
                        "mirrored-and-translated episodes; invalid ones are kept and flagged with the reason."))
+    md.append(_section("Robot success checks in MuJoCo physics", "report_sim", warehouse, reports, stamp,
+                       "A sample of each task's episodes (the original demonstration first) executed by two "
+                       "parallel-jaw grippers with real contacts, friction and gravity; the robot replays what "
+                       "the ingest recovered from the video, not the script."))
+    md.append(_section("Why episodes failed in physics", "report_sim_failures", warehouse, reports, stamp))
     bench = _view("report_benchmarks", warehouse)
     if bench.num_rows:
         md.append(_section("Benchmarks (latest `make bench` run)", "report_benchmarks", warehouse, reports,
@@ -163,7 +168,8 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
     unused = set(REPORT_VIEWS) - {"report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks",
                                   "report_ingest_by_task", "report_ingest_accuracy", "report_segmentation",
                                   "report_augmentation", "report_table1", "report_table2", "report_appendix_b",
-                                  "report_big_vs_small", "report_real_photos"}
+                                  "report_big_vs_small", "report_real_photos", "report_sim", "report_sim_failures",
+                                  "report_table3", "report_llm_failures"}
     assert not unused, f"report views not in the report: {unused}"
     out = reports / "REPORT.md"
     tmp = out.with_name(".REPORT.md.tmp")

@@ -139,6 +139,36 @@ REPORT_VIEWS: dict[str, str] = {
         FROM real_photo_metrics
         ORDER BY detector, CASE WHEN dataset = 'all' THEN 1 ELSE 0 END, dataset
     """,
+    # Thesis Table 3: successes per take and strategy (of the trials), with the average rate.
+    "report_table3": """
+        SELECT task, take, strategy, backend, model, count(*) AS trials,
+               count(*) FILTER (WHERE success) AS successes,
+               round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
+               count(*) FILTER (WHERE parse_status NOT IN ('ok', 'truncated')) AS unparsable,
+               round(avg(prompt_tokens), 0) AS mean_prompt_tokens, round(avg(answer_tokens), 0) AS mean_answer_tokens,
+               round(avg(latency_s), 2) AS mean_latency_s
+        FROM llm_trials GROUP BY task, take, strategy, backend, model
+        ORDER BY task, take, CASE strategy WHEN 'single' THEN 0 WHEN 'random' THEN 1 WHEN 'retrieval' THEN 2
+                                   WHEN 'replay_top1' THEN 3 ELSE 4 END
+    """,
+    # Why trials failed, per strategy.
+    "report_llm_failures": """
+        SELECT task, strategy, backend, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
+               count(*) AS trials
+        FROM llm_trials GROUP BY ALL ORDER BY task, strategy, trials DESC
+    """,
+    # Robot success checks of the augmented episodes, per task and kind.
+    "report_sim": """
+        SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,
+               round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
+               round(avg(wall_s), 2) AS mean_wall_s
+        FROM sim_results GROUP BY task, take, kind ORDER BY task, take, kind
+    """,
+    # Why episodes failed in physics.
+    "report_sim_failures": """
+        SELECT task, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
+        FROM sim_results GROUP BY ALL ORDER BY task, episodes DESC
+    """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """
         SELECT stage, case_name, size, unit, round(seconds, 4) AS seconds,

@@ -15,18 +15,18 @@ from tasks.ingest import arrays, take_task_name
 AUGMENT_VERSION = "1"
 
 
-def _demo_arrays(take, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
+def _demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
     """The take's gripper trajectory (T, 2, 8) with undetected frames filled, and its object keypoints."""
     from lib.segmentation import fill_invalid_poses
 
-    part = dict(task=task, take=take.take_id)
+    part = dict(task=task, take=take_id)
     _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "valid")
     traj = fill_invalid_poses(gp["pose"], gp["valid"])
     ok = read_table("object_keypoints", warehouse, **part).sort_by("keypoint")
     kp = np.array(ok.column("point_world").to_pylist(), float)
     if not np.isfinite(kp).all():
         bad = [n for n, v in zip(ok.column("name").to_pylist(), ok.column("valid").to_pylist()) if not v]
-        raise ValueError(f"take {take.take_id}: object keypoints without depth: {bad}; fix the annotation "
+        raise ValueError(f"take {take_id}: object keypoints without depth: {bad}; fix the annotation "
                          "(click points on valid depth) before augmenting")
     return traj, kp
 
@@ -45,13 +45,13 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
                  manual: dict | None = None) -> Manifest:
     """Motion/skill segments per arm; on synthetic takes also the boundary error against the script."""
     from lib.ingest import open_take
-    from lib.segmentation import boundaries, boundary_error, segment_trajectory
+    from lib.segmentation import Segment, boundaries, boundary_error, segment_trajectory
     from schemas.core import read_table_file
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
     spec = _require_task(name)
-    traj, kp = _demo_arrays(take, name, warehouse)
+    traj, kp = _demo_arrays(take.take_id, name, warehouse)
     manual_arms = {int(k): list(v) for k, v in (manual or {}).items()}
     segs = segment_trajectory(traj, kp, spec.keypoint_object, manual=manual_arms or None)
     written = write_table("segments", {
@@ -62,7 +62,7 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     }, warehouse)
     if take.has_ground_truth:
         gt = read_table_file("gt_segments", take.ground_truth_dir / "gt_segments.parquet").to_pylist()
-        ref = [_Seg(0 if r["hand"] == "left" else 1, r["kind"], r["start"], r["end"]) for r in gt]
+        ref = [Segment(0 if r["hand"] == "left" else 1, r["kind"], r["start"], r["end"], -1) for r in gt]
         rows = []
         for arm in (0, 1):
             mine = [s for s in segs if s.arm == arm]
@@ -77,9 +77,19 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     return Manifest.from_written("segments", written, written[0].path)
 
 
-class _Seg:
-    def __init__(self, arm, kind, start, end, obj=-1):
-        self.arm, self.kind, self.start, self.end, self.object = arm, kind, start, end, obj
+def load_demo_source(take_id: str, task: str, warehouse: str):
+    """The ingested demonstration as the augmentation's DemoSource: gripper trajectory, object
+    keypoints and segments from the warehouse, object models from the task library."""
+    from lib.augmentation import DemoSource
+    from lib.segmentation import Segment, infer_object_arm
+
+    spec = _require_task(task)
+    traj, kp = _demo_arrays(take_id, task, warehouse)
+    rows = read_table("segments", warehouse, task=task, take=take_id).to_pylist()
+    segs = [Segment(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in rows]
+    return DemoSource(task=task, trajectory=traj, keypoints=kp, keypoint_object=spec.keypoint_object,
+                      keypoints_local=spec.keypoints_local, segments=segs,
+                      object_arm=infer_object_arm(traj, kp, spec.keypoint_object))
 
 
 @stage_task(name="augment_take", version=AUGMENT_VERSION)
@@ -87,19 +97,13 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
                  segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
                  options: dict | None = None) -> Manifest:
     """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes."""
-    from lib.augmentation import DemoSource, generate_episodes
+    from lib.augmentation import generate_episodes
     from lib.ingest import open_take
-    from lib.segmentation import infer_object_arm
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
     spec = _require_task(name)
-    traj, kp = _demo_arrays(take, name, warehouse)
-    seg_rows = read_table("segments", warehouse, task=name, take=take.take_id).to_pylist()
-    segs = [_Seg(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in seg_rows]
-    source = DemoSource(task=name, trajectory=traj, keypoints=kp, keypoint_object=spec.keypoint_object,
-                        keypoints_local=spec.keypoints_local, segments=segs,
-                        object_arm=infer_object_arm(traj, kp, spec.keypoint_object))
+    source = load_demo_source(take.take_id, name, warehouse)
     opts = dict(options or {})
     opts.setdefault("workspace", np.asarray(spec.workspace))
     batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)

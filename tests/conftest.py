@@ -25,3 +25,13 @@ def warehouse(tmp_path, monkeypatch):
     root.mkdir()
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(root))
     return root
+
+
+@pytest.fixture(scope="session")
+def trash_take(tmp_path_factory):
+    """A full synthetic trash_in_bin take (about 240 frames), rendered once per test session."""
+    from lib.synth.take import generate_take
+
+    out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
+    generate_take("trash_in_bin", 0, False, out, video=False)
+    return out

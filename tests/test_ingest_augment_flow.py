@@ -14,14 +14,9 @@ from flows.ingest import ingest_take
 from schemas.catalog import query
 
 
-@pytest.fixture(scope="module")
-def take_dir(tmp_path_factory):
-    """A full trash_in_bin take (238 frames), rendered once for this module."""
-    from lib.synth.take import generate_take
-
-    out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
-    generate_take("trash_in_bin", 0, False, out, video=False)
-    return out
+@pytest.fixture()
+def take_dir(trash_take):
+    return trash_take
 
 
 def test_ingest_flow_meets_the_accuracy_goals_and_is_cached(prefect_api, warehouse, take_dir, monkeypatch):
@@ -113,3 +108,28 @@ def test_overlay_video_is_one_flag_away(prefect_api, warehouse, take_dir):
         assert ok and frame.shape == (480, 640, 3)
     finally:
         cap.release()
+
+
+def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, warehouse, take_dir, tmp_path, monkeypatch):
+    from flows.sim import render_episode_video, simulate_episodes
+
+    augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
+    first = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=2, show_progress=False)
+    assert [m.rows for m in first] == [2, 2]
+    rows = query("SELECT * FROM sim_results ORDER BY episode_id", warehouse).to_pylist()
+    assert rows[0]["episode_id"] == 0 and rows[0]["kind"] == "original"
+    assert all((r["success"] and r["failure"] == "") or (not r["success"] and r["failure"]) for r in rows)
+    assert all(r["physics_steps"] > 0 for r in rows)
+
+    # a crash lost chunk 1: only that chunk is simulated again
+    Path(first[1].files[0]).unlink()
+    calls = []
+    import lib.robot_sim as rs
+
+    real = rs.execute_many
+    monkeypatch.setattr(rs, "execute_many", lambda task, eps, **kw: calls.append(len(eps)) or real(task, eps, **kw))
+    again = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=2, show_progress=False)
+    assert calls == [2] and again[0] == first[0]
+
+    row = render_episode_video(str(warehouse), "trash_in_bin", 0, tmp_path / "ep0.mp4")
+    assert (tmp_path / "ep0.mp4").stat().st_size > 10_000 and row["success"] == rows[0]["success"]

@@ -1,0 +1,77 @@
+"""Flows: execute a task's episodes with the dual-gripper robot in MuJoCo; render one as a video."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from prefect import flow, get_run_logger
+
+import lib  # noqa: F401
+from tasks.common import Manifest, run_stage
+from tasks.sim import simulate_chunk
+
+
+def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Sequence[int], seed: int = 0) -> list[int]:
+    """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids."""
+    from schemas.catalog import query
+
+    t = query(f"SELECT episode_id FROM episodes WHERE task = '{task}' AND take = '{take}' AND valid "
+              "ORDER BY episode_id", warehouse)
+    valid = np.asarray(t.column(0).to_numpy())
+    if isinstance(episodes, str):
+        if episodes != "all":
+            raise ValueError(f"episodes must be a number, a list of ids or 'all', got {episodes!r}")
+        return valid.tolist()
+    if isinstance(episodes, (int, np.integer)):
+        n = min(int(episodes), len(valid))
+        rest = np.random.default_rng(seed).permutation(valid[valid != 0])
+        return ([0] if 0 in valid else []) + sorted(rest[: n - (1 if 0 in valid else 0)].tolist())
+    return [int(e) for e in episodes]
+
+
+@flow(name="simulate-episodes")
+def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
+                      take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
+                      show_progress: bool = True) -> list[Manifest]:
+    """Execute episodes of a task's database in MuJoCo (results: `sim_results`), chunk by chunk.
+
+    Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
+    the same episodes costs nothing."""
+    from lib.task_library import TASK_NAMES
+    from schemas.catalog import query
+
+    logger = get_run_logger()
+    if task not in TASK_NAMES:
+        raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    takes = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
+    if take is None and takes:
+        take = takes[0]
+    if take not in takes:
+        raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
+    ids = pick_episodes(warehouse, task, take, episodes, seed)
+    chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
+    out = []
+    for k, chunk in enumerate(chunks):
+        out.append(run_stage(simulate_chunk, warehouse, task=task, take=take, chunk=k, episode_ids=chunk,
+                             warehouse=warehouse, workers=workers, show_progress=show_progress))
+        logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
+    return out
+
+
+def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None) -> dict:
+    """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
+    from lib.robot_sim.render import render_episode
+    from schemas.catalog import query
+    from tasks.llm_eval import _actions
+
+    where = f"task = '{task}' AND episode_id = {int(episode_id)}" + (f" AND take = '{take}'" if take else "")
+    t = query(f"SELECT take, object_keypoints FROM episodes WHERE {where} ORDER BY take LIMIT 1", warehouse)
+    if t.num_rows == 0:
+        raise ValueError(f"no episode {episode_id} of task {task!r} in the warehouse")
+    take = t.column("take")[0].as_py()
+    kp = np.asarray(t.column("object_keypoints")[0].as_py(), float)
+    actions = _actions(warehouse, task, take, [episode_id])[int(episode_id)]
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    return render_episode(task, kp, actions, str(out)).row()

@@ -1,0 +1,150 @@
+"""Prefect task of the prompting-strategy evaluation (thesis Table 3): query scenes -> prompts -> LLM
+-> parsed actions -> MuJoCo success check, one call per (task, take, strategy, backend)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+import lib  # noqa: F401
+from schemas.core import write_table
+from tasks.common import Manifest, stage_task
+
+LLM_EVAL_VERSION = "1"
+LLM_STRATEGIES = ("single", "random", "retrieval")
+BASELINES = ("replay_top1", "transform_demo")
+K_EXAMPLES = 3
+
+
+def query_scene(task: str, seed: int, trial: int) -> tuple[np.ndarray, np.ndarray]:
+    """A new, seeded object placement of the task (not one of the database's samples): (poses, keypoints)."""
+    from lib.task_library import get_task
+
+    spec = get_task(task)
+    rng = np.random.default_rng([int(seed), 7919, int(trial)])
+    placement = spec.sample_placement(rng)
+    return placement.object_poses, spec.keypoints_world(placement.object_poses)
+
+
+def upsample(waypoints: np.ndarray, n_steps: int) -> np.ndarray:
+    """(n, 2, 8) waypoints spread over an episode of n_steps frames: positions cubic, rotations slerp,
+    gripper state from the nearest waypoint (open/close instants stay sharp)."""
+    from lib.geometry import interpolate_poses
+
+    n = len(waypoints)
+    t_wp = np.linspace(0.0, 1.0, n)
+    t = np.linspace(0.0, 1.0, n_steps)
+    pos, quat = interpolate_poses(t_wp, waypoints[..., :3], waypoints[..., 3:7], t,
+                                  position="cubic" if n >= 4 else "linear")
+    g = waypoints[np.rint(t * (n - 1)).astype(int), :, 7:8]
+    return np.concatenate([pos, quat, g], axis=-1)
+
+
+def _episode_data(warehouse: str, task: str, take: str):
+    from schemas.catalog import query
+
+    ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
+               f"WHERE task = '{task}' AND take = '{take}' AND valid ORDER BY episode_id", warehouse)
+    if ep.num_rows == 0:
+        raise ValueError(f"no valid episodes of {task}/{take}: run `demoforge augment` on the take first")
+    return {"ids": np.asarray(ep.column("episode_id").to_numpy()),
+            "kinds": np.array(ep.column("kind").to_pylist()),
+            "keypoints": np.asarray(ep.column("object_keypoints").to_pylist(), float),
+            "initial": np.asarray(ep.column("initial_poses").to_pylist(), float),
+            "length": np.asarray(ep.column("length").to_numpy())}
+
+
+def _actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
+    from schemas.catalog import query
+
+    id_list = ", ".join(str(int(i)) for i in ids)
+    t = query(f"SELECT episode_id, action FROM episode_steps WHERE task = '{task}' AND take = '{take}' "
+              f"AND episode_id IN ({id_list}) ORDER BY episode_id, step", warehouse)
+    eid = np.asarray(t.column("episode_id").to_numpy())
+    act = np.asarray(t.column("action").to_pylist(), float)
+    return {int(i): act[eid == i] for i in np.unique(eid)}
+
+
+@stage_task(name="llm_trials", version=LLM_EVAL_VERSION)
+def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
+               backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
+               n_waypoints: int = 20, precision: int = 3, max_tokens: int | None = None,
+               temperature: float = 0.0) -> Manifest:
+    """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
+    from lib.prompting import build_prompt, parse_actions
+    from lib.retrieval import KeypointIndex, select_random
+    from lib.robot_sim import execute
+
+    db = _episode_data(warehouse, task, take)
+    index = KeypointIndex(db["keypoints"], ids=db["ids"])
+    original = int(db["ids"][db["kinds"] == "original"][0])
+    n_steps = int(db["length"][db["ids"] == original][0])
+    init = db["initial"][db["ids"] == original][0]
+    llm = None
+    if strategy in LLM_STRATEGIES:
+        from lib.llm import Sampling, get_backend
+
+        llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
+    rows = []
+    for trial in range(trials):
+        poses, kp = query_scene(task, seed, trial)
+        row = {"task": task, "take": take, "trial": trial, "strategy": strategy,
+               "backend": backend if llm else "none", "model": getattr(llm, "model", "") if llm else "",
+               "seed": seed, "query_keypoints": kp.tolist(), "n_waypoints": n_waypoints, "prompt_tokens": 0,
+               "answer_tokens": 0, "latency_s": 0.0, "cached": False, "parse_status": "ok", "parse_detail": "",
+               "prompt_hash": "", "raw_answer": ""}
+        if strategy == "single":
+            ids = [original]
+        elif strategy == "random":
+            ids = [int(i) for i in select_random(db["ids"], K_EXAMPLES, seed=seed * 1000 + trial)]
+        else:  # retrieval and the replay baseline use the top-k by keypoint MSE
+            ids = [int(i) for i in np.asarray(index.query(kp, k=K_EXAMPLES).ids).ravel()]
+        row["retrieved_episode_ids"] = ids if strategy != "transform_demo" else [original]
+        actions = None
+        if strategy == "replay_top1":
+            actions = _actions(warehouse, task, take, ids[:1])[ids[0]]
+            row["retrieved_episode_ids"] = ids[:1]
+        elif strategy == "transform_demo":
+            actions = _transform_original(warehouse, task, take, poses)
+        else:
+            acts = _actions(warehouse, task, take, ids)
+            examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
+            prompt = build_prompt(examples, kp, init, n_waypoints=n_waypoints, precision=precision)
+            row["prompt_hash"] = prompt.hash
+            sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
+                                seed=seed, stop=tuple(prompt.stop))
+            t0 = time.perf_counter()
+            try:
+                c = llm.complete(prompt, sampling)
+            except Exception as e:  # noqa: BLE001 - a backend failure is a failed trial, never a crash
+                row.update(parse_status="llm_error", parse_detail=f"{type(e).__name__}: {e}"[:500],
+                           latency_s=time.perf_counter() - t0, success=False, failure_reason="llm_error",
+                           sim_detail="")
+                rows.append(row)
+                continue
+            row.update(prompt_tokens=int(c.prompt_tokens or 0), answer_tokens=int(c.completion_tokens or 0),
+                       latency_s=0.0 if c.cached else float(c.latency_s), cached=bool(c.cached), raw_answer=c.text)
+            parsed = parse_actions(c.text, expected_waypoints=n_waypoints, prefix=prompt.answer_prefix)
+            row.update(parse_status=parsed.status, parse_detail=parsed.detail)
+            if parsed.ok:
+                actions = upsample(parsed.actions, n_steps)
+        if actions is None:
+            row.update(success=False, failure_reason=row["parse_status"], sim_detail="")
+        else:
+            result = execute(task, kp, actions)
+            row.update(success=bool(result.success), failure_reason="" if result.success else str(result.failure),
+                       sim_detail=str(result.detail))
+        rows.append(row)
+    written = write_table("llm_trials", pa.Table.from_pylist(rows), warehouse)
+    return Manifest.from_written("llm_trials", written, written[0].path)
+
+
+def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:
+    """The LLM-free baseline: the original demonstration carried to the new scene by the augmentation transform."""
+    from lib.augmentation import transform_demo
+    from tasks.augment import load_demo_source
+
+    return transform_demo(load_demo_source(take, task, warehouse), poses)

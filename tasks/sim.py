@@ -1,0 +1,59 @@
+"""Prefect task of the robot success check: one chunk of a task's episodes executed in MuJoCo."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+import lib  # noqa: F401
+from schemas.core import write_table
+from tasks.common import Manifest, stage_task
+
+SIM_VERSION = "1"
+
+
+@stage_task(name="simulate_chunk", version=SIM_VERSION)
+def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], warehouse: str,
+                   workers: int = 2, show_progress: bool = True) -> Manifest:
+    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows."""
+    from lib.robot_sim import execute_many
+    from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
+    from schemas.catalog import query
+    from tasks.llm_eval import _actions
+
+    ids = ", ".join(str(int(i)) for i in episode_ids)
+    ep = query(f"SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = '{task}' AND take = '{take}' "
+               f"AND episode_id IN ({ids}) ORDER BY episode_id", warehouse)
+    eids = [int(i) for i in ep.column("episode_id").to_pylist()]
+    missing = sorted(set(int(i) for i in episode_ids) - set(eids))
+    if missing:
+        raise ValueError(f"{task}/{take}: no such episodes {missing[:10]}")
+    kinds = ep.column("kind").to_pylist()
+    kps = np.asarray(ep.column("object_keypoints").to_pylist(), float)
+    acts = _actions(warehouse, task, take, eids)
+    bar = None
+    if show_progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(eids), desc=f"{task} chunk {chunk}", unit="episode", leave=False)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    try:
+        results = execute_many(task, [{"keypoints": kps[k], "actions": acts[e]} for k, e in enumerate(eids)],
+                               workers=workers, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    rows = []
+    for e, kind, r in zip(eids, kinds, results):
+        d = r.row()
+        rows.append({"task": task, "take": take, "chunk": int(chunk), "episode_id": e, "kind": kind,
+                     "success": bool(d["success"]), "failure": "" if d["success"] else str(d["failure"] or ""),
+                     "detail": str(d["detail"] or ""), "predicate_ok": d["predicate_ok"],
+                     "predicate_detail": str(d["predicate_detail"] or ""), "duration_s": float(d["duration_s"] or 0.0),
+                     "physics_steps": int(d["physics_steps"] or 0), "wall_s": float(d["wall_s"] or 0.0)})
+    written = write_table("sim_results", pa.Table.from_pylist(rows), warehouse)
+    return Manifest.from_written("sim_results", written, written[0].path)
