@@ -14,7 +14,7 @@ help:  ## list the targets
 setup: $(STAMP)  ## create .venv and install pinned dependencies (fast when nothing changed)
 
 $(STAMP): pyproject.toml requirements/lock.txt requirements/torch.txt requirements/mediapipe.txt \
-          scripts/setup.sh scripts/fetch_mediapipe_model.py
+          requirements/llm.txt scripts/setup.sh scripts/setup_llm.sh scripts/fetch_mediapipe_model.py
 	bash scripts/setup.sh
 	@touch $@
 

@@ -239,6 +239,10 @@ def evaluate(
     seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
+    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy (thesis: 10; the local model takes about a minute per trial)."),
+    llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
+    llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
+    llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
@@ -251,7 +255,9 @@ def evaluate(
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
     report = evaluate_flow(str(current_warehouse()), str(reports.resolve()), tasks=task or None,
-                           takes=takes, seed=seed, episodes=episodes, sim_episodes=sim_episodes)
+                           takes=takes, seed=seed, episodes=episodes, sim_episodes=sim_episodes,
+                           llm_tasks=llm_task or ["pouring"], trials=trials, llm_backend=llm_backend,
+                           llm_options={"model": llm_model} if llm_model else {})
     typer.echo(f"report: {report}")
 
 

@@ -154,6 +154,14 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
     md.append(_section("Augmented episodes", "report_augmentation", warehouse, reports, stamp,
                        "The task databases: episode 0 is the ingested demonstration, then translated and "
                        "mirrored-and-translated episodes; invalid ones are kept and flagged with the reason."))
+    llm_stamp = stamp + f" · LLM backend: {params.get('llm_backend')} · trials per strategy: {params.get('trials')}"
+    md.append(_section("Table 3: prompting strategies", "report_table3", warehouse, reports, llm_stamp,
+                       "Successes of the predicted trajectories in the MuJoCo check, per take and strategy: "
+                       "`single` (the original demonstration as the only example), `random` (3 random "
+                       "augmented episodes), `retrieval` (the top 3 by keypoint MSE), and the LLM-free "
+                       "baselines `replay_top1` (the nearest episode itself) and `transform_demo` (the "
+                       "demonstration carried to the scene by the augmentation transform)."))
+    md.append(_section("Why prompting trials failed", "report_llm_failures", warehouse, reports, llm_stamp))
     md.append(_section("Robot success checks in MuJoCo physics", "report_sim", warehouse, reports, stamp,
                        "A sample of each task's episodes (the original demonstration first) executed by two "
                        "parallel-jaw grippers with real contacts, friction and gravity; the robot replays what "

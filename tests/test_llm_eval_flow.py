@@ -1,0 +1,38 @@
+"""Table 3 machinery end to end: episode database -> prompts -> backend -> parser -> MuJoCo check."""
+
+from flows.augment import augment_take_flow
+from schemas.catalog import query
+
+
+def test_llm_eval_flow_parses_judges_and_records(prefect_api, warehouse, trash_take):
+    """Table 3 machinery with a scripted backend (the real local model is tested in test_llm_backends):
+    a well-formed answer is parsed and judged in MuJoCo, garbage becomes a failed trial, not a crash."""
+    from flows.llm_eval import llm_eval
+    from lib.prompting import format_actions, resample_actions
+    from tasks.llm_eval import _actions
+
+    augment_take_flow(str(trash_take), str(warehouse), n=60, n_mirrored=30, seed=1, show_progress=False)
+    demo = _actions(str(warehouse), "trash_in_bin", trash_take.name, [0])[0]
+    good = "Sure, here it is:\n" + format_actions(resample_actions(demo, 20)) + "\nDone."
+    llm_eval(str(warehouse), task="trash_in_bin", strategies=["single"], backend="fake",
+             backend_options={"responses": [good]}, trials=2, seed=5)
+    llm_eval(str(warehouse), task="trash_in_bin", strategies=["retrieval"], backend="fake",
+             backend_options={"responses": ["I cannot help with that [[[0.1, 0.2"]}, trials=2, seed=5)
+    llm_eval(str(warehouse), task="trash_in_bin", strategies=["replay_top1", "transform_demo"], trials=2, seed=5)
+    rows = query("SELECT * FROM llm_trials ORDER BY strategy, trial", warehouse).to_pylist()
+    by = {}
+    for r in rows:
+        by.setdefault(r["strategy"], []).append(r)
+    assert set(by) == {"single", "retrieval", "replay_top1", "transform_demo"}
+    for r in by["single"]:
+        assert r["parse_status"] == "ok" and r["prompt_tokens"] > 100 and r["raw_answer"] == good
+        assert r["failure_reason"] != "ok" and (r["success"] or r["sim_detail"])  # judged by the simulator
+        assert r["retrieved_episode_ids"] == [0]
+    for r in by["retrieval"]:
+        assert r["success"] is False and r["parse_status"] in ("no_array", "truncated", "wrong_shape")
+        assert len(r["retrieved_episode_ids"]) == 3 and r["raw_answer"].startswith("I cannot")
+    for r in by["replay_top1"] + by["transform_demo"]:
+        assert r["backend"] == "none" and r["parse_status"] == "ok" and r["sim_detail"]
+    t3 = query("SELECT strategy, trials FROM report_table3", warehouse).to_pylist()
+    assert {r["strategy"]: r["trials"] for r in t3} == {s: 2 for s in by}
+

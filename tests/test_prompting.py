@@ -1,0 +1,359 @@
+"""Prompt building (golden file), resampling, rounding, token counting and the tolerant parser."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from lib.prompting import (ANSWER_PREFIX, PARSE_STATUSES, Example, approx_token_count, build_prompt,
+                           count_tokens, format_actions, format_number, parse_actions, resample_actions)
+
+GOLDEN = Path(__file__).parent / "golden" / "prompt_3demos.txt"
+
+
+# ------------------------------------------------------------------------------------------------
+# fixtures: three small hand-made episodes
+# ------------------------------------------------------------------------------------------------
+
+def _quat_yaw(theta: float) -> list[float]:
+    return [0.0, 0.0, float(np.sin(theta / 2)), float(np.cos(theta / 2))]
+
+
+def hand_episode(shift: float, n: int = 9) -> Example:
+    """A pick-and-pour-like episode: left arm holds still, right arm approaches, closes at step 3,
+    lifts, opens at step 7; the left arm closes at step 2.  Keypoints: 11 points on two objects."""
+    kp = np.array([[0.30 + shift, 0.10, 0.02 * i] for i in range(5)]
+                  + [[-0.20 + shift, 0.25 + 0.01 * i, 0.05] for i in range(6)])
+    acts = np.zeros((n, 2, 8))
+    for t in range(n):
+        u = t / (n - 1)
+        acts[t, 0, :3] = [-0.25 + shift, 0.12, 0.15]
+        acts[t, 0, 3:7] = _quat_yaw(0.5)
+        acts[t, 0, 7] = 1.0 if t < 2 else 0.0
+        acts[t, 1, :3] = [0.20 + shift + 0.1 * u, 0.05 + 0.05 * u, 0.18 - 0.1 * u]
+        acts[t, 1, 3:7] = _quat_yaw(-0.3 + 0.6 * u)
+        acts[t, 1, 7] = 0.0 if 3 <= t < 7 else 1.0
+    return Example(kp, acts[0].copy(), acts)
+
+
+def three_examples() -> list[Example]:
+    return [hand_episode(0.0), hand_episode(0.05), hand_episode(-0.04)]
+
+
+def golden_prompt():
+    exs = three_examples()
+    q = hand_episode(0.01)
+    return build_prompt(exs, q.keypoints, q.initial, n_waypoints=6, precision=3)
+
+
+# ------------------------------------------------------------------------------------------------
+# prompt
+# ------------------------------------------------------------------------------------------------
+
+def test_prompt_matches_golden_file():
+    p = golden_prompt()
+    rendered = p.render() + f"content_hash: {p.content_hash}\n"
+    if os.environ.get("DEMOFORGE_UPDATE_GOLDEN") == "1":
+        GOLDEN.parent.mkdir(parents=True, exist_ok=True)
+        GOLDEN.write_text(rendered, encoding="utf-8")
+    assert GOLDEN.exists(), "run once with DEMOFORGE_UPDATE_GOLDEN=1 to write the golden file"
+    assert rendered == GOLDEN.read_text(encoding="utf-8")
+
+
+def test_prompt_structure():
+    p = golden_prompt()
+    assert p.n_examples == 3 and p.n_waypoints == 6 and p.n_keypoints == 11
+    assert [m["role"] for m in p.messages] == ["system", "user"]
+    assert p.system.startswith("You are a dual-arm robot controller.")
+    assert "Only output the action list." in p.system
+    for i in range(3):
+        assert f"** Demo {i} **" in p.user
+    assert p.user.count("** New Input **") == 1
+    assert p.user.count("Action Sequence:") == 3
+    assert p.user.count("# shape: (6, 2, 8)") == 3
+    assert p.user.count("# shape: (11, 3)") == 4
+    assert p.user.rstrip().endswith("# shape: (2, 8)")
+    assert p.text.endswith("Action Sequence:\n" + ANSWER_PREFIX)
+    assert p.text.startswith(p.system) and p.user in p.text
+    # stable hash: same content -> same hash; different content -> different hash
+    assert golden_prompt().content_hash == p.content_hash
+    exs = three_examples()
+    q = hand_episode(0.02)
+    assert build_prompt(exs, q.keypoints, q.initial, n_waypoints=6).content_hash != p.content_hash
+    assert build_prompt(exs, hand_episode(0.01).keypoints, q.initial, n_waypoints=6, precision=2).content_hash \
+        != p.content_hash
+
+
+def test_demo_actions_in_prompt_parse_back():
+    p = golden_prompt()
+    block = p.user.split("Action Sequence:\n")[1].split("\n# shape")[0]
+    res = parse_actions(block)
+    assert res.status == "ok" and res.actions.shape == (6, 2, 8)
+    ref = resample_actions(three_examples()[0].actions, 6)
+    assert np.allclose(res.actions[:, :, :3], ref[:, :, :3], atol=6e-4)
+    assert np.array_equal(res.actions[:, :, 7], ref[:, :, 7])
+
+
+def test_build_prompt_accepts_tuples_and_dicts():
+    e = hand_episode(0.0)
+    p1 = build_prompt([e], e.keypoints, e.initial, n_waypoints=5)
+    p2 = build_prompt([(e.keypoints, e.initial, e.actions)], e.keypoints, e.initial, n_waypoints=5)
+    p3 = build_prompt([{"keypoints": e.keypoints, "initial": e.initial, "actions": e.actions}],
+                      e.keypoints, e.initial, n_waypoints=5)
+    assert p1.content_hash == p2.content_hash == p3.content_hash
+    with pytest.raises(ValueError):
+        build_prompt([e], e.keypoints[:5], e.initial)
+
+
+def test_format_number():
+    assert format_number(0.12004) == "0.12"
+    assert format_number(1.0) == "1"
+    assert format_number(-0.0001) == "0"
+    assert format_number(-0.25) == "-0.25"
+    assert format_number(0.123456, 4) == "0.1235"
+    assert format_number(12.5, 0) in ("12", "13")
+
+
+def test_token_counts_and_compactness():
+    p = build_prompt(three_examples(), hand_episode(0.01).keypoints, hand_episode(0.01).initial, n_waypoints=20)
+    n = count_tokens(p.text)
+    assert n == approx_token_count(p.text)
+    # three demos of 20 waypoints stay well inside a small model's context
+    assert 3000 < n < 12000
+
+    class WithTokenizer:
+        def count_tokens(self, text):
+            return 7
+
+    assert count_tokens("anything", WithTokenizer()) == 7
+
+
+# ------------------------------------------------------------------------------------------------
+# resampling
+# ------------------------------------------------------------------------------------------------
+
+def _random_episode(rng, n, changes_left=(), changes_right=()):
+    a = np.zeros((n, 2, 8))
+    a[:, :, :3] = np.cumsum(rng.normal(scale=0.01, size=(n, 2, 3)), axis=0)
+    q = rng.normal(size=(n, 2, 4))
+    a[:, :, 3:7] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    for arm, ch in ((0, changes_left), (1, changes_right)):
+        g = 1.0
+        for t in range(n):
+            if t in ch:
+                g = 1.0 - g
+            a[t, arm, 7] = g
+    return a
+
+
+def test_resample_keeps_endpoints_and_gripper_changes():
+    rng = np.random.default_rng(1)
+    a = _random_episode(rng, 137, changes_left=(40, 101), changes_right=(55,))
+    r = resample_actions(a, 20)
+    assert r.shape == (20, 2, 8)
+    assert np.allclose(r[0], a[0]) and np.allclose(r[-1], a[-1])
+    # every change of the original appears, as an exact waypoint with the original pose
+    for t in (40, 55, 101):
+        hits = [i for i in range(20) if np.allclose(r[i], a[t])]
+        assert hits, f"change step {t} is not a waypoint"
+    # same sequence of gripper transitions per arm
+    for arm in (0, 1):
+        orig = a[:, arm, 7][np.r_[True, np.diff(a[:, arm, 7]) != 0]]
+        new = r[:, arm, 7][np.r_[True, np.diff(r[:, arm, 7]) != 0]]
+        assert np.array_equal(orig, new)
+    assert set(np.unique(r[:, :, 7])) <= {0.0, 1.0}
+    assert np.allclose(np.linalg.norm(r[:, :, 3:7], axis=-1), 1.0)
+
+
+def test_resample_interpolation_and_shapes():
+    rng = np.random.default_rng(2)
+    a = _random_episode(rng, 5)
+    a[:, :, :3] = np.arange(5)[:, None, None] * np.array([1.0, 2.0, 3.0])
+    r = resample_actions(a, 9)  # upsampling: linear positions on a line
+    assert r.shape == (9, 2, 8)
+    assert np.allclose(r[:, 0, 0], np.linspace(0, 4, 9))
+    assert resample_actions(a[:1], 4).shape == (4, 2, 8)
+    with pytest.raises(ValueError):
+        resample_actions(a, 1)
+    with pytest.raises(ValueError):
+        resample_actions(a[:, :, :7], 5)
+
+
+def test_resample_too_many_changes_keeps_what_fits():
+    rng = np.random.default_rng(3)
+    a = _random_episode(rng, 60, changes_left=tuple(range(5, 55, 4)))  # 13 changes
+    r = resample_actions(a, 8)
+    assert r.shape == (8, 2, 8)
+    assert np.allclose(r[0], a[0]) and np.allclose(r[-1], a[-1])
+
+
+# ------------------------------------------------------------------------------------------------
+# parser
+# ------------------------------------------------------------------------------------------------
+
+def _valid(n=4, seed=0):
+    rng = np.random.default_rng(seed)
+    return _random_episode(rng, n, changes_left=(2,))
+
+
+def test_parse_clean_and_markdown():
+    a = _valid()
+    s = format_actions(a)
+    for text in (s, f"```json\n{s}\n```", f"```python\nactions = {s}\n```\n",
+                 f"Sure! Here is the action sequence:\n\n{s}\n\nThis moves the right arm to the cup.",
+                 s.replace(",", ", ").replace("\n", " ")):
+        res = parse_actions(text, expected_waypoints=4)
+        assert res.status == "ok", (res.status, res.detail, text[:60])
+        assert res.actions.shape == (4, 2, 8)
+        assert np.allclose(res.actions[:, :, :3], np.round(a[:, :, :3], 3))
+        assert res.raw == text
+
+
+def test_parse_python_numpy_and_exponents():
+    a = _valid()
+    np_style = "array(" + np.array2string(a, separator=", ", threshold=10**6) + ")"
+    res = parse_actions(np_style)
+    assert res.status == "ok" and np.allclose(res.actions[:, :, :3], a[:, :, :3], atol=1e-6)
+    no_commas = np.array2string(a, threshold=10**6)  # numpy print without commas
+    assert parse_actions(no_commas).status == "ok"
+    exp = format_actions(a).replace("0.", "0.0e0+").replace("+", "")  # stays parseable
+    r2 = parse_actions("[[[1e-1, 2.5E-2, -3e+0, 0, 0, 0, 1, 1], [1, 2, 3, 0, 0, 0, 2, 0]],"
+                       " [[.1, -.2, 3., 0, 1e0, 0, 0, 0.7], [1, 2, 3, 0, 0, 0, 1, 0.2]]]")
+    assert r2.status == "ok"
+    assert np.allclose(r2.actions[0, 0, :3], [0.1, 0.025, -3.0])
+    assert np.allclose(r2.actions[1, 0, :3], [0.1, -0.2, 3.0])
+    assert np.allclose(r2.actions[0, 1, 3:7], [0, 0, 0, 1])  # normalised
+    assert np.array_equal(r2.actions[:, :, 7], [[1, 0], [1, 0]])  # snapped
+    del exp
+
+
+def test_parse_completion_continuing_prefix():
+    a = _valid(5)
+    s = format_actions(a)
+    assert s.startswith("[[[")
+    cont = s[3:] + "\n# shape: (5, 2, 8)\n** Demo 3 **\nInput Keypoints:\n[[0.1,0.2,0.3]]"
+    res = parse_actions(cont)
+    assert res.status == "ok" and res.actions.shape == (5, 2, 8)
+    assert np.allclose(res.actions[:, :, :3], np.round(a[:, :, :3], 3))
+    # continuation cut in the middle
+    cut = s[3: len(s) * 3 // 4]
+    res = parse_actions(cut)
+    assert res.status == "truncated" and res.actions is not None and res.n_kept >= 2
+    assert "kept" in res.detail
+
+
+def test_parse_waypoints_without_outer_brackets():
+    a = _valid(3)
+    inner = format_actions(a)[1:-1]  # "[[..],[..]],\n[[..],[..]],\n..."
+    res = parse_actions("Actions:\n" + inner + "\nDone.")
+    assert res.status == "ok" and res.actions.shape == (3, 2, 8)
+
+
+@pytest.mark.parametrize("text,status", [
+    ("", "empty"),
+    ("   \n\t ", "empty"),
+    (None, "empty"),
+    ("I cannot predict the trajectory for this scene.", "no_array"),
+    ("The robot should move 5 cm to the left and then close the gripper.", "no_array"),
+    ("[[[0.1,0.2,0.3,0,0,0,1],[0.1,0.2,0.3,0,0,0,1]],[[0.1,0.2,0.3,0,0,0,1],[0.1,0.2,0.3,0,0,0,1]]]",
+     "wrong_shape"),  # (n, 2, 7)
+    ("[[[0.1,0.2,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]]]", "wrong_shape"),  # (1, 3, 8)
+    ("[[0.1,0.2,0.3],[0.4,0.5,0.6]]", "wrong_shape"),
+    ("[[[0.1,0.2,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]],[[0.1,0.2,0.3,0,0,0,1,1]]]", "wrong_shape"),  # ragged
+    ("[[[nan,0.2,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]]]", "non_finite"),
+    ("[[[0.1,Infinity,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]]]", "non_finite"),
+    ("[[[0.1,0.2,1e999,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]]]", "non_finite"),
+    ("[[[0.1,0.2,0.3,0,0,0,0,1],[0.1,0.2,0.3,0,0,0,1,1]]]", "zero_quaternion"),
+    ("[[[0.1,0.2,0.3,0,0,0,1,1],[0.1,0.2,0.3,0,0,0,1,1]],[[0.1,0.2", "truncated"),  # 1 complete waypoint
+    ("[[[0.1, foo, 0.3, {}, 0, 0, 1, 1], [[[[]]]]", "wrong_shape"),  # nested garbage
+    ("[[[[[[[[[[", "truncated"),
+    ("]]]]]] ,,, [[ ]] [ ] {\"a\": [}", "wrong_shape"),
+])
+def test_parse_bad_answers(text, status):
+    res = parse_actions(text)
+    assert res.status == status, (res.status, res.detail)
+    assert res.status in PARSE_STATUSES
+    if status != "truncated":
+        assert res.actions is None
+    assert isinstance(res.detail, str)
+
+
+def test_parse_real_gemma_answer_with_a_dropped_bracket():
+    # what the local Gemma 270M produced: the 4th waypoint lost its opening bracket
+    w = "[0.21,0.12,0.15,0,0,0.247,0.969,1],[0.21,0.05,0.18,0,0,-0.149,0.989,1]]"
+    text = "0.24,0.12,0.15,0,0,0.247,0.969,1],[0.21,0.05,0.18,0,0,-0.149,0.989,1]],\n" + ",\n".join(
+        ["[" + w] * 2 + [w] * 4) + ",\n[0.21,0.12,0.15"
+    res = parse_actions(text)
+    assert res.actions is None and res.status == "wrong_shape"
+
+
+def test_parse_truncated_keeps_complete_waypoints():
+    a = _valid(6)
+    s = format_actions(a)
+    cut_at = s.index("],\n[[", s.index("],\n[[", s.index("],\n[[") + 1) + 1) + 8  # inside the 4th waypoint
+    res = parse_actions("Here you go:\n" + s[:cut_at])
+    assert res.status == "truncated" and res.n_kept == 3 and res.actions.shape == (3, 2, 8)
+    assert "kept 3" in res.detail
+
+
+def test_parse_takes_first_good_array_and_skips_bad_ones():
+    a, b = _valid(3, seed=1), _valid(4, seed=2)
+    text = ("keypoints: [[0.1,0.2,0.3],[0.3,0.2,0.1]]\n" + format_actions(a) + "\nor maybe\n" + format_actions(b))
+    res = parse_actions(text)
+    assert res.status == "ok" and res.actions.shape == (3, 2, 8)
+    res = parse_actions(text, expected_waypoints=4)
+    assert res.status == "ok" and "expected 4" in res.detail
+
+
+def test_parse_quaternion_normalisation_and_gripper_snap():
+    res = parse_actions("[[[0,0,0, 0,0,0,2, 0.51],[0,0,0, 0,3,4,0, 0.49]],[[0,0,0, 1,1,1,1, 7],[0,0,0, 0,0,-5,0, -3]]]")
+    assert res.status == "ok"
+    q = res.actions[:, :, 3:7]
+    assert np.allclose(np.linalg.norm(q, axis=-1), 1)
+    assert np.allclose(q[0, 1], [0, 0.6, 0.8, 0])
+    assert np.array_equal(res.actions[:, :, 7], [[1, 0], [1, 0]])
+
+
+def test_parse_never_raises_on_junk():
+    rng = np.random.default_rng(0)
+    alphabet = list("[],.-+eE0123456789 \nnaifNAI{}\"':x`")
+    for _ in range(300):
+        s = "".join(rng.choice(alphabet, size=rng.integers(0, 200)))
+        res = parse_actions(s)
+        assert res.status in PARSE_STATUSES
+    for weird in (b"[[[1]]]", 12, object(), ["[[["], "\x00\x01[[[", "[" * 5000 + "]" * 4000):
+        assert parse_actions(weird).status in PARSE_STATUSES
+
+
+@st.composite
+def action_arrays(draw):
+    n = draw(st.integers(1, 25))
+    pos = draw(arrays(np.float64, (n, 2, 3), elements=st.floats(-2, 2, allow_nan=False, allow_infinity=False)))
+    q = draw(arrays(np.float64, (n, 2, 4), elements=st.floats(-1, 1, allow_nan=False, allow_infinity=False)))
+    norms = np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(norms < 1e-3, np.array([0.0, 0.0, 0.0, 1.0]), q / np.maximum(norms, 1e-12))
+    g = draw(arrays(np.float64, (n, 2, 1), elements=st.sampled_from([0.0, 1.0])))
+    return np.concatenate([pos, q, g], axis=-1)
+
+
+@settings(max_examples=150, deadline=None)
+@given(a=action_arrays(), precision=st.integers(1, 6), continuation=st.booleans())
+def test_format_parse_round_trip(a, precision, continuation):
+    s = format_actions(a, precision)
+    text = s[3:] if continuation else s
+    res = parse_actions(text)
+    assert res.status == "ok", (res.status, res.detail)
+    assert res.actions.shape == a.shape
+    # positions come back exactly as rounded; quaternions as the normalised rounded values
+    rounded = np.array([[[float(format_number(v, precision)) for v in arm] for arm in w] for w in a])
+    assert np.allclose(res.actions[:, :, :3], rounded[:, :, :3], rtol=0, atol=1e-12)
+    qr = rounded[:, :, 3:7]
+    assert np.allclose(res.actions[:, :, 3:7], qr / np.linalg.norm(qr, axis=-1, keepdims=True), atol=1e-12)
+    assert np.array_equal(res.actions[:, :, 7], a[:, :, 7])
+    assert np.all(np.abs(res.actions[:, :, :3] - a[:, :, :3]) <= 0.5 * 10.0 ** -precision + 1e-12)
