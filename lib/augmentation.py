@@ -55,20 +55,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from lib import geometry as geo
+from lib.segmentation import Segment
 
 REJECT_REASONS = ("", "left_workspace", "grippers_too_close", "objects_overlap")
 
 
 # ============================================================================ demo source
-@dataclass
-class SegmentRec:
-    arm: int
-    kind: str  # "motion" | "skill"
-    start: int
-    end: int  # exclusive
-    object: int  # -1 = none
-
-
 @dataclass
 class DemoSource:
     """A demonstration to augment (plain container, no task-library dependency)."""
@@ -77,7 +69,7 @@ class DemoSource:
     keypoints: np.ndarray  # (K, 3) world, frame 0
     keypoint_object: np.ndarray  # (K,) object index per keypoint
     keypoints_local: np.ndarray  # (K, 3) in each object's frame
-    segments: list  # SegmentRec-like (arm, kind, start, end, object)
+    segments: list  # Segment-like (arm, kind, start, end, object)
     object_arm: np.ndarray  # (n_objects,) arm handling each object
     mirrored: bool = False
     mirror_perm: np.ndarray | None = None  # (K,), default from keypoints_local
@@ -88,7 +80,7 @@ class DemoSource:
         self.keypoint_object = np.asarray(self.keypoint_object, int)
         self.keypoints_local = np.asarray(self.keypoints_local, float)
         self.object_arm = np.asarray(self.object_arm, int)
-        self.segments = sorted((SegmentRec(int(s.arm), str(s.kind), int(s.start), int(s.end), int(s.object))
+        self.segments = sorted((Segment(int(s.arm), str(s.kind), int(s.start), int(s.end), int(s.object))
                                 for s in self.segments), key=lambda s: (s.arm, s.start))
         if self.mirror_perm is None:
             self.mirror_perm = mirror_permutation(self.keypoints_local, self.keypoint_object)
@@ -103,10 +95,10 @@ class DemoSource:
     def n_objects(self) -> int:
         return int(self.keypoint_object.max()) + 1
 
-    def arm_segments(self, arm: int) -> list[SegmentRec]:
+    def arm_segments(self, arm: int) -> list[Segment]:
         segs = [s for s in self.segments if s.arm == arm]
         if not segs:  # no labels: one motion segment
-            segs = [SegmentRec(arm, "motion", 0, self.n_frames, -1)]
+            segs = [Segment(arm, "motion", 0, self.n_frames, -1)]
         return segs
 
 
@@ -135,7 +127,7 @@ def mirror_source(src: DemoSource) -> DemoSource:
     """Reflect a demo across x = 0: poses (det +1), arms swapped, keypoints reflected + permuted."""
     traj = geo.reflect_pose8(src.trajectory[:, ::-1])
     kp = geo.reflect_points(src.keypoints)[src.mirror_perm]
-    segs = [SegmentRec(1 - s.arm, s.kind, s.start, s.end, s.object) for s in src.segments]
+    segs = [Segment(1 - s.arm, s.kind, s.start, s.end, s.object) for s in src.segments]
     return DemoSource(task=src.task, trajectory=traj, keypoints=kp, keypoint_object=src.keypoint_object,
                       keypoints_local=src.keypoints_local, segments=segs, object_arm=1 - src.object_arm,
                       mirrored=not src.mirrored, mirror_perm=src.mirror_perm)
@@ -238,7 +230,7 @@ def _ease(u: np.ndarray) -> np.ndarray:
     return u * u * (3.0 - 2.0 * u)
 
 
-def _object_runs(arm: int, segs: list[SegmentRec], lo: int, hi: int, out0: int, k_start: int, k_end: int,
+def _object_runs(arm: int, segs: list[Segment], lo: int, hi: int, out0: int, k_start: int, k_end: int,
                  T: int, follow: bool = True) -> list[Run]:
     """Runs for source frames [lo, hi) of one arm: skills follow their object, motions blend."""
     runs: list[Run] = []
@@ -283,10 +275,10 @@ def plan_thesis(src: DemoSource, n_transition: int = 15, follow_objects: bool = 
     for arm in range(2):
         segs = src.arm_segments(arm)
         i = 0
-        m1 = segs[0] if segs[0].kind == "motion" else SegmentRec(arm, "motion", 0, 0, segs[0].object)
+        m1 = segs[0] if segs[0].kind == "motion" else Segment(arm, "motion", 0, 0, segs[0].object)
         if segs[0].kind == "motion":
             i = 1
-        s1 = segs[i] if i < len(segs) and segs[i].kind == "skill" else SegmentRec(arm, "skill", m1.end, m1.end, m1.object)
+        s1 = segs[i] if i < len(segs) and segs[i].kind == "skill" else Segment(arm, "skill", m1.end, m1.end, m1.object)
         parts.append((segs, m1, s1))
     n1 = max(p[1].end - p[1].start for p in parts)
     n2 = max(p[2].end - p[2].start for p in parts)
@@ -758,7 +750,7 @@ def transform_demo_loop(src: DemoSource, plan: Plan, params_one: np.ndarray, piv
     return out
 
 
-__all__ = ["DemoSource", "SegmentRec", "from_scripted_demo", "mirror_permutation", "mirror_source",
+__all__ = ["DemoSource", "Segment", "from_scripted_demo", "mirror_permutation", "mirror_source",
            "mirror_keypoints", "estimate_object_poses", "object_groups", "Plan", "Run", "make_plan",
            "plan_object", "plan_thesis", "transform_tables", "transform_matrices", "execute_plan",
            "transform_keypoints", "transform_demo", "EpisodeBatch", "sample_params", "check_episodes",

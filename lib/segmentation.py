@@ -30,11 +30,13 @@ from lib import geometry as geo
 
 @dataclass
 class Segment:
+    """A motion or skill segment of one arm's trajectory (the one definition the project uses)."""
+
     arm: int
     kind: str  # "motion" | "skill"
     start: int
     end: int  # exclusive
-    object: int  # -1 = none
+    object: int  # object the arm handles (skill) or moves towards / carries (motion); -1 = none
 
 
 @dataclass

@@ -266,6 +266,22 @@ def _to_arrow_values(v: Any) -> pa.Array:
     return pa.array(v)
 
 
+def column_numpy(table: pa.Table, name: str):
+    """A column as a numpy array; nested fixed-size lists become trailing dimensions (rows, *shape)."""
+    import numpy as np
+
+    col = table.column(name).combine_chunks()
+    shape: list[int] = []
+    t = col.type
+    while pa.types.is_fixed_size_list(t):
+        shape.append(t.list_size)
+        t = t.value_type
+    flat = col
+    for _ in shape:
+        flat = flat.flatten()
+    return np.asarray(flat.to_numpy(zero_copy_only=False)).reshape((len(col),) + tuple(shape))
+
+
 # --- writing and reading -------------------------------------------------------------------------
 
 def partition_dir(root: Path, schema: TableSchema, values: Mapping[str, Any]) -> Path:

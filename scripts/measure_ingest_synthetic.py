@@ -43,19 +43,7 @@ from lib.simulated_detector import simulate_detections  # noqa: E402
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 
 
-def _col(table, name):
-    import pyarrow as pa
-
-    col = table.column(name).combine_chunks()
-    shape = []
-    t = col.type
-    while pa.types.is_fixed_size_list(t):
-        shape.append(t.list_size)
-        t = t.value_type
-    arr = col
-    for _ in shape:
-        arr = arr.flatten()
-    return np.asarray(arr.to_numpy(zero_copy_only=False)).reshape((len(col), *shape))
+from schemas.core import column_numpy as _col  # noqa: E402
 
 
 def load_take(d: Path) -> dict:

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 import lib  # noqa: F401
-from schemas.core import read_table, write_table
+from schemas.core import column_numpy, read_table, write_table
 from tasks.common import Manifest, stage_task
 
 HANDS = ("left", "right")
@@ -49,16 +49,7 @@ def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
     T = int(frame.max()) + 1 if frame.size else 0
     out = {}
     for n in names:
-        col = table.column(n).combine_chunks()
-        shape: list[int] = []
-        t = col.type
-        while pa.types.is_fixed_size_list(t):
-            shape.append(t.list_size)
-            t = t.value_type
-        flat = col
-        for _ in shape:
-            flat = flat.flatten()
-        values = np.asarray(flat.to_numpy(zero_copy_only=False)).reshape((len(col),) + tuple(shape))
+        values = column_numpy(table, n)
         full = np.empty((T, 2) + values.shape[1:], dtype=values.dtype)
         full[frame, hand] = values
         out[n] = full

@@ -25,6 +25,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
+from lib.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
+
 MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
 HAND_FLIP = np.diag([1.0, -1.0, 1.0, 1.0])
 FPS = 30.0
@@ -107,15 +109,6 @@ class Placement:
 
     def mirrored(self) -> "Placement":
         return Placement(MIRROR @ self.object_poses @ MIRROR, not self.mirror)
-
-
-@dataclass
-class Segment:
-    arm: int
-    kind: str  # "motion" | "skill"
-    start: int
-    end: int  # exclusive
-    object: int  # object the hand handles (skill) or moves towards / carries (motion); -1 = none
 
 
 @dataclass
