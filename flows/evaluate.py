@@ -64,7 +64,12 @@ def evaluate(
             llm_eval(warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
                      trials=trials, seed=seed)
     evaluate_keypoints(warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
-    evaluate_keypoints(warehouse, dataset="real_photos")
+    from flows.keypoint_eval import REAL_HANDS
+
+    if REAL_HANDS.is_dir():
+        evaluate_keypoints(warehouse, dataset="real_photos")
+    else:
+        logger.warning("%s not found: the real-photo keypoint table is skipped", REAL_HANDS)
     if arctic_root:
         evaluate_keypoints(warehouse, dataset="arctic", arctic_root=arctic_root)
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,

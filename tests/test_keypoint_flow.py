@@ -9,6 +9,7 @@ from flows.keypoint_eval import evaluate_keypoints
 from lib.keypoint_eval import table1, table2
 from schemas.catalog import query
 from tests.arctic_fixture import build_arctic_tree
+from tests.conftest import SHARED_DATA
 
 
 def test_arctic_flow_writes_the_thesis_tables(prefect_api, warehouse, tmp_path):
@@ -45,6 +46,7 @@ def test_arctic_errors_name_what_is_missing(warehouse, tmp_path):
     assert r.exit_code == 2 and "arctic-root" in r.stderr
 
 
+@pytest.mark.skipif(not (SHARED_DATA / "real_hands").is_dir(), reason="../shared/data/real_hands not present")
 def test_real_photo_table(prefect_api, warehouse):
     evaluate_keypoints(str(warehouse), dataset="real_photos")
     rows = {r["dataset"]: r for r in query("SELECT * FROM report_real_photos", warehouse).to_pylist()}

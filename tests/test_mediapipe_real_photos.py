@@ -20,6 +20,7 @@ import pytest
 from tests.conftest import SHARED_DATA
 
 REAL = SHARED_DATA / "real_hands"
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present (../shared/data beside the checkout)")
 
 mediapipe = pytest.importorskip("mediapipe", reason="pip install --no-deps -r requirements/mediapipe.txt")
 
