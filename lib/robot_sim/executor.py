@@ -401,7 +401,14 @@ def _work(job):
                               0.0, 0, events=[(0.0, "invalid_action", str(e))])
 
 
-def _init_worker(task_name, opt):
+def _init_worker(task_name, opt, in_pool: bool = False):
+    if in_pool:
+        # Forked workers inherit the parent's signal handlers (Prefect's raises on SIGTERM, which the
+        # pool sends at shutdown); a worker just exits on SIGTERM and leaves Ctrl-C to the parent.
+        import signal
+
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_STATE["task"] = task_name
     _WORKER_STATE["opt"] = opt
     get_scene(task_name, opt.gripper, opt.physics)  # compile once per process
@@ -429,7 +436,7 @@ def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
     import multiprocessing as mp
 
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(task_name, opt)) as pool:
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(task_name, opt, True)) as pool:
         for done, (i, r) in enumerate(pool.imap_unordered(_work, jobs, chunksize=chunksize), 1):
             out[i] = r
             if progress:
