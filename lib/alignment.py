@@ -59,6 +59,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from lib.geometry import backproject, project_points
+
 __all__ = [
     "AlignmentConfig",
     "AlignmentResult",
@@ -203,24 +205,8 @@ class AlignmentResult:
 # --------------------------------------------------------------------------- camera helpers
 
 
-def project(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pinhole projection (..., 3) -> (..., 2) pixels (NaN in, NaN out)."""
-    p = np.asarray(points_cam, dtype=np.float64)
-    K = np.asarray(K, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uvw = p @ K.T
-        return uvw[..., :2] / uvw[..., 2:3]
-
-
-def backproject(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """X = z K^-1 [u, v, 1] for uv (..., 2) and depth z (...) -> (..., 3) (z along the optical axis)."""
-    uv = np.asarray(uv, dtype=np.float64)
-    z = np.asarray(z, dtype=np.float64)
-    K = np.asarray(K, dtype=np.float64)
-    fx, fy, cx, cy, s = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
-    y = (uv[..., 1] - cy) / fy
-    x = (uv[..., 0] - cx - s * y) / fx
-    return np.stack([x * z, y * z, z], axis=-1)
+# Camera helpers live in lib.geometry; re-exported here under the names this module always used.
+project = project_points
 
 
 def nan_quantile(x: np.ndarray, q: float, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:

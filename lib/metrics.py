@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lib.geometry import quat_angle, quat_to_matrix, umeyama
+from lib.geometry import project_points as _project, quat_angle, quat_to_matrix, umeyama
 
 __all__ = [
     "joint_errors",
@@ -135,10 +135,7 @@ def mpjpe_2d(pred_px, gt_px, mask=None) -> float:
 def project_points(points_cam, K) -> np.ndarray:
     """Pinhole projection of camera-frame points (..., 3) -> (..., 2) px (NaN behind the camera)."""
     p = np.asarray(points_cam, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uvw = p @ np.asarray(K, dtype=np.float64).T
-        uv = uvw[..., :2] / uvw[..., 2:3]
-    return np.where((p[..., 2:3] > 0), uv, np.nan)
+    return np.where((p[..., 2:3] > 0), _project(p, K), np.nan)
 
 
 def mpjpe_2d_from_3d(pred_cam, gt_cam, K, mask=None) -> float:

@@ -110,6 +110,7 @@ __all__ = [
 #: Label that every table row produced from these outputs must carry in its ``detector`` column.
 DETECTOR_NAME = "simulated"
 
+from lib.geometry import project_points  # noqa: E402,F401  (re-exported)
 from lib.joints import N_JOINTS, PARENTS  # noqa: E402  (re-exported)
 
 
@@ -253,13 +254,6 @@ class SimulatedDetections:
     root_depth_scale: np.ndarray
     #: Label for the ``detector`` column of every table built from these outputs.
     detector: str = field(default=DETECTOR_NAME)
-
-
-def project_points(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pinhole projection of camera-frame points (..., 3) with intrinsics K to pixels (..., 2)."""
-    p = np.asarray(points_cam, dtype=np.float64)
-    uvw = p @ np.asarray(K, dtype=np.float64).T
-    return uvw[..., :2] / uvw[..., 2:3]
 
 
 def _rotation_matrices(rotvec: np.ndarray) -> np.ndarray:

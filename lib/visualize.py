@@ -83,7 +83,7 @@ def draw_gripper(rgb: np.ndarray, pose8: np.ndarray, K: np.ndarray, T_world_came
     origin is a filled dot when open (g = 1) and a ring when closed."""
     import cv2
 
-    from lib.geometry import pose8_to_transform, transform_inverse, transform_points
+    from lib.geometry import pose8_to_transform, project_points, transform_inverse, transform_points
 
     out = np.ascontiguousarray(rgb.copy())
     p = np.asarray(pose8, float)
@@ -94,7 +94,7 @@ def draw_gripper(rgb: np.ndarray, pose8: np.ndarray, K: np.ndarray, T_world_came
     pts_c = transform_points(transform_inverse(np.asarray(T_world_camera, float)), pts_w)
     if (pts_c[:, 2] <= 1e-6).any():
         return out
-    uv = (pts_c[:, :2] / pts_c[:, 2:3]) @ np.asarray(K, float)[:2, :2].T + np.asarray(K, float)[:2, 2]
+    uv = project_points(pts_c, K)
     o = tuple(int(round(v)) for v in uv[0])
     for k in range(3):
         cv2.line(out, o, tuple(int(round(v)) for v in uv[k + 1]), AXIS_COLOURS[k], 2, cv2.LINE_AA)

@@ -26,6 +26,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from lib.geometry import project_points  # noqa: F401  (re-exported for the backends)
+
 __all__ = [
     "N_JOINTS",
     "SIDES",
@@ -47,14 +49,6 @@ SIDES = ("left", "right")
 
 class DetectorError(RuntimeError):
     """A detector cannot run (missing model file, a take without what the backend needs, ...)."""
-
-
-def project_points(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pinhole projection of camera-frame points (..., 3) to pixels (..., 2)."""
-    p = np.asarray(points_cam, dtype=np.float64)
-    uvw = p @ np.asarray(K, dtype=np.float64).T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return uvw[..., :2] / uvw[..., 2:3]
 
 
 def fit_translation_to_2d(points_rel: np.ndarray, uv: np.ndarray, K: np.ndarray,
