@@ -64,7 +64,7 @@ def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | 
     """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
     from lib.robot_sim.render import render_episode
     from schemas.catalog import query
-    from tasks.llm_eval import _actions
+    from tasks.augment import episode_actions
 
     where = f"task = '{task}' AND episode_id = {int(episode_id)}" + (f" AND take = '{take}'" if take else "")
     t = query(f"SELECT take, object_keypoints FROM episodes WHERE {where} ORDER BY take LIMIT 1", warehouse)
@@ -72,6 +72,6 @@ def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | 
         raise ValueError(f"no episode {episode_id} of task {task!r} in the warehouse")
     take = t.column("take")[0].as_py()
     kp = np.asarray(t.column("object_keypoints")[0].as_py(), float)
-    actions = _actions(warehouse, task, take, [episode_id])[int(episode_id)]
+    actions = episode_actions(warehouse, task, take, [episode_id])[int(episode_id)]
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     return render_episode(task, kp, actions, str(out)).row()

@@ -74,7 +74,7 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
                          "mean_error_frames": None if np.isnan(e["mean"]) else e["mean"],
                          "max_error_frames": None if np.isnan(e["max"]) else e["max"]})
         written += write_table("segmentation_metrics", pa.Table.from_pylist(rows), warehouse)
-    return Manifest.from_written("segments", written, written[0].path)
+    return Manifest.from_written("segments", written)
 
 
 def load_demo_source(take_id: str, task: str, warehouse: str):
@@ -117,7 +117,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
         "min_gripper_distance": batch.min_gripper_distance,
     }, warehouse)
     written += write_table("episode_steps", episode_steps_columns(name, take.take_id, batch), warehouse)
-    return Manifest.from_written("episodes", written, written[0].path)
+    return Manifest.from_written("episodes", written)
 
 
 def episode_steps_columns(task: str, take: str, batch) -> dict:
@@ -137,3 +137,15 @@ def episode_steps_columns(task: str, take: str, batch) -> dict:
     return {"task": pa.array([task]).take(np.zeros(rows, np.int64)),
             "take": pa.array([take]).take(np.zeros(rows, np.int64)),
             "episode_id": ep, "step": step, "action": action.astype(np.float32, copy=False)}
+
+
+def episode_actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
+    """{episode_id: (length, 2, 8) actions} of the given episodes, read from `episode_steps`."""
+    from schemas.catalog import query
+
+    id_list = ", ".join(str(int(i)) for i in ids)
+    t = query(f"SELECT episode_id, action FROM episode_steps WHERE task = '{task}' AND take = '{take}' "
+              f"AND episode_id IN ({id_list}) ORDER BY episode_id, step", warehouse)
+    eid = np.asarray(t.column("episode_id").to_numpy())
+    act = np.asarray(t.column("action").to_pylist(), float)
+    return {int(i): act[eid == i] for i in np.unique(eid)}

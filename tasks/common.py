@@ -42,8 +42,12 @@ class Manifest:
     files: tuple[str, ...] = ()
 
     @classmethod
-    def from_written(cls, table: str, written: Iterable[WrittenFile], path: str | os.PathLike) -> "Manifest":
+    def from_written(cls, table: str, written: Iterable[WrittenFile],
+                     path: str | os.PathLike | None = None) -> "Manifest":
+        """The manifest of files a task wrote; ``path`` defaults to the first of them."""
         written = sorted(written, key=lambda w: w.path)
+        if path is None:
+            path = written[0].path if written else table
         h = hashlib.sha256()
         for w in written:
             h.update(w.content_hash.encode())

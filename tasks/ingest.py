@@ -56,10 +56,6 @@ def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
     return T, out
 
 
-def _manifest(table: str, written) -> Manifest:
-    return Manifest.from_written(table, written, written[0].path if written else table)
-
-
 # --- 1. frames -----------------------------------------------------------------------------------
 
 @stage_task(name="index_frames", version=INGEST_VERSION)
@@ -81,7 +77,7 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
         "status": [x.status for x in f], "message": [x.message or "" for x in f],
         "rgb_source": [str(x.rgb_source or "") for x in f], "depth_source": [str(x.depth_source or "") for x in f],
     }, warehouse)
-    return _manifest("frames", written)
+    return Manifest.from_written("frames", written)
 
 
 # --- 2. hand keypoints ---------------------------------------------------------------------------
@@ -121,7 +117,7 @@ def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str
         n_candidates=track.n_candidates.astype(np.int32),
     ), warehouse)
     _save_detector_extra(take, track, warehouse)
-    return _manifest("hand_keypoints", written)
+    return Manifest.from_written("hand_keypoints", written)
 
 
 def _save_detector_extra(take, track, warehouse: str) -> None:
@@ -172,7 +168,7 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
         depth_outlier=res.depth_outlier, outlier_frozen=res.outlier_frozen,
         swap_repaired=res.swap_repaired, filled_missing=res.filled_missing,
     ), warehouse)
-    return _manifest("aligned_keypoints", written)
+    return Manifest.from_written("aligned_keypoints", written)
 
 
 # --- 4. gripper poses ----------------------------------------------------------------------------
@@ -207,7 +203,7 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
         g_manual=None if g_man is None else g_man.astype(np.int8),
         state_method=[chosen_method] * (2 * T),
     ) | ({"g_manual": pa.nulls(2 * T, pa.int8())} if g_man is None else {}), warehouse)
-    return _manifest("gripper_poses", written)
+    return Manifest.from_written("gripper_poses", written)
 
 
 # --- 5. object keypoints -------------------------------------------------------------------------
@@ -246,7 +242,7 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     written = write_table("object_keypoints", {
         "take": [take.take_id] * n, "task": [name] * n, "keypoint": np.arange(n, dtype=np.int32),
         "name": list(names), "uv": uv, **data}, warehouse)
-    return _manifest("object_keypoints", written)
+    return Manifest.from_written("object_keypoints", written)
 
 
 def _keypoint_names(take: Any, n: int) -> list[str]:
@@ -318,7 +314,7 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
             "swap_frames_repaired_correctly": int((repaired & injected).sum()),
         })
     written = write_table("ingest_metrics", pa.Table.from_pylist(out), warehouse)
-    return _manifest("ingest_metrics", written)
+    return Manifest.from_written("ingest_metrics", written)
 
 
 # --- optional: overlay video ---------------------------------------------------------------------

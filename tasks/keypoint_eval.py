@@ -22,7 +22,7 @@ def _write_rows(table: str, rows: list[dict], warehouse: str) -> Manifest:
         if c.type == pa.string():
             data[c.name] = ["" if v is None else str(v) for v in data[c.name]]
     written = write_table(table, data, warehouse)
-    return Manifest.from_written(table, written, written[0].path)
+    return Manifest.from_written(table, written)
 
 
 @stage_task(name="evaluate_synthetic_keypoints", version=EVAL_VERSION)

@@ -57,17 +57,6 @@ def _episode_data(warehouse: str, task: str, take: str):
             "length": np.asarray(ep.column("length").to_numpy())}
 
 
-def _actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
-    from schemas.catalog import query
-
-    id_list = ", ".join(str(int(i)) for i in ids)
-    t = query(f"SELECT episode_id, action FROM episode_steps WHERE task = '{task}' AND take = '{take}' "
-              f"AND episode_id IN ({id_list}) ORDER BY episode_id, step", warehouse)
-    eid = np.asarray(t.column("episode_id").to_numpy())
-    act = np.asarray(t.column("action").to_pylist(), float)
-    return {int(i): act[eid == i] for i in np.unique(eid)}
-
-
 @stage_task(name="llm_trials", version=LLM_EVAL_VERSION)
 def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
                backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
@@ -75,6 +64,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
                temperature: float = 0.0) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
     from lib.prompting import build_prompt, parse_actions
+    from tasks.augment import episode_actions
     from lib.retrieval import KeypointIndex, select_random
     from lib.robot_sim import execute
 
@@ -105,12 +95,12 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
         row["retrieved_episode_ids"] = ids if strategy != "transform_demo" else [original]
         actions = None
         if strategy == "replay_top1":
-            actions = _actions(warehouse, task, take, ids[:1])[ids[0]]
+            actions = episode_actions(warehouse, task, take, ids[:1])[ids[0]]
             row["retrieved_episode_ids"] = ids[:1]
         elif strategy == "transform_demo":
             actions = _transform_original(warehouse, task, take, poses)
         else:
-            acts = _actions(warehouse, task, take, ids)
+            acts = episode_actions(warehouse, task, take, ids)
             examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
             prompt = build_prompt(examples, kp, init, n_waypoints=n_waypoints, precision=precision)
             row["prompt_hash"] = prompt.hash
@@ -139,7 +129,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
                        sim_detail=str(result.detail))
         rows.append(row)
     written = write_table("llm_trials", pa.Table.from_pylist(rows), warehouse)
-    return Manifest.from_written("llm_trials", written, written[0].path)
+    return Manifest.from_written("llm_trials", written)
 
 
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:

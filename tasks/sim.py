@@ -19,7 +19,7 @@ def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], war
     from lib.robot_sim import execute_many
     from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
     from schemas.catalog import query
-    from tasks.llm_eval import _actions
+    from tasks.augment import episode_actions
 
     ids = ", ".join(str(int(i)) for i in episode_ids)
     ep = query(f"SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = '{task}' AND take = '{take}' "
@@ -30,7 +30,7 @@ def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], war
         raise ValueError(f"{task}/{take}: no such episodes {missing[:10]}")
     kinds = ep.column("kind").to_pylist()
     kps = np.asarray(ep.column("object_keypoints").to_pylist(), float)
-    acts = _actions(warehouse, task, take, eids)
+    acts = episode_actions(warehouse, task, take, eids)
     bar = None
     if show_progress:
         from tqdm.auto import tqdm
@@ -56,4 +56,4 @@ def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], war
                      "predicate_detail": str(d["predicate_detail"] or ""), "duration_s": float(d["duration_s"] or 0.0),
                      "physics_steps": int(d["physics_steps"] or 0), "wall_s": float(d["wall_s"] or 0.0)})
     written = write_table("sim_results", pa.Table.from_pylist(rows), warehouse)
-    return Manifest.from_written("sim_results", written, written[0].path)
+    return Manifest.from_written("sim_results", written)

@@ -9,10 +9,10 @@ def test_llm_eval_flow_parses_judges_and_records(prefect_api, warehouse, trash_t
     a well-formed answer is parsed and judged in MuJoCo, garbage becomes a failed trial, not a crash."""
     from flows.llm_eval import llm_eval
     from lib.prompting import format_actions, resample_actions
-    from tasks.llm_eval import _actions
+    from tasks.augment import episode_actions
 
     augment_take_flow(str(trash_take), str(warehouse), n=60, n_mirrored=30, seed=1, show_progress=False)
-    demo = _actions(str(warehouse), "trash_in_bin", trash_take.name, [0])[0]
+    demo = episode_actions(str(warehouse), "trash_in_bin", trash_take.name, [0])[0]
     good = "Sure, here it is:\n" + format_actions(resample_actions(demo, 20)) + "\nDone."
     llm_eval(str(warehouse), task="trash_in_bin", strategies=["single"], backend="fake",
              backend_options={"responses": [good]}, trials=2, seed=5)
