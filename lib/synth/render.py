@@ -27,6 +27,7 @@ import numpy as np
 import lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
 import mujoco
 
+from lib.geometry import project_points
 from lib.hand_model import HandStyle, capsule_segments, hand_capsules, joint_radii
 
 WIDTH, HEIGHT = 640, 480
@@ -84,10 +85,7 @@ def world_to_camera(points: np.ndarray, T_world_camera: np.ndarray) -> np.ndarra
 def project(points_world: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray):
     """Pixel coordinates (..., 2) (OpenCV: pixel centres at integers) and camera z (...) of world points."""
     pc = world_to_camera(points_world, T_world_camera)
-    z = pc[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = (pc[..., :2] / z[..., None]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
-    return uv, z
+    return project_points(pc, K), pc[..., 2]
 
 
 # --- hands in MJCF -------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
+from lib.geometry import transform_inverse
 from lib.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
 
 MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
@@ -44,11 +45,7 @@ def make_pose(rot=None, pos=None) -> np.ndarray:
     return T
 
 
-def inv_pose(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+inv_pose = transform_inverse  # the scripts' short name for the closed-form SE(3) inverse
 
 
 def translated(T: np.ndarray, d) -> np.ndarray:
