@@ -448,6 +448,10 @@ def render_episode_cmd(
     typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
 
 
+# Commands of the larger areas live in their own modules and register on `app` when imported.
+from flows import cli_export, cli_hamer, cli_policy  # noqa: E402,F401
+
+
 def main() -> None:
     app()
 

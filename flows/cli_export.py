@@ -1,0 +1,5 @@
+"""`demoforge` commands of the export area (registered on flows.cli.app when imported)."""
+
+from __future__ import annotations
+
+from flows.cli import app, current_warehouse, fail  # noqa: F401
