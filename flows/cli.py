@@ -11,6 +11,7 @@ from typing import List, Optional
 import typer
 
 import lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from flows.runners import run_flow
 
 app = typer.Typer(
     name="demoforge",
@@ -49,8 +50,29 @@ def _main(
         None, "--warehouse", "-w", envvar="DEMOFORGE_WAREHOUSE",
         help="Warehouse folder (Parquet tables + catalog.duckdb). Default: ./warehouse of the project.",
     ),
+    task_runner: Optional[str] = typer.Option(
+        None, "--task-runner", envvar="DEMOFORGE_TASK_RUNNER",
+        help="Where tasks run: threads (default, this process) or dask (a Dask cluster, see --dask-address).",
+    ),
+    dask_address: Optional[str] = typer.Option(
+        None, "--dask-address", envvar="DEMOFORGE_DASK_ADDRESS",
+        help="Scheduler of an existing Dask cluster (tcp://host:8786); without it, --task-runner dask starts "
+             "a local cluster of $DEMOFORGE_DASK_WORKERS (default 2) worker processes.",
+    ),
 ) -> None:
+    from flows import runners
+
     State.warehouse = warehouse
+    if task_runner:
+        os.environ[runners.ENV_RUNNER] = task_runner
+    if dask_address:
+        os.environ[runners.ENV_ADDRESS] = dask_address
+    try:
+        kind = runners.runner_kind()
+        if kind == "dask" and not dask_address:
+            runners.dask_workers()
+    except ValueError as e:
+        raise fail(str(e))
 
 
 class OutputFormat(str, enum.Enum):
@@ -222,7 +244,8 @@ def synth(
     unknown = [t for t in tasks if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from: all, {', '.join(TASK_NAMES)}")
-    manifests = synthesize_takes(
+    manifests = run_flow(
+        synthesize_takes,
         str(current_warehouse()), tasks=tasks, takes=takes, seed=seed,
         mirror="both" if both else ("yes" if mirror else "no"),
         takes_dir=str(out) if out else None, depth_noise=depth_noise, video=video, max_frames=max_frames,
@@ -254,7 +277,7 @@ def evaluate(
     unknown = [t for t in (task or []) if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
-    report = evaluate_flow(str(current_warehouse()), str(reports.resolve()), tasks=task or None,
+    report = run_flow(evaluate_flow, str(current_warehouse()), str(reports.resolve()), tasks=task or None,
                            takes=takes, seed=seed, episodes=episodes, sim_episodes=sim_episodes,
                            llm_tasks=llm_task or ["pouring"], trials=trials, llm_backend=llm_backend,
                            llm_options={"model": llm_model} if llm_model else {})
@@ -285,7 +308,7 @@ def ingest(
             raise fail("--detector precomputed needs --predictions FILE")
         options["path"] = str(predictions)
     try:
-        result = ingest_take(str(path), str(current_warehouse()), detector=detector, task=task,
+        result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
                              video=video)
     except (TakeError, ValueError) as e:
@@ -313,7 +336,7 @@ def augment(
 
     options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
     try:
-        result = augment_take_flow(str(path), str(current_warehouse()), task=task, detector=detector,
+        result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, detector=detector,
                                    n=episodes, n_mirrored=mirrored, seed=seed, options=options)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
@@ -369,7 +392,7 @@ def evaluate_keypoints_cmd(
     from lib.arctic import ArcticError
 
     try:
-        evaluate_keypoints(str(current_warehouse()), dataset=dataset, detector=detector,
+        run_flow(evaluate_keypoints, str(current_warehouse()), dataset=dataset, detector=detector,
                            arctic_root=str(arctic_root) if arctic_root else None, takes=take or None,
                            subject=subject, predictions_dir=str(predictions_dir) if predictions_dir else None,
                            stride=stride)
@@ -397,7 +420,7 @@ def llm_eval_cmd(
 
     options = {"model": model} if model else {}
     try:
-        llm_eval(str(current_warehouse()), task=task, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
+        run_flow(llm_eval, str(current_warehouse()), task=task, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=options, trials=trials, seed=seed, n_waypoints=waypoints, precision=precision)
     except ValueError as e:
         raise fail(str(e))
@@ -422,7 +445,7 @@ def simulate(
     if n == -1:
         raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
     try:
-        simulate_episodes(str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
+        run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
                           workers=workers, seed=seed)
     except ValueError as e:
         raise fail(str(e))
@@ -446,6 +469,57 @@ def render_episode_cmd(
     except ValueError as e:
         raise fail(str(e))
     typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
+
+
+@app.command("ingest-folder")
+def ingest_folder_cmd(
+    folder: Path = typer.Argument(..., help="Folder whose take folders (any folder with camera.json) to ingest."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
+    task: Optional[str] = typer.Option(None, help="Task of the takes (synthetic takes know theirs)."),
+    augment: bool = typer.Option(False, "--augment", help="Also generate each take's episode database."),
+    episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes per take with --augment."),
+) -> None:
+    """Ingest every take under a folder; a take that fails is recorded in `folder_ingests` and skipped.
+
+    This is the flow of the scheduled deployment (`demoforge serve`)."""
+    from flows.ingest import ingest_folder
+
+    try:
+        rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), detector=detector, task=task,
+                        augment=augment, episodes=episodes)
+    except ValueError as e:
+        raise fail(str(e))
+    for r in rows:
+        typer.echo(f"{r['status']:<9} {r['take']}  {r['error']}")
+    if not rows:
+        typer.echo(f"no take folders (folders with camera.json) under {folder}")
+
+
+@app.command()
+def serve(
+    inbox: Path = typer.Option(Path("takes/inbox"), help="Folder the scheduled deployment ingests takes from (created if missing)."),
+    every: float = typer.Option(10.0, "--every", help="Minutes between scheduled ingests of the inbox."),
+    reports: Path = typer.Option(Path("reports"), "--reports", help="Report folder of the evaluate deployment."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector of the scheduled ingest."),
+    augment: bool = typer.Option(False, "--augment", help="Scheduled ingest also generates episode databases."),
+    limit: int = typer.Option(1, min=1, help="Flow runs executed at the same time."),
+) -> None:
+    """Serve the Prefect deployments `ingest-folder/scheduled` and `evaluate/default` until Ctrl-C.
+
+    Needs a Prefect server: `prefect server start` in another shell and PREFECT_API_URL pointing at it.
+    Then trigger runs with `prefect deployment run 'evaluate/default' --watch`."""
+    import os
+
+    from flows.deployments import serve_deployments
+
+    if not os.environ.get("PREFECT_API_URL"):
+        raise fail("PREFECT_API_URL is not set: start a server (`prefect server start --host 127.0.0.1 --port 4200`) "
+                   "and export PREFECT_API_URL=http://127.0.0.1:4200/api, so the deployments outlive this process")
+    try:
+        serve_deployments(str(current_warehouse()), str(inbox), str(reports), interval_minutes=every,
+                          detector=detector, augment=augment, limit=limit)
+    except ValueError as e:
+        raise fail(str(e))
 
 
 # Commands of the larger areas live in their own modules and register on `app` when imported.

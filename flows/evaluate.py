@@ -12,6 +12,7 @@ from flows.ingest import ingest_take
 from flows.keypoint_eval import evaluate_keypoints
 from flows.llm_eval import llm_eval
 from flows.report import write_report
+from flows.runners import run_flow
 from flows.sim import simulate_episodes
 from flows.synth import synthesize_takes
 
@@ -49,29 +50,29 @@ def evaluate(
 
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
-    manifests = synthesize_takes(warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
+    manifests = run_flow(synthesize_takes, warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
     for m in manifests:
         name = Path(m.path).name
         if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
-            augment_take_flow(m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
+            run_flow(augment_take_flow, m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
             task = name.split("_s")[0].removeprefix("synth_")
             if sim_episodes:
-                simulate_episodes(warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
+                run_flow(simulate_episodes, warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
         else:
-            ingest_take(m.path, warehouse)
+            run_flow(ingest_take, m.path, warehouse)
     for llm_task in llm_tasks:
         if llm_task in tasks and trials > 0:
-            llm_eval(warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
+            run_flow(llm_eval, warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
                      trials=trials, seed=seed)
-    evaluate_keypoints(warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
+    run_flow(evaluate_keypoints, warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
     from flows.keypoint_eval import REAL_HANDS
 
     if REAL_HANDS.is_dir():
-        evaluate_keypoints(warehouse, dataset="real_photos")
+        run_flow(evaluate_keypoints, warehouse, dataset="real_photos")
     else:
         logger.warning("%s not found: the real-photo keypoint table is skipped", REAL_HANDS)
     if arctic_root:
-        evaluate_keypoints(warehouse, dataset="arctic", arctic_root=arctic_root)
+        run_flow(evaluate_keypoints, warehouse, dataset="arctic", arctic_root=arctic_root)
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
                                                    "mirror": mirror, "episodes": episodes,
                                                    "arctic_root": arctic_root, "sim_episodes": sim_episodes,

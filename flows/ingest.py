@@ -61,3 +61,61 @@ def ingest_take(
     if video:
         result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers)
     return result
+
+
+def find_take_folders(folder: str | Path) -> list[Path]:
+    """Take folders under ``folder`` (any depth): folders holding a camera.json, sorted by path."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f"{root}: no such folder to ingest takes from")
+    return sorted(p.parent for p in root.rglob("camera.json"))
+
+
+@flow(name="ingest-folder")
+def ingest_folder(
+    folder: str,
+    warehouse: str,
+    detector: str = "simulated",
+    task: str | None = None,
+    augment: bool = False,
+    episodes: int = 10_000,
+    show_progress: bool = False,
+) -> list[dict]:
+    """Ingest every take folder under `folder` (the scheduled deployment's flow).
+
+    A take is a folder with camera.json (layout: README 'Take folders'). Takes already ingested are
+    served from the cache, so running this on a schedule only processes new or changed takes. A take
+    that fails is recorded in `folder_ingests` with the reason and does not stop the others.
+    With `augment`, each ingested take also gets its episode database of `episodes` episodes.
+    """
+    import pyarrow as pa
+
+    from flows.augment import augment_take_flow
+    from flows.runners import run_flow
+    from schemas.core import write_table
+
+    logger = get_run_logger()
+    folder_abs = Path(folder).resolve()
+    takes = find_take_folders(folder_abs)
+    logger.info("%d take folder(s) under %s", len(takes), folder_abs)
+    rows = []
+    for take_dir in takes:
+        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": detector,
+               "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
+        try:
+            if augment:
+                out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, detector=detector,
+                               n=episodes, n_mirrored=episodes // 2, show_progress=show_progress)
+                row["episodes"] = int(out["episodes"].rows)
+            else:
+                out = run_flow(ingest_take, str(take_dir), warehouse, detector=detector, task=task,
+                               show_progress=show_progress)
+            row["gripper_rows"] = int(out["gripper_poses"].rows)
+        except Exception as e:  # noqa: BLE001  (one bad take must not stop the folder)
+            row.update(status="failed", error=f"{type(e).__name__}: {e}"[:2000])
+            logger.warning("take %s failed: %s", take_dir.name, row["error"])
+        write_table("folder_ingests", pa.Table.from_pylist([row]), warehouse)
+        rows.append(row)
+    failed = sum(r["status"] == "failed" for r in rows)
+    logger.info("ingested %d take(s), %d failed (see the folder_ingests table)", len(rows) - failed, failed)
+    return rows

@@ -129,3 +129,21 @@ INGEST_METRICS = table(
     ],
     partition_by=_PARTS,
 )
+
+FOLDER_INGESTS = table(
+    "folder_ingests",
+    version=1,
+    doc=("One row per take folder found by the `ingest-folder` flow (the scheduled deployment): whether it "
+         "was ingested, and if not, why. A failed take never stops the others; fix it and the next run retries it."),
+    columns=[
+        Column("folder", pa.string(), "The watched folder (absolute path)."),
+        _TAKE,
+        Column("path", pa.string(), "The take folder (absolute path)."),
+        Column("detector", pa.string(), "Hand detector backend used."),
+        Column("status", pa.string(), "`ingested` or `failed`."),
+        Column("error", pa.string(), "Why the take failed (empty when ingested)."),
+        Column("gripper_rows", pa.int64(), "Rows written to `gripper_poses` for the take (0 when failed)."),
+        Column("episodes", pa.int64(), "Episodes generated for the take when the flow augments (0 otherwise)."),
+    ],
+    partition_by=("take",),
+)

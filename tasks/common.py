@@ -160,12 +160,37 @@ def run_stage(stage: Any, warehouse: str | os.PathLike, /, **kwargs: Any) -> Any
     A cache hit whose manifest names files that were deleted or changed is not trusted: the task
     runs again with ``refresh_cache=True``.
     """
+    return run_stages(stage, warehouse, [kwargs])[0]
+
+
+def run_stages(stage: Any, warehouse: str | os.PathLike, calls: list[dict[str, Any]]) -> list[Any]:
+    """Call a stage task once per keyword dict, like :func:`run_stage`.
+
+    Under the default task runner the calls run one after the other in this process. Inside a flow
+    whose task runner is Dask they are all submitted at once, so they run in parallel on the
+    cluster's workers, and the results come back in the order of ``calls``.
+    """
     storage = Path(warehouse).resolve() / PREFECT_DIR / "results"
     configured = stage.with_options(result_storage=storage)
-    result = configured(**kwargs)
-    if not _intact(result):
-        result = configured.with_options(refresh_cache=True)(**kwargs)
-    return result
+    if not in_distributed_flow():
+        results = [configured(**kw) for kw in calls]
+        return [r if _intact(r) else configured.with_options(refresh_cache=True)(**kw)
+                for r, kw in zip(results, calls)]
+    futures = [configured.submit(**kw) for kw in calls]
+    results = [f.result() for f in futures]
+    redo = {i: configured.with_options(refresh_cache=True).submit(**calls[i])
+            for i, r in enumerate(results) if not _intact(r)}
+    return [redo[i].result() if i in redo else r for i, r in enumerate(results)]
+
+
+def in_distributed_flow() -> bool:
+    """True inside a flow run whose task runner is Dask (prefect-dask): tasks must be submitted to
+    run on its workers; a direct call would run in this process."""
+    from prefect.context import FlowRunContext
+
+    ctx = FlowRunContext.get()
+    runner = getattr(ctx, "task_runner", None) if ctx is not None else None
+    return runner is not None and type(runner).__name__ == "DaskTaskRunner"
 
 
 def _intact(result: Any) -> bool:
