@@ -281,3 +281,10 @@ def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: b
     if rows:
         write_table("benchmarks", pa.Table.from_pylist(rows), warehouse)
     return rows
+
+
+@register("hamer")
+def _hamer_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_hamer import cases
+
+    return cases(quick)

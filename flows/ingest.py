@@ -44,8 +44,9 @@ def ingest_take(
     if set(bad) - {"ok"}:
         logger.warning("take %s: frame problems %s (recorded in `frames`)", take.take_id, bad)
     options = dict(detector_options or {})
-    if "path" in options:  # a predictions file: its content, not its name, is part of the cache key
-        options["path"] = Path(options["path"]).resolve()
+    for key in ("path", "checkpoint", "mano_model"):  # files: their content, not their name, is the cache key
+        if key in options and options[key] is not None:
+            options[key] = Path(options[key]).resolve()
     common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
     frames = run_stage(index_frames, warehouse, **common)
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,

@@ -252,6 +252,7 @@ _REGISTRY: dict[str, Callable[..., HandDetector] | str] = {
     "mediapipe": "lib.detectors.mediapipe_backend:MediaPipeDetector",
     "simulated": "lib.detectors.simulated:SimulatedDetector",
     "precomputed": "lib.detectors.precomputed:PrecomputedDetector",
+    "hamer": "lib.hamer.backend:HamerDetector",
 }
 
 
