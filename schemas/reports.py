@@ -5,6 +5,8 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
+
 def _wavg(metric: str, weight: str) -> str:
     """Frame-weighted mean over takes, skipping NaN (the thesis's eq. 4 pooled over all frames)."""
     ok = f"NOT isnan({metric}) AND {weight} > 0"
@@ -157,6 +159,9 @@ REPORT_VIEWS: dict[str, str] = {
                count(*) AS trials
         FROM llm_trials GROUP BY ALL ORDER BY task, strategy, trials DESC
     """,
+    # Thesis Table 4 analogue: success under simulated scene variations, per task and strategy.
+    "report_table4": REPORT_TABLE4_SQL,
+    "report_table4_failures": REPORT_TABLE4_FAILURES_SQL,
     # Robot success checks of the augmented episodes, per task and kind.
     "report_sim": """
         SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,

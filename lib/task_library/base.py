@@ -269,6 +269,9 @@ class Task:
     # xy min / max region where object origins are placed (both the plain and the mirrored layouts)
     placement_region = np.array([[-0.3, 0.12], [0.3, 0.45]])
     faults: tuple[str, ...] = ()  # scripted failure variants for negative tests
+    # object name -> (attribute holding its dimension dict, keypoints(dims), grasp width(dims)) for the
+    # objects whose size and proportions a variant may change (Task.variant); empty: fixed objects
+    resizable: dict = {}
 
     # -------- static description
     @property
@@ -304,6 +307,51 @@ class Task:
         object_poses = np.asarray(object_poses)
         T = object_poses[..., self.keypoint_object, :, :]  # (..., 11, 4, 4)
         return np.einsum("...ij,...j->...i", T[..., :3, :3], self.keypoints_local) + T[..., :3, 3]
+
+    # -------- variants (other object instances, extra bodies)
+    def variant(self, dims: dict | None = None, extra_bodies: str = "") -> "Task":
+        """A copy of this task with other object dimensions and / or extra bodies in its scene.
+
+        `dims`: {object name: its full dimension dict} for objects in `resizable` (e.g. a wider, shorter
+        bottle: lib.task_library.objects.scale_dims); the copy's geometry, keypoints, grasp widths,
+        scripts and success predicate all use the new dimensions.  `extra_bodies`: MJCF bodies appended
+        to every scene of the copy (with _extra_bodies, so free bodies among them are reset with each
+        placement by the robot simulator), e.g. distractor objects.  The copy keeps this task's name;
+        register it with lib.task_library.register_variant to reach it by a name of its own.
+        With no arguments the copy behaves exactly like this task."""
+        import copy
+        import functools
+
+        dims = dict(dims or {})
+        unknown = sorted(set(dims) - set(self.resizable))
+        if unknown:
+            raise ValueError(f"{self.name}: cannot resize {unknown}; resizable objects: "
+                             f"{', '.join(self.resizable) or 'none'}")
+        t = copy.copy(self)
+        objs = []
+        for o in self.objects:
+            if o.name not in dims:
+                objs.append(o)
+                continue
+            attr, kp_fn, width_fn = self.resizable[o.name]
+            d = {k: float(v) for k, v in dims[o.name].items()}
+            expected = set(getattr(self, attr))
+            if set(d) != expected:
+                raise ValueError(f"{self.name}/{o.name}: dimensions must have exactly the keys {sorted(expected)}, "
+                                 f"got {sorted(d)}")
+            if min(d.values()) <= 0:
+                raise ValueError(f"{self.name}/{o.name}: dimensions must be positive, got {d}")
+            setattr(t, attr, d)
+            objs.append(TaskObject(o.name, o.role, float(width_fn(d)), kp_fn(d), functools.partial(o.build, dims=d)))
+        t.objects = tuple(objs)
+        if extra_bodies:
+            base_extra = t._extra_bodies  # bound to the copy: resized objects' extras (liquid) follow
+
+            def _extra(placement, _base=base_extra, _more=extra_bodies):
+                return _base(placement) + "\n" + _more
+
+            t._extra_bodies = _extra
+        return t
 
     # -------- scene
     def sample_placement(self, rng: np.random.Generator, mirror: bool = False) -> Placement:

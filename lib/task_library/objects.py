@@ -102,24 +102,52 @@ def body_xml(name: str, pose: np.ndarray, geoms: str) -> str:
 # ------------------------------------------------------------------ object geometry
 # Dimensions (metres) are module constants so that tasks and predicates share them.
 
-BOTTLE = dict(R=0.035, t=0.004, body_h=0.15, shoulder_h=0.035, neck_r=0.0135, neck_t=0.003, h=0.23, mass=0.20)
+BOTTLE = dict(R=0.035, t=0.004, body_h=0.15, shoulder_h=0.035, neck_r=0.0135, neck_t=0.003, h=0.23, mass=0.20,
+              side_z=0.08)
 CUP = dict(R=0.045, t=0.004, h=0.10, mass=0.12)
 LIQUID = dict(n=10, r=0.0065, mass=0.004)
 CAN = dict(R=0.033, h=0.12, mass=0.06)
 BIN = dict(half=0.10, t=0.006, h=0.18, mass=0.40)
 BALL = dict(r=0.03, mass=0.012)
 CASE = dict(hx=0.11, hy=0.065, t=0.006, h=0.06, lid_angle=math.radians(105), mass=0.25)
-BOWL = dict(r_bot=0.055, r_top=0.095, h=0.075, t=0.005, mass=0.30)
-WHISK = dict(handle_r=0.006, handle_len=0.13, head_r=0.025, head_z=0.17, mass=0.08)
+BOWL = dict(r_bot=0.055, r_top=0.095, h=0.075, t=0.005, mass=0.30, center_z=0.04)
+WHISK = dict(handle_r=0.006, handle_len=0.13, head_r=0.025, head_z=0.17, mass=0.08, grasp_z=0.075)
 CONTAINER = dict(hx=0.07, hy=0.05, t=0.005, h=0.08, mass=0.20)
 LID = dict(hx=0.076, hy=0.056, t=0.006, skirt=0.015, skirt_t=0.003, knob=(0.02, 0.006, 0.008), mass=0.06)
 VASE = dict(R=0.045, t=0.004, h=0.20, mass=0.50)
 FLOWERS = dict(base=0.015, base_h=0.012, top=0.30, side=0.025, side_top=0.28, blossom_r=0.02, stem_r=0.003, mass=0.05)
 
+# How each dimension of the resizable objects follows a resize (Task.variant / lib.variations): "r" scales
+# with the horizontal factor (radii, half-widths), "z" with the vertical one (heights), "m" with the
+# volume (mass), "t" stays (wall and neck thickness: a bigger cup of the same kind has the same walls).
+# Extra keys: side_z, center_z, grasp_z are the heights of a keypoint / grasp point on the object.
+DIM_KINDS = {
+    "bottle": dict(R="r", t="t", body_h="z", shoulder_h="z", neck_r="r", neck_t="t", h="z", mass="m", side_z="z"),
+    "cup": dict(R="r", t="t", h="z", mass="m"),
+    "can": dict(R="r", h="z", mass="m"),
+    "bin": dict(half="r", t="t", h="z", mass="m"),
+    "bowl": dict(r_bot="r", r_top="r", h="z", t="t", mass="m", center_z="z"),
+    "whisk": dict(handle_r="r", handle_len="z", head_r="r", head_z="z", mass="m", grasp_z="z"),
+}
 
-def bottle(pose):
+
+def scale_dims(obj: str, dims: dict, s_xy: float, s_z: float) -> dict:
+    """`dims` of object `obj` resized by s_xy horizontally and s_z vertically (see DIM_KINDS)."""
+    kinds = DIM_KINDS.get(obj)
+    if kinds is None:
+        raise ValueError(f"object {obj!r} cannot be resized; resizable: {', '.join(DIM_KINDS)}")
+    if not (s_xy > 0 and s_z > 0):
+        raise ValueError(f"scale factors must be positive, got s_xy={s_xy}, s_z={s_z}")
+    factor = {"r": s_xy, "z": s_z, "m": s_xy * s_xy * s_z, "t": 1.0}
+    missing = set(dims) - set(kinds)
+    if missing:
+        raise ValueError(f"{obj}: no resize rule for dimension(s) {sorted(missing)}; add them to DIM_KINDS")
+    return {k: float(v) * factor[kinds[k]] for k, v in dims.items()}
+
+
+def bottle(pose, dims: dict | None = None):
     g = GeomSet("bottle", "0.2 0.6 0.3 0.85")
-    b = BOTTLE
+    b = dims or BOTTLE
     g.cylinder([0, 0, 0.004], b["R"] - 0.001, 0.004)
     g.ring(16, b["R"] - b["t"], b["t"], 0.0, b["body_h"])
     g.cone_ring(16, b["R"] - b["t"], b["body_h"], b["neck_r"], b["body_h"] + b["shoulder_h"], b["t"])
@@ -132,14 +160,16 @@ def bottle(pose):
 SIM_ONLY_GROUP = 3
 
 
-def liquid(bottle_pose):
-    """Small spheres stacked inside the bottle (layers of 4)."""
+def liquid(bottle_pose, dims: dict | None = None):
+    """Small spheres stacked inside the bottle (layers of 4); `dims`: the bottle's (default BOTTLE)."""
     out = []
-    b, lq = BOTTLE, LIQUID
+    b, lq = dims or BOTTLE, LIQUID
+    # ring radius of the spheres: 14 mm in the default bottle, less in a narrower one (stay inside its wall)
+    ring = min(0.014, b["R"] - b["t"] - lq["r"] - 0.001)
     for i in range(lq["n"]):
         layer, k = divmod(i, 4)
         ang = math.pi / 4 + math.pi / 2 * k + layer * 0.4
-        p_local = np.array([0.014 * math.cos(ang), 0.014 * math.sin(ang), 0.008 + lq["r"] + 0.001 + layer * 0.0145])
+        p_local = np.array([ring * math.cos(ang), ring * math.sin(ang), 0.008 + lq["r"] + 0.001 + layer * 0.0145])
         pose = np.eye(4)
         pose[:3, 3] = bottle_pose[:3, :3] @ p_local + bottle_pose[:3, 3]
         g = GeomSet(f"liquid_{i}", "0.2 0.4 1 1", friction="0.3 0.005 0.0001", extra=f'group="{SIM_ONLY_GROUP}"')
@@ -148,23 +178,24 @@ def liquid(bottle_pose):
     return "\n".join(out)
 
 
-def cup(pose):
+def cup(pose, dims: dict | None = None):
     g = GeomSet("cup", "0.9 0.9 0.95 1")
-    c = CUP
+    c = dims or CUP
     g.cylinder([0, 0, 0.005], c["R"] - 0.001, 0.005)
     g.ring(16, c["R"] - c["t"], c["t"], 0.0, c["h"])
     return body_xml("cup", pose, g.xml(c["mass"]))
 
 
-def can(pose):
+def can(pose, dims: dict | None = None):
     g = GeomSet("can", "0.8 0.1 0.1 1")
-    g.cylinder([0, 0, CAN["h"] / 2], CAN["R"], CAN["h"] / 2)
-    return body_xml("can", pose, g.xml(CAN["mass"]))
+    c = dims or CAN
+    g.cylinder([0, 0, c["h"] / 2], c["R"], c["h"] / 2)
+    return body_xml("can", pose, g.xml(c["mass"]))
 
 
-def bin_(pose):
+def bin_(pose, dims: dict | None = None):
     g = GeomSet("bin", "0.3 0.3 0.35 1")
-    b = BIN
+    b = dims or BIN
     a, t, h = b["half"], b["t"], b["h"]
     g.box([0, 0, t / 2], [a, a, t / 2])
     for sx, sy in ((1, 0), (-1, 0)):
@@ -210,17 +241,17 @@ def case_lid_tip_local() -> np.ndarray:
     return np.array([0.0, c["hy"], c["h"]]) + d * 2 * c["hy"]
 
 
-def bowl(pose):
+def bowl(pose, dims: dict | None = None):
     g = GeomSet("bowl", "0.95 0.6 0.2 1")
-    b = BOWL
+    b = dims or BOWL
     g.cylinder([0, 0, 0.003], b["r_bot"] + 0.002, 0.003)
     g.cone_ring(20, b["r_bot"], 0.0, b["r_top"], b["h"], b["t"])
     return body_xml("bowl", pose, g.xml(b["mass"]))
 
 
-def whisk(pose):
+def whisk(pose, dims: dict | None = None):
     g = GeomSet("whisk", "0.75 0.75 0.8 1")
-    w = WHISK
+    w = dims or WHISK
     r = w["handle_r"]
     g.capsule([0, 0, r], [0, 0, w["handle_len"]], r, rgba="0.1 0.1 0.1 1")
     g.capsule([0, 0, w["handle_len"]], [0, 0, w["head_z"] - w["head_r"] * 0.8], 0.003)
@@ -228,9 +259,9 @@ def whisk(pose):
     return body_xml("whisk", pose, g.xml(w["mass"]))
 
 
-def whisk_rest_tilt() -> float:
+def whisk_rest_tilt(dims: dict | None = None) -> float:
     """Angle of the whisk axis above the table when it lies on its handle end and its head."""
-    w = WHISK
+    w = dims or WHISK
     return math.asin((w["head_r"] - w["handle_r"]) / (w["head_z"] - w["handle_r"]))
 
 

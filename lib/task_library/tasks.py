@@ -103,6 +103,37 @@ def _rim4(prefix, r, z, ry=None):
             (f"{prefix}_rim_left", (-r, 0, z)), (f"{prefix}_rim_right", (r, 0, z))]
 
 
+# Keypoints (object frame) of the resizable objects as functions of their dimensions, so that a resized
+# object (Task.variant) carries keypoints that follow its geometry; the defaults use the module constants.
+def _bottle_kp(b):
+    return _kp(("bottle_base", (0, 0, 0)), ("bottle_left", (-b["R"], 0, b["side_z"])),
+               ("bottle_right", (b["R"], 0, b["side_z"])), ("bottle_shoulder", (0, 0, b["body_h"])),
+               ("bottle_mouth", (0, 0, b["h"])))
+
+
+def _cup_kp(c):
+    return _kp(("cup_base", (0, 0, 0)), ("cup_center", (0, 0, c["h"] / 2)), *_rim4("cup", c["R"], c["h"]))
+
+
+def _can_kp(c):
+    return _kp(("can_bottom", (0, 0, 0)), ("can_center", (0, 0, c["h"] / 2)), ("can_top", (0, 0, c["h"])),
+               ("can_left", (-c["R"], 0, c["h"] / 2)), ("can_right", (c["R"], 0, c["h"] / 2)))
+
+
+def _bin_kp(b):
+    return _kp(("bin_base", (0, 0, 0)), ("bin_center", (0, 0, b["h"] / 2)), *_rim4("bin", b["half"], b["h"]))
+
+
+def _whisk_kp(w):
+    return _kp(("whisk_end", (0, 0, 0)), ("whisk_handle", (0, 0, w["grasp_z"])),
+               ("whisk_neck", (0, 0, w["handle_len"])),
+               ("whisk_head", (0, 0, w["head_z"])), ("whisk_tip", (0, 0, w["head_z"] + w["head_r"])))
+
+
+def _bowl_kp(b):
+    return _kp(("bowl_base", (0, 0, 0)), ("bowl_center", (0, 0, b["center_z"])), *_rim4("bowl", b["r_top"], b["h"]))
+
+
 def _tilt_deg(T: np.ndarray) -> float:
     return math.degrees(math.acos(np.clip(T[2, 2], -1, 1)))
 
@@ -113,21 +144,17 @@ class Pouring(Task):
     faults = ("no_tilt",)
     B, C = ob.BOTTLE, ob.CUP
     objects = (
-        TaskObject("bottle", "manipulated", 2 * ob.BOTTLE["R"], _kp(
-            ("bottle_base", (0, 0, 0)), ("bottle_left", (-ob.BOTTLE["R"], 0, 0.08)),
-            ("bottle_right", (ob.BOTTLE["R"], 0, 0.08)), ("bottle_shoulder", (0, 0, ob.BOTTLE["body_h"])),
-            ("bottle_mouth", (0, 0, ob.BOTTLE["h"]))), ob.bottle),
-        TaskObject("cup", "receiving", 2 * ob.CUP["R"], _kp(
-            ("cup_base", (0, 0, 0)), ("cup_center", (0, 0, ob.CUP["h"] / 2)),
-            *_rim4("cup", ob.CUP["R"], ob.CUP["h"])), ob.cup),
+        TaskObject("bottle", "manipulated", 2 * ob.BOTTLE["R"], _bottle_kp(ob.BOTTLE), ob.bottle),
+        TaskObject("cup", "receiving", 2 * ob.CUP["R"], _cup_kp(ob.CUP), ob.cup),
     )
+    resizable = {"bottle": ("B", _bottle_kp, lambda d: 2 * d["R"]), "cup": ("C", _cup_kp, lambda d: 2 * d["R"])}
 
     def _sample_poses(self, rng):
         return np.stack([object_pose(rng.uniform(-0.25, -0.14), rng.uniform(0.18, 0.34), rng.uniform(-0.5, 0.5)),
                          object_pose(rng.uniform(0.03, 0.15), rng.uniform(0.22, 0.38), rng.uniform(-0.5, 0.5))])
 
     def _extra_bodies(self, placement):
-        return ob.liquid(placement.object_poses[0])
+        return ob.liquid(placement.object_poses[0], self.B)
 
     def _script(self, rng, poses, fault):
         st = Style(rng)
@@ -200,16 +227,12 @@ class Pouring(Task):
 class TrashInBin(Task):
     name = "trash_in_bin"
     faults = ("release_far",)
-    A = ob.BIN
+    A, CN = ob.BIN, ob.CAN
     objects = (
-        TaskObject("can", "manipulated", 2 * ob.CAN["R"], _kp(
-            ("can_bottom", (0, 0, 0)), ("can_center", (0, 0, ob.CAN["h"] / 2)), ("can_top", (0, 0, ob.CAN["h"])),
-            ("can_left", (-ob.CAN["R"], 0, ob.CAN["h"] / 2)), ("can_right", (ob.CAN["R"], 0, ob.CAN["h"] / 2))),
-            ob.can),
-        TaskObject("bin", "receiving", ob.BIN["t"], _kp(
-            ("bin_base", (0, 0, 0)), ("bin_center", (0, 0, ob.BIN["h"] / 2)),
-            *_rim4("bin", ob.BIN["half"], ob.BIN["h"])), ob.bin_),
+        TaskObject("can", "manipulated", 2 * ob.CAN["R"], _can_kp(ob.CAN), ob.can),
+        TaskObject("bin", "receiving", ob.BIN["t"], _bin_kp(ob.BIN), ob.bin_),
     )
+    resizable = {"can": ("CN", _can_kp, lambda d: 2 * d["R"]), "bin": ("A", _bin_kp, lambda d: d["t"])}
 
     def _sample_poses(self, rng):
         return np.stack([object_pose(rng.uniform(-0.25, -0.13), rng.uniform(0.15, 0.32), rng.uniform(-0.6, 0.6)),
@@ -248,7 +271,7 @@ class TrashInBin(Task):
         return L, R
 
     def success(self, model, data, history):
-        p = local_point(history[-1, 1], history[-1, 0][:3, 3] + history[-1, 0][:3, 2] * ob.CAN["h"] / 2)
+        p = local_point(history[-1, 1], history[-1, 0][:3, 3] + history[-1, 0][:3, 2] * self.CN["h"] / 2)
         a = self.A["half"] - self.A["t"]
         ok = abs(p[0]) < a and abs(p[1]) < a and p[2] < self.A["h"]
         tilt = _tilt_deg(history[-1, 1])
@@ -326,26 +349,25 @@ class MixBowl(Task):
     faults = ("no_circle",)
     W, BW = ob.WHISK, ob.BOWL
     objects = (
-        TaskObject("whisk", "manipulated", 2 * ob.WHISK["handle_r"], _kp(
-            ("whisk_end", (0, 0, 0)), ("whisk_handle", (0, 0, 0.075)), ("whisk_neck", (0, 0, ob.WHISK["handle_len"])),
-            ("whisk_head", (0, 0, ob.WHISK["head_z"])), ("whisk_tip", (0, 0, ob.WHISK["head_z"] + ob.WHISK["head_r"]))),
-            ob.whisk),
-        TaskObject("bowl", "receiving", ob.BOWL["t"], _kp(
-            ("bowl_base", (0, 0, 0)), ("bowl_center", (0, 0, 0.04)), *_rim4("bowl", ob.BOWL["r_top"], ob.BOWL["h"])),
-            ob.bowl),
+        TaskObject("whisk", "manipulated", 2 * ob.WHISK["handle_r"], _whisk_kp(ob.WHISK), ob.whisk),
+        TaskObject("bowl", "receiving", ob.BOWL["t"], _bowl_kp(ob.BOWL), ob.bowl),
     )
-    HANDLE_GRASP = 0.075
+    resizable = {"whisk": ("W", _whisk_kp, lambda d: 2 * d["handle_r"]), "bowl": ("BW", _bowl_kp, lambda d: d["t"])}
+    HANDLE_GRASP = ob.WHISK["grasp_z"]
 
     @staticmethod
-    def whisk_rest_pose(x, y, yaw):
-        """Whisk lying on the table, head towards the demonstrator; (x, y) = handle end."""
-        a = ob.whisk_rest_tilt()
+    def whisk_rest_pose(x, y, yaw, dims: dict | None = None):
+        """Whisk lying on the table, head towards the demonstrator; (x, y) = handle end.  `dims`: the
+        whisk's dimensions (default ob.WHISK)."""
+        w = dims or ob.WHISK
+        a = ob.whisk_rest_tilt(w)
         r = Rotation.from_euler("z", yaw) * Rotation.from_euler("x", math.pi / 2 - a)
-        rh = ob.WHISK["handle_r"]
+        rh = w["handle_r"]
         return make_pose(r, np.array([x, y, rh]) - r.apply([0, 0, rh]))
 
     def _sample_poses(self, rng):
-        return np.stack([self.whisk_rest_pose(rng.uniform(-0.27, -0.16), rng.uniform(0.32, 0.42), rng.uniform(-0.35, 0.35)),
+        return np.stack([self.whisk_rest_pose(rng.uniform(-0.27, -0.16), rng.uniform(0.32, 0.42),
+                                              rng.uniform(-0.35, 0.35), self.W),
                          object_pose(rng.uniform(0.04, 0.14), rng.uniform(0.25, 0.38), rng.uniform(-np.pi, np.pi))])
 
     def head_local_in_bowl(self, W, B):
@@ -368,7 +390,7 @@ class MixBowl(Task):
         B_task = translated(B0, [0, 0, lift])
 
         wW = self.objects[0].grasp_width
-        hp = W0 @ np.array([0, 0, self.HANDLE_GRASP, 1.0])
+        hp = W0 @ np.array([0, 0, self.W["grasp_z"], 1.0])
         perp = W0[:3, 0]
         gW = top_pinch(hp[:3], -perp)
         grasp_sequence(L, gW, 0, wW, st, back=0.07, up=0.0)
