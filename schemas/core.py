@@ -328,8 +328,31 @@ def write_table(name: str | TableSchema, data: Any, root: str | os.PathLike) -> 
     return written
 
 
+def _unsliced(arr: pa.Array) -> pa.Array:
+    """The same values with offset 0 at every fixed-size-list level. pyarrow 26.0.1's filter and take
+    return wrong rows for a nested fixed-size-list array that is a slice (as Parquet reads and
+    Table.slice give): the inner offset is ignored. Rebuilding from the flattened values avoids it."""
+    if pa.types.is_fixed_size_list(arr.type):
+        mask = arr.is_null() if arr.null_count else None
+        return pa.FixedSizeListArray.from_arrays(_unsliced(arr.flatten()), type=arr.type, mask=mask)
+    return arr
+
+
+def unsliced_table(tbl: pa.Table) -> pa.Table:
+    """``tbl`` with every fixed-size-list column rebuilt at offset 0 (see :func:`_unsliced`)."""
+    cols = []
+    for name in tbl.column_names:
+        col = tbl.column(name)
+        if pa.types.is_fixed_size_list(col.type):
+            col = pa.chunked_array([_unsliced(c) for c in col.chunks], type=col.type)
+        cols.append(col)
+    return pa.Table.from_arrays(cols, schema=tbl.schema)
+
+
 def _split_partitions(tbl: pa.Table, cols: Sequence[str]) -> list[tuple[dict, pa.Table]]:
     import pyarrow.compute as pc
+
+    tbl = unsliced_table(tbl)
 
     if tbl.num_rows == 0:
         raise SchemaError("cannot write an empty partitioned table: the partition is unknown")

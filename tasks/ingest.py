@@ -214,12 +214,12 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     back-projected with depth."""
     from lib.ingest import open_take, read_frame
     from lib.object_keypoints import backproject_keypoints_detailed
-    from schemas.core import read_table_file
+    from schemas.core import read_table_file, unsliced_table
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
     if take.has_ground_truth:
-        gt = read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet")
+        gt = unsliced_table(read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet"))
         first = gt.filter(pa.compute.equal(gt.column("frame"), 0))
         pts = np.array(first.column("keypoints_world")[0].as_py())
         names = _keypoint_names(take, len(pts))

@@ -159,3 +159,27 @@ def test_every_registered_table_documents_every_column():
         for c in schema.columns:
             assert len(c.doc) > 3, f"{name}.{c.name} is undocumented"
         assert "| column |" in schema.describe()
+
+
+def test_partitioned_write_of_a_sliced_nested_list_table_keeps_the_right_rows(tmp_path):
+    """pyarrow 26.0.1 filters a sliced nested fixed-size-list array wrongly; the writer must not."""
+    import numpy as np
+    import pyarrow as pa
+
+    from schemas.core import read_table, write_table
+
+    n = 12
+    action = np.arange(n * 16, dtype=np.float32).reshape(n, 2, 8)
+    full = pa.table({
+        "task": ["pouring"] * n, "take": ["a"] * 6 + ["b"] * 6,
+        "episode_id": pa.array(np.arange(n), pa.int64()), "step": pa.array(np.zeros(n), pa.int32()),
+        "action": pa.FixedSizeListArray.from_arrays(
+            pa.FixedSizeListArray.from_arrays(pa.array(action.ravel()), 8), 2).cast(
+            pa.list_(pa.list_(pa.float32(), 8), 2)),
+    })
+    sliced = full.slice(3)  # rows 3..11, partitions a (3 rows) and b (6 rows)
+    write_table("episode_steps", sliced, tmp_path)
+    back = read_table("episode_steps", tmp_path).sort_by("episode_id")
+    got = np.asarray(back.column("action").to_pylist(), np.float32)
+    assert back.column("episode_id").to_pylist() == list(range(3, n))
+    np.testing.assert_array_equal(got, action[3:])
