@@ -288,3 +288,10 @@ def _hamer_cases(quick: bool) -> list[BenchCase]:
     from lib.bench_cases_hamer import cases
 
     return cases(quick)
+
+
+@register("exports")
+def _exports_cases(quick: bool) -> list[BenchCase]:
+    from lib.exports.bench_cases import cases
+
+    return cases(quick)

@@ -1,0 +1,438 @@
+"""Flows: a task's episodes exported to LeRobot v3.0 / robomimic, Rerun recordings, and the report plots.
+
+Reading the warehouse happens here; the formats live in lib/exports and lib/plots. Exports are
+cached stages keyed on the content of the episode tables they read: exporting again with nothing
+changed returns the manifest of the existing export, and a deleted or edited export is rewritten.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+from prefect import flow
+
+import lib  # noqa: F401
+from lib.exports import ExportError, task_instruction
+from tasks.common import Manifest, run_stage, stage_task
+
+EXPORT_VERSION = "1"
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+@dataclass
+class EpisodeSelection:
+    """Episodes of one task database, concatenated: poses (F, 2, 8) and per-episode columns (N,)."""
+
+    task: str
+    poses: np.ndarray
+    lengths: np.ndarray
+    take: np.ndarray
+    episode_id: np.ndarray
+    kind: np.ndarray
+    valid: np.ndarray
+    transform: np.ndarray
+    keypoints: np.ndarray
+    sources: list[Path] = field(default_factory=list)
+
+    @property
+    def provenance(self) -> dict:
+        return {"task": np.full(len(self.lengths), self.task), "take": self.take, "episode_id": self.episode_id,
+                "kind": self.kind, "valid": self.valid, "transform": self.transform}
+
+
+def _check_name(what: str, value: str) -> None:
+    if not _NAME.match(value):
+        raise ExportError(f"invalid {what} {value!r}: letters, digits, '_', '-' and '.' only")
+
+
+def episode_files(warehouse: str, task: str, take: str | None = None) -> list[Path]:
+    """The episodes and episode_steps files of a task (one take or all), the export's inputs."""
+    from schemas.core import table_files
+
+    _check_name("task", task)
+    part = {"task": task} | ({"take": take} if take else {})
+    if take:
+        _check_name("take", take)
+    eps = table_files("episodes", warehouse, **part)
+    if not eps:
+        raise ExportError(f"no episodes of task {task!r}{' from take ' + take if take else ''} in {warehouse}; "
+                          "run `demoforge augment TAKE` (or `make evaluate`) first")
+    return eps + table_files("episode_steps", warehouse, **part)
+
+
+def _read_steps(warehouse: str, task: str, take: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """episode_id, step and action (rows, 2, 8) of one take's episode_steps, as numpy.
+
+    Read whole and selected in numpy: pyarrow 26.0.1 returns wrong values when it filters a nested
+    fixed-size-list column whose chunk is a slice (as parquet reads give), in `filters=` and `.filter`.
+    """
+    from schemas.core import column_numpy, table_files
+
+    files = table_files("episode_steps", warehouse, task=task, take=take)
+    if not files:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 2, 8), np.float32)
+    t = pa.concat_tables([pq.read_table(f, columns=["episode_id", "step", "action"]) for f in files])
+    return t.column("episode_id").to_numpy(), t.column("step").to_numpy(), column_numpy(t, "action")
+
+
+def load_episodes(warehouse: str, task: str, take: str | None = None, include_invalid: bool = False,
+                  limit: int | None = None) -> EpisodeSelection:
+    """A task's episodes (valid ones unless ``include_invalid``; the first ``limit`` by take and id)."""
+    from schemas.core import column_numpy, read_table
+
+    if limit is not None and limit < 1:
+        raise ExportError(f"--limit must be at least 1, got {limit}")
+    files = episode_files(warehouse, task, take)
+    part = {"task": task} | ({"take": take} if take else {})
+    eps = read_table("episodes", warehouse, **part)
+    takes = np.asarray(eps.column("take").to_pylist())
+    ids = np.asarray(eps.column("episode_id").to_numpy())
+    valid = np.asarray(eps.column("valid").to_numpy(zero_copy_only=False))
+    order = np.lexsort((ids, takes))
+    keep = order[valid[order]] if not include_invalid else order
+    if limit is not None:
+        keep = keep[:limit]
+    if len(keep) == 0:
+        raise ExportError(f"task {task!r} has no valid episodes in {warehouse}; pass --include-invalid to "
+                          "export the flagged ones")
+    poses, lengths = [], []
+    for tk in dict.fromkeys(takes[keep].tolist()):  # takes in order
+        want = ids[keep][takes[keep] == tk]        # ascending ids
+        e, s, act = _read_steps(warehouse, task, tk)
+        rows = np.flatnonzero(np.isin(e, want))
+        rows = rows[np.lexsort((s[rows], e[rows]))]
+        e_sel = e[rows]
+        uniq, first, count = np.unique(e_sel, return_index=True, return_counts=True)
+        missing = np.setdiff1d(want, uniq)
+        if len(missing):
+            raise ExportError(f"take {tk!r}: episodes {missing[:5].tolist()} have no steps in episode_steps; "
+                              "re-run `demoforge augment`")
+        if not (s[rows][first] == 0).all():
+            raise ExportError(f"take {tk!r}: some episodes do not start at step 0 in episode_steps")
+        poses.append(act[rows])
+        lengths.append(count)
+    lengths_all = np.concatenate(lengths).astype(np.int64)
+    expected = np.asarray(eps.column("length").to_numpy())[keep]
+    if not (lengths_all == expected).all():
+        bad = np.flatnonzero(lengths_all != expected)[:5]
+        raise ExportError(f"episode_steps disagree with episodes.length for episodes {ids[keep][bad].tolist()}; "
+                          "re-run `demoforge augment`")
+    return EpisodeSelection(
+        task=task, poses=np.concatenate(poses).astype(np.float32, copy=False), lengths=lengths_all,
+        take=takes[keep], episode_id=ids[keep], kind=np.asarray(eps.column("kind").to_pylist())[keep],
+        valid=valid[keep], transform=column_numpy(eps, "transform")[keep],
+        keypoints=column_numpy(eps, "object_keypoints")[keep], sources=files)
+
+
+def _export_manifest(kind: str, out: Path, rows: int) -> Manifest:
+    from schemas.core import WrittenFile, file_sha256
+
+    files = [out] if out.is_file() else sorted(p for p in out.rglob("*") if p.is_file())
+    written = [WrittenFile(kind, str(p), rows if i == 0 else 0, file_sha256(p)) for i, p in enumerate(files)]
+    m = Manifest.from_written(kind, written, path=out)
+    return Manifest(m.table, m.path, rows, m.content_hash, m.files)
+
+
+def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
+                   limit: int | None = None, overwrite: bool = False) -> dict:
+    """Write the export (no Prefect): returns the validator's summary plus the output path."""
+    from lib.exports.lerobot import validate_lerobot_dataset, write_lerobot_dataset
+
+    sel = load_episodes(warehouse, task, take, include_invalid, limit)
+    write_lerobot_dataset(
+        out, sel.poses, sel.lengths, tasks=[task_instruction(task)],
+        provenance={"take": sel.take, "episode_id": sel.episode_id, "kind": sel.kind, "valid": sel.valid},
+        source={"generator": "demoforge", "task": task, "takes": sorted(set(sel.take.tolist())),
+                "include_invalid": include_invalid, "limit": limit,
+                "pose": "[x, y, z, qx, qy, qz, qw, g] per arm, world (table) frame, m; g 1 = open",
+                "episode_index_to_source": "meta/episodes columns demoforge/take, demoforge/episode_id"},
+        overwrite=overwrite)
+    return {**validate_lerobot_dataset(out), "path": str(out)}
+
+
+def export_robomimic(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
+                     limit: int | None = None, overwrite: bool = False, valid_fraction: float = 0.1,
+                     seed: int = 0) -> dict:
+    from lib.exports.robomimic import write_robomimic_hdf5
+    from lib.task_library import get_task
+
+    sel = load_episodes(warehouse, task, take, include_invalid, limit)
+    spec = get_task(task)
+    summary = write_robomimic_hdf5(
+        out, sel.poses, sel.lengths, keypoints=sel.keypoints, provenance=sel.provenance,
+        env_name=f"demoforge/{task}",
+        env_kwargs={"task": task, "instruction": task_instruction(task), "objects": list(spec.object_names),
+                    "keypoint_names": list(spec.keypoint_names), "control_freq": 30},
+        valid_fraction=valid_fraction, seed=seed, overwrite=overwrite)
+    return {**summary, "path": str(out)}
+
+
+@stage_task(name="export_lerobot", version=EXPORT_VERSION)
+def export_lerobot_stage(sources: list[Path], warehouse: str, task: str, out: str, take: str | None,
+                         include_invalid: bool, limit: int | None) -> Manifest:
+    """Cached on the content of `sources` (the task's episode tables) and the options."""
+    summary = export_lerobot(warehouse, task, out, take, include_invalid, limit, overwrite=True)
+    return _export_manifest("export_lerobot", Path(out), summary["frames"])
+
+
+@stage_task(name="export_robomimic", version=EXPORT_VERSION)
+def export_robomimic_stage(sources: list[Path], warehouse: str, task: str, out: str, take: str | None,
+                           include_invalid: bool, limit: int | None, valid_fraction: float, seed: int) -> Manifest:
+    summary = export_robomimic(warehouse, task, out, take, include_invalid, limit, overwrite=True,
+                               valid_fraction=valid_fraction, seed=seed)
+    return _export_manifest("export_robomimic", Path(out), summary["samples"])
+
+
+def _refuse_foreign(out: Path, marker: str | None) -> None:
+    """An existing --out is only replaced when it is an export of the same kind (never a random folder)."""
+    if not out.exists():
+        return
+    if marker is None and out.is_file():
+        from lib.exports.robomimic import is_demoforge_robomimic
+
+        if is_demoforge_robomimic(out):
+            return
+    if marker is not None and (out / marker).is_file():
+        return
+    raise ExportError(f"{out} exists and is not a demoforge export of this kind; choose another --out")
+
+
+def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None) -> None:
+    """The checks that need no Prefect run: known task, episodes present, --out not someone else's."""
+    from lib.task_library import TASK_NAMES
+
+    if task not in TASK_NAMES:
+        raise ExportError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    if fmt == "robomimic" and Path(out).suffix not in (".hdf5", ".h5"):
+        raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
+    _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
+    episode_files(warehouse, task, take)
+
+
+def preflight_view(warehouse: str, target: str, take: str | None = None) -> dict:
+    """Resolve TAKE_OR_EPISODE and check that it exists, before any Prefect run."""
+    from schemas.core import read_table
+
+    from schemas.core import table_files
+
+    what = resolve_view_target(warehouse, target, take)
+    if what["kind"] == "take" and not table_files("gripper_poses", warehouse, take=what["take_id"]):
+        raise ExportError(f"take {what['take_id']} is not ingested in {warehouse}; run "
+                          f"`demoforge ingest {what['path']}` first")
+    if what["kind"] == "episode":
+        eps = read_table("episodes", warehouse, columns=["episode_id"], task=what["task"], take=what["take"])
+        if what["episode_id"] not in set(eps.column("episode_id").to_pylist()):
+            raise ExportError(f"task {what['task']!r} (take {what['take']}) has no episode {what['episode_id']}")
+    return what
+
+
+@flow(name="export-lerobot")
+def export_lerobot_flow(warehouse: str, task: str, out: str, take: str | None = None,
+                        include_invalid: bool = False, limit: int | None = None) -> Manifest:
+    """A task's episodes as a LeRobotDataset v3.0 folder at ``out`` (replaces an earlier export there)."""
+    out_p = Path(out).resolve()
+    _refuse_foreign(out_p, "meta/info.json")
+    return run_stage(export_lerobot_stage, warehouse, sources=episode_files(warehouse, task, take),
+                     warehouse=warehouse, task=task, out=str(out_p), take=take, include_invalid=include_invalid,
+                     limit=limit)
+
+
+@flow(name="export-robomimic")
+def export_robomimic_flow(warehouse: str, task: str, out: str, take: str | None = None,
+                          include_invalid: bool = False, limit: int | None = None, valid_fraction: float = 0.1,
+                          seed: int = 0) -> Manifest:
+    """A task's episodes as one robomimic hdf5 file at ``out``."""
+    out_p = Path(out).resolve()
+    _refuse_foreign(out_p, None)
+    return run_stage(export_robomimic_stage, warehouse, sources=episode_files(warehouse, task, take),
+                     warehouse=warehouse, task=task, out=str(out_p), take=take, include_invalid=include_invalid,
+                     limit=limit, valid_fraction=valid_fraction, seed=seed)
+
+
+# ------------------------------------------------------------------------------------------- Rerun view
+
+def _episode_poses(warehouse: str, task: str, take: str, episode_id: int) -> np.ndarray:
+    e, s, act = _read_steps(warehouse, task, take)
+    rows = np.flatnonzero(e == int(episode_id))
+    if len(rows) == 0:
+        raise ExportError(f"episode {episode_id} of task {task!r} (take {take}) has no steps; list the "
+                          "episodes with `demoforge sql \"SELECT episode_id, kind, valid FROM episodes WHERE "
+                          f"task = '{task}'\"`")
+    return act[rows[np.argsort(s[rows], kind="stable")]].astype(np.float64)
+
+
+def resolve_view_target(warehouse: str, target: str, take: str | None = None) -> dict:
+    """What `demoforge view TARGET` means: a take folder, an ingested take's id, or TASK/EPISODE_ID."""
+    from schemas.core import read_table, table_files
+
+    p = Path(target)
+    if p.is_dir():
+        return {"kind": "take", "take_id": p.name, "path": p.resolve()}
+    m = re.fullmatch(r"([A-Za-z0-9_]+)[/:](\d+)", target)
+    if m:
+        task, eid = m.group(1), int(m.group(2))
+        _check_name("task", task)
+        if take is None:
+            takes = sorted({f.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse, task=task)})
+            if not takes:
+                raise ExportError(f"no episodes of task {task!r} in {warehouse}; run `demoforge augment` first")
+            take = takes[0]
+        return {"kind": "episode", "task": task, "take": take, "episode_id": eid}
+    _check_name("take", target)
+    rows = read_table("takes", warehouse).filter(pc.field("take") == target).to_pylist() \
+        if table_files("takes", warehouse) else []
+    if rows and Path(rows[0]["path"]).is_dir():
+        return {"kind": "take", "take_id": target, "path": Path(rows[0]["path"])}
+    raise ExportError(f"{target!r} is neither a take folder, a take registered in the warehouse, nor "
+                      "TASK/EPISODE_ID (e.g. pouring/0)")
+
+
+def write_view(warehouse: str, target: str, out: str, take: str | None = None, point_stride: int = 8,
+               frame_step: int = 1, images: bool = True, depth_images: bool = False,
+               overwrite: bool = False) -> dict:
+    """Write the Rerun recording of a take or an episode to ``out``; returns what was logged."""
+    from lib.exports.rerun_view import TakeFrame, write_episode_recording, write_take_recording
+    from lib.ingest import iter_frames, open_take
+    from lib.task_library import TASK_NAMES, get_task
+    from schemas.core import column_numpy, read_table
+
+    if frame_step < 1:
+        raise ExportError(f"--frame-step must be at least 1, got {frame_step}")
+    what = resolve_view_target(warehouse, target, take)
+    if what["kind"] == "episode":
+        task, tk, eid = what["task"], what["take"], what["episode_id"]
+        eps = read_table("episodes", warehouse, task=task, take=tk)
+        row = np.flatnonzero(eps.column("episode_id").to_numpy() == eid)
+        if len(row) == 0:
+            raise ExportError(f"task {task!r} (take {tk}) has no episode {eid}")
+        poses = _episode_poses(warehouse, task, tk, eid)
+        ref = _episode_poses(warehouse, task, tk, 0) if eid != 0 else None
+        names = get_task(task).keypoint_names if task in TASK_NAMES else None
+        counts = write_episode_recording(out, name=f"{task}/{tk}/{eid}", poses=poses,
+                                         object_keypoints=column_numpy(eps, "object_keypoints")[row[0]],
+                                         keypoint_names=names, reference=ref, overwrite=overwrite)
+        return {**what, **counts, "path": str(out)}
+
+    take_obj = open_take(what["path"])
+    tid = take_obj.take_id
+    gp = read_table("gripper_poses", warehouse, take=tid)
+    if gp.num_rows == 0:
+        raise ExportError(f"take {tid} is not ingested in {warehouse}; run `demoforge ingest {what['path']}` first")
+    T = take_obj.n_frames
+    hands = np.full((T, 2, 21, 3), np.nan)
+    present = np.zeros((T, 2), bool)
+    grippers = np.full((T, 2, 8), np.nan)
+    al = read_table("aligned_keypoints", warehouse, take=tid)
+    g_hand, g_frame = np.asarray(gp.column("hand").to_pylist()), gp.column("frame").to_numpy()
+    g_valid, g_pose = gp.column("valid").to_numpy(zero_copy_only=False), column_numpy(gp, "pose")
+    a_hand, a_frame = np.asarray(al.column("hand").to_pylist()), al.column("frame").to_numpy()
+    a_present, a_joints = al.column("present").to_numpy(zero_copy_only=False), column_numpy(al, "joints_world")
+    for arm, hand in enumerate(("left", "right")):
+        m = (g_hand == hand) & g_valid
+        grippers[g_frame[m], arm] = g_pose[m]
+        m = a_hand == hand
+        hands[a_frame[m], arm] = a_joints[m]
+        present[a_frame[m], arm] = a_present[m]
+    ok_t = read_table("object_keypoints", warehouse, take=tid).sort_by("keypoint")
+    kp = column_numpy(ok_t, "point_world") if ok_t.num_rows else None
+    wanted = list(range(0, T, frame_step))
+
+    def frames():
+        for batch in iter_frames(take_obj, frames=wanted):
+            for i, idx in enumerate(batch.indices.tolist()):
+                yield TakeFrame(idx, idx / take_obj.fps, batch.rgb[i], batch.depth[i])
+
+    cam = take_obj.camera
+    counts = write_take_recording(out, take_id=tid, K=cam.K, T_world_camera=cam.T_world_camera, width=cam.width,
+                                  height=cam.height, frames=frames(), hands_world=hands, hands_present=present,
+                                  gripper_poses=grippers, object_keypoints=kp,
+                                  keypoint_names=ok_t.column("name").to_pylist() if kp is not None else None,
+                                  point_stride=point_stride, log_images=images,
+                                  log_depth_images=depth_images, overwrite=overwrite)
+    return {"kind": "take", "take_id": tid, **counts, "path": str(out)}
+
+
+@flow(name="view")
+def view_flow(warehouse: str, target: str, out: str, take: str | None = None, point_stride: int = 8,
+              frame_step: int = 1, images: bool = True, depth_images: bool = False,
+              overwrite: bool = False) -> dict:
+    """A Rerun recording (.rrd) of a take or an episode, saved offline."""
+    return write_view(warehouse, target, out, take, point_stride, frame_step, images, depth_images, overwrite)
+
+
+# ------------------------------------------------------------------------------------------ report plots
+
+def _episodes_by_id(warehouse: str, task: str, take: str, ids, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ids and actions (rows, 2, 8) of the given episodes (all when ``ids`` is None), every n-th step."""
+    e, s, act = _read_steps(warehouse, task, take)
+    m = np.ones(len(e), bool) if ids is None else np.isin(e, np.asarray(ids))
+    if every > 1:
+        m &= s % every == 0
+    return e[m], act[m].astype(np.float64)
+
+
+def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = None, n_augmented: int = 40,
+                 coverage_every: int = 3, seed: int = 0) -> list[str]:
+    """The three report plots per task with episodes (PNG under ``reports_dir``), as Markdown lines."""
+    from lib.plots import plot_success_map, plot_trajectories, plot_workspace_coverage
+    from lib.task_library import TASK_NAMES, get_task
+    from schemas.core import column_numpy, read_table, table_files
+
+    reports = Path(reports_dir)
+    md = ["## Episode databases in pictures", ""]
+    have = sorted({f.parent.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse)})
+    tasks = [t for t in (tasks or TASK_NAMES) if t in have]
+    if not tasks:
+        return md + ["_No episodes in this warehouse yet: `demoforge augment TAKE`._", ""]
+    sim = read_table("sim_results", warehouse) if table_files("sim_results", warehouse) else None
+    for task in tasks:
+        spec = get_task(task)
+        take = sorted({f.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse, task=task)})[0]
+        eps = read_table("episodes", warehouse, task=task, take=take)
+        ids = eps.column("episode_id").to_numpy()
+        valid = eps.column("valid").to_numpy(zero_copy_only=False)
+        rng = np.random.default_rng(seed)
+        pool = ids[valid & (ids != 0)]
+        pick = rng.choice(pool, size=min(n_augmented, len(pool)), replace=False)
+        e, act = _episodes_by_id(warehouse, task, take, np.concatenate([[0], pick]))
+        kp_all = column_numpy(eps, "object_keypoints")
+        kp0 = kp_all[np.flatnonzero(ids == 0)[0]]
+        png = plot_trajectories(act[e == 0], [act[e == i] for i in pick], reports / f"trajectories_{task}.png",
+                                keypoints=kp0, workspace=spec.workspace,
+                                title=f"{task}: the demonstration (bold) and {len(pick)} augmented episodes")
+        md += [f"### {task}", "",
+               f"Both grippers' paths: the ingested demonstration of `{take}` (bold) and {png['augmented']} "
+               "valid augmented episodes drawn at random (thin; translated and mirrored). Translation and yaw act "
+               "in the table plane, so the heights over time repeat the demonstration's (a mirrored episode's "
+               "left arm follows the demonstration's right arm).", "",
+               f"![trajectories {task}](trajectories_{task}.png)", ""]
+        e_all, act_all = _episodes_by_id(warehouse, task, take, None, every=coverage_every)
+        cov = plot_workspace_coverage(act_all[:, :, :3], reports / f"coverage_{task}.png", n_episodes=len(ids),
+                                      workspace=spec.workspace, title=f"{task}: workspace coverage")
+        md += [f"Workspace coverage of all {len(ids):,} episodes (one step in {coverage_every}, 2 cm cells): the "
+               f"left gripper visits {100 * cov['covered_fraction']['left']:.0f} % and the right "
+               f"{100 * cov['covered_fraction']['right']:.0f} % of the workspace's cells.", "",
+               f"![coverage {task}](coverage_{task}.png)", ""]
+        rows = sim.filter((pc.field("task") == task) & (pc.field("take") == take)) \
+            if sim is not None else None
+        if rows is None or rows.num_rows == 0:
+            md += ["_No physics results for this task yet (`demoforge simulate`)._", ""]
+            continue
+        sim_ids = rows.column("episode_id").to_numpy()
+        success = rows.column("success").to_numpy(zero_copy_only=False)
+        pos = np.argsort(ids)[np.searchsorted(np.sort(ids), sim_ids)]
+        kp = kp_all[pos]                                                              # (n, 11, 3)
+        obj = spec.keypoint_object
+        xy = np.stack([kp[:, obj == o, :2].mean(axis=1) for o in range(len(spec.object_names))], axis=1)
+        sm = plot_success_map(xy, success, reports / f"success_map_{task}.png", object_names=list(spec.object_names),
+                              title=f"{task}: robot success over object placements")
+        md += [f"Robot success in MuJoCo over the objects' placements ({sm['episodes']} simulated episodes, "
+               f"{100 * sm['success_rate']:.0f} % success; placement = the mean of the object's keypoints at the "
+               "episode's start).", "", f"![success map {task}](success_map_{task}.png)", ""]
+    return md

@@ -1,0 +1,373 @@
+"""Episodes as a LeRobotDataset v3.0 folder, and a validator of that layout.
+
+The layout is LeRobot's (huggingface/lerobot, src/lerobot/datasets/utils.py of lerobot 0.4.4, the
+release that reads and writes codebase v3.0)::
+
+    meta/info.json                                codebase_version "v3.0", fps, features, totals, paths
+    meta/stats.json                               {feature: {min, max, mean, std, count, q01 .. q99}}
+    meta/tasks.parquet                            index = task text, column task_index
+    meta/episodes/chunk-000/file-000.parquet      one row per episode: tasks, length, data/chunk_index,
+                                                  data/file_index, dataset_from_index, dataset_to_index,
+                                                  meta/episodes/*, stats/<feature>/<stat>
+    data/chunk-000/file-000.parquet ...           one row per frame, many episodes per file
+
+Features per frame: ``observation.state`` = both grippers' current poses and ``action`` = the poses
+one step later (the last step of an episode holds its pose), each a flat float32 16-vector: the
+(2, 8) pose array of DESIGN.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
+right_gripper`` (policies read a 1-D state; the names keep the 2 x 8 structure recoverable).
+Quaternions are scalar-last ``qx, qy, qz, qw``; gripper 1 = open, 0 = closed; world (table) frame, m.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from lib.exports import (
+    POSE16_NAMES, STEPS_PER_SECOND, ExportError, atomic_dir, check_episodes, episode_starts, frame_in_episode,
+    next_poses,
+)
+
+CODEBASE_VERSION = "v3.0"
+INFO_PATH = "meta/info.json"
+STATS_PATH = "meta/stats.json"
+TASKS_PATH = "meta/tasks.parquet"
+EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+DEFAULT_CHUNK_SIZE = 1000          # files per chunk folder (LeRobot's default)
+DEFAULT_DATA_FILE_SIZE_IN_MB = 100  # LeRobot's default cap per data file
+DEFAULT_VIDEO_FILE_SIZE_IN_MB = 200
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+QUANTILE_KEYS = tuple(f"q{int(round(q * 100)):02d}" for q in QUANTILES)
+STAT_KEYS = ("min", "max", "mean", "std", "count") + QUANTILE_KEYS
+ROBOT_TYPE = "demoforge_dual_parallel_gripper"
+PROVENANCE_FILE = "meta/demoforge.json"  # demoforge's own file: where the episodes came from
+
+_SCALAR = {"timestamp": "float32", "frame_index": "int64", "episode_index": "int64", "index": "int64",
+           "task_index": "int64"}
+_VECTOR = ("observation.state", "action")
+_PROVENANCE_COLUMNS = {"take": pa.string(), "episode_id": pa.int64(), "kind": pa.string(), "valid": pa.bool_()}
+
+
+def features() -> dict:
+    """The `features` of info.json: dtype, shape and names of every column of the data files."""
+    vec = {"dtype": "float32", "shape": [len(POSE16_NAMES)], "names": list(POSE16_NAMES)}
+    out = {"observation.state": dict(vec), "action": dict(vec)}
+    out.update({k: {"dtype": d, "shape": [1], "names": None} for k, d in _SCALAR.items()})
+    return out
+
+
+def _stats(x: np.ndarray, axis: int) -> dict[str, np.ndarray]:
+    """LeRobot's per-feature statistics of ``x`` reduced over ``axis`` (quantiles exact, not binned)."""
+    # Reduce over the last, contiguous axis: numpy's partition is several times faster there.
+    x = np.ascontiguousarray(np.moveaxis(x, axis, -1), dtype=np.float64)
+    q = np.quantile(x, QUANTILES, axis=-1)
+    out = {"min": x.min(axis=-1), "max": x.max(axis=-1), "mean": x.mean(axis=-1), "std": x.std(axis=-1),
+           "count": np.full(x.shape[:-2] + (1,), x.shape[-1], np.int64)}
+    out.update({k: q[i] for i, k in enumerate(QUANTILE_KEYS)})
+    return out
+
+
+def _frame_columns(poses: np.ndarray, lengths: np.ndarray, task_of_episode: np.ndarray, fps: float) -> dict:
+    """Every frame's columns as numpy arrays: the (F, 16) state and action and the five index columns."""
+    frame_index = frame_in_episode(lengths)
+    episode_index = np.repeat(np.arange(len(lengths), dtype=np.int64), lengths)
+    return {
+        "observation.state": poses.reshape(len(poses), 16).astype(np.float32),
+        "action": next_poses(poses, lengths).reshape(len(poses), 16).astype(np.float32),
+        "timestamp": (frame_index / fps).astype(np.float32),
+        "frame_index": frame_index,
+        "episode_index": episode_index,
+        "index": np.arange(len(poses), dtype=np.int64),
+        "task_index": np.repeat(task_of_episode.astype(np.int64), lengths),
+    }
+
+
+def _as_2d(name: str, v: np.ndarray) -> np.ndarray:
+    return v if name in _VECTOR else v[:, None]
+
+
+def _episode_stats(cols: dict, lengths: np.ndarray) -> dict[str, dict[str, np.ndarray]]:
+    """Per-episode statistics, vectorised over the episodes of each distinct length (usually one)."""
+    n = len(lengths)
+    starts = episode_starts(lengths)
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for name, values in cols.items():
+        v = _as_2d(name, values)
+        d = v.shape[1]
+        res = {k: np.empty((n, 1 if k == "count" else d)) for k in STAT_KEYS}
+        for L in np.unique(lengths):
+            eps = np.flatnonzero(lengths == L)
+            rows = (starts[eps][:, None] + np.arange(L)[None, :]).reshape(-1)
+            s = _stats(v[rows].reshape(len(eps), L, d), axis=1)
+            for k in STAT_KEYS:
+                res[k][eps] = s[k]
+        out[name] = res
+    return out
+
+
+def _file_plan(lengths: np.ndarray, file_size_mb: float, chunks_size: int) -> np.ndarray:
+    """Data file number of each episode: whole episodes packed into files of at most ``file_size_mb``
+    (LeRobot's uncompressed-size cap), a new file when the next episode would not fit."""
+    bytes_per_frame = 2 * 16 * 4 + 4 + 5 * 8
+    cap = max(1, int(file_size_mb * 2**20 // bytes_per_frame))
+    file_of = np.empty(len(lengths), np.int64)
+    f, used = 0, 0
+    for i, L in enumerate(lengths.tolist()):  # a scan over episodes (10^4), not frames
+        if used and used + L > cap:
+            f, used = f + 1, 0
+        file_of[i] = f
+        used += L
+    if file_of[-1] >= chunks_size * 1000:
+        raise ExportError("too many data files; raise data_files_size_in_mb")
+    return file_of
+
+
+def _fixed_list(values: np.ndarray) -> pa.Array:
+    return pa.FixedSizeListArray.from_arrays(pa.array(np.ascontiguousarray(values).reshape(-1)), values.shape[1])
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+
+
+def _write_json(obj: dict, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj, indent=4, ensure_ascii=False, default=_json_default))
+
+
+def write_lerobot_dataset(
+    out: str | os.PathLike,
+    poses: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    tasks: list[str],
+    task_of_episode: np.ndarray | None = None,
+    fps: int = STEPS_PER_SECOND,
+    robot_type: str = ROBOT_TYPE,
+    provenance: dict | None = None,
+    source: dict | None = None,
+    data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
+    chunks_size: int = DEFAULT_CHUNK_SIZE,
+    overwrite: bool = False,
+) -> dict:
+    """Write episodes as a LeRobotDataset v3.0 folder at ``out`` (atomically) and return its info.json.
+
+    poses: (F, 2, 8) concatenated episodes; lengths: (N,) steps per episode; tasks: the task texts;
+    task_of_episode: (N,) index into ``tasks`` (default all 0). provenance: per-episode arrays
+    ``take``, ``episode_id``, ``kind``, ``valid`` stored as ``demoforge/*`` columns of the episodes
+    table; source: JSON-able description of the export, written to meta/demoforge.json.
+    """
+    poses, lengths = check_episodes(poses, lengths)
+    n = len(lengths)
+    if not tasks or len(set(tasks)) != len(tasks):
+        raise ExportError(f"tasks must be a non-empty list of distinct task texts, got {tasks!r}")
+    task_of_episode = np.zeros(n, np.int64) if task_of_episode is None else np.asarray(task_of_episode, np.int64)
+    if task_of_episode.shape != (n,) or task_of_episode.min() < 0 or task_of_episode.max() >= len(tasks):
+        raise ExportError(f"task_of_episode must give one index into the {len(tasks)} tasks per episode")
+    if fps <= 0:
+        raise ExportError(f"fps must be positive, got {fps}")
+
+    cols = _frame_columns(poses, lengths, task_of_episode, fps)
+    file_of = _file_plan(lengths, data_files_size_in_mb, chunks_size)
+    chunk_idx, file_idx = file_of // chunks_size, file_of % chunks_size
+    starts = episode_starts(lengths)
+    ends = starts + lengths
+    feats = features()
+
+    with atomic_dir(out, overwrite=overwrite) as root:
+        for f in np.unique(file_of):
+            eps = np.flatnonzero(file_of == f)
+            lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
+            tbl = pa.table({
+                name: (_fixed_list(v[lo:hi]) if name in _VECTOR else pa.array(v[lo:hi], type=_SCALAR[name]))
+                for name, v in cols.items()
+            })
+            path = root / DATA_PATH.format(chunk_index=int(chunk_idx[eps[0]]), file_index=int(file_idx[eps[0]]))
+            path.parent.mkdir(parents=True, exist_ok=True)
+            pq.write_table(tbl, path)
+
+        ep_cols: dict[str, pa.Array] = {
+            "episode_index": pa.array(np.arange(n, dtype=np.int64)),
+            "tasks": pa.array([[tasks[t]] for t in task_of_episode.tolist()], type=pa.list_(pa.string())),
+            "length": pa.array(lengths.astype(np.int64)),
+            "data/chunk_index": pa.array(chunk_idx), "data/file_index": pa.array(file_idx),
+            "dataset_from_index": pa.array(starts), "dataset_to_index": pa.array(ends),
+        }
+        for name, st in _episode_stats(cols, lengths).items():
+            for k in STAT_KEYS:
+                v = st[k].astype(np.int64) if k == "count" else st[k]
+                ep_cols[f"stats/{name}/{k}"] = pa.array(list(v), type=pa.list_(pa.int64() if k == "count"
+                                                                                  else pa.float64()))
+        ep_cols["meta/episodes/chunk_index"] = pa.array(np.zeros(n, np.int64))
+        ep_cols["meta/episodes/file_index"] = pa.array(np.zeros(n, np.int64))
+        for k, typ in _PROVENANCE_COLUMNS.items():
+            if provenance is not None and k in provenance:
+                vals = np.asarray(provenance[k])
+                if len(vals) != n:
+                    raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
+                ep_cols[f"demoforge/{k}"] = pa.array(vals.tolist(), type=typ)
+        ep_path = root / EPISODES_PATH.format(chunk_index=0, file_index=0)
+        ep_path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table(ep_cols), ep_path)
+
+        # tasks.parquet as LeRobot writes it: a pandas frame indexed by the task text.
+        import pandas as pd
+
+        (root / TASKS_PATH).parent.mkdir(parents=True, exist_ok=True)
+        pd.DataFrame({"task_index": np.arange(len(tasks), dtype=np.int64)}, index=list(tasks)).to_parquet(
+            root / TASKS_PATH)
+
+        stats = {name: _stats(_as_2d(name, v), axis=0) for name, v in cols.items()}
+        _write_json(stats, root / STATS_PATH)
+        info = {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": robot_type,
+            "total_episodes": n,
+            "total_frames": int(len(poses)),
+            "total_tasks": len(tasks),
+            "chunks_size": chunks_size,
+            "data_files_size_in_mb": data_files_size_in_mb,
+            "video_files_size_in_mb": DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+            "fps": fps,
+            "splits": {"train": f"0:{n}"},
+            "data_path": DATA_PATH,
+            "video_path": None,
+            "features": feats,
+        }
+        _write_json(info, root / INFO_PATH)
+        if source is not None:
+            _write_json(source, root / PROVENANCE_FILE)
+    return info
+
+
+# ------------------------------------------------------------------------------------------ validation
+
+class LeRobotFormatError(ExportError):
+    """A folder does not follow the LeRobotDataset v3.0 layout; the message names the file and key."""
+
+
+def _need(cond: bool, msg: str) -> None:
+    if not cond:
+        raise LeRobotFormatError(msg)
+
+
+def validate_lerobot_dataset(root: str | os.PathLike) -> dict:
+    """Check a folder against the v3.0 layout as LeRobot reads it, and return a summary.
+
+    Checks: info.json keys and version, every feature's dtype/shape in every data file, the episodes
+    table's index ranges against the data files (contiguous global ``index``, per-episode
+    ``frame_index`` 0..length-1, ``timestamp`` = frame_index / fps), tasks.parquet against the
+    ``task_index`` values, and stats.json having every statistic of every feature with its shape.
+    """
+    root = Path(root)
+    _need((root / INFO_PATH).is_file(), f"{root}: no {INFO_PATH}")
+    info = json.loads((root / INFO_PATH).read_text())
+    for key in ("codebase_version", "fps", "features", "total_episodes", "total_frames", "total_tasks",
+                "chunks_size", "data_path", "splits"):
+        _need(key in info, f"{INFO_PATH}: missing key {key!r}")
+    _need(info["codebase_version"] == CODEBASE_VERSION,
+          f"{INFO_PATH}: codebase_version {info['codebase_version']!r}, expected {CODEBASE_VERSION!r}")
+    feats = info["features"]
+    for key, ft in feats.items():
+        _need({"dtype", "shape", "names"} <= set(ft), f"{INFO_PATH}: feature {key!r} needs dtype, shape and names")
+    for key in ("timestamp", "frame_index", "episode_index", "index", "task_index"):
+        _need(key in feats, f"{INFO_PATH}: missing default feature {key!r}")
+
+    tasks = pq.read_table(root / TASKS_PATH).to_pandas()
+    _need("task_index" in tasks.columns, f"{TASKS_PATH}: no task_index column")
+    _need(len(tasks) == info["total_tasks"], f"{TASKS_PATH}: {len(tasks)} tasks, info.json says {info['total_tasks']}")
+
+    ep_files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+    _need(bool(ep_files), f"{root}: no meta/episodes/chunk-*/file-*.parquet")
+    eps = pa.concat_tables([pq.read_table(f) for f in ep_files]).to_pydict()
+    for key in ("episode_index", "tasks", "length", "data/chunk_index", "data/file_index", "dataset_from_index",
+                "dataset_to_index"):
+        _need(key in eps, f"meta/episodes: missing column {key!r}")
+    n = len(eps["episode_index"])
+    _need(n == info["total_episodes"], f"meta/episodes: {n} episodes, info.json says {info['total_episodes']}")
+    _need(eps["episode_index"] == list(range(n)), "meta/episodes: episode_index must be 0..N-1 in order")
+    frm, to, length = (np.asarray(eps[k], np.int64) for k in ("dataset_from_index", "dataset_to_index", "length"))
+    _need(bool((to - frm == length).all()), "meta/episodes: dataset_to_index - dataset_from_index != length")
+    _need(frm[0] == 0 and bool((frm[1:] == to[:-1]).all()) and to[-1] == info["total_frames"],
+          "meta/episodes: episodes must tile the frames 0..total_frames without gaps")
+
+    dtypes = {"float32": pa.float32(), "float64": pa.float64(), "int64": pa.int64(), "int32": pa.int32(),
+              "bool": pa.bool_()}
+    frames = 0
+    files = sorted({(c, f) for c, f in zip(eps["data/chunk_index"], eps["data/file_index"])})
+    for c, f in files:
+        path = root / info["data_path"].format(chunk_index=c, file_index=f)
+        _need(path.is_file(), f"{path}: data file named by meta/episodes is missing")
+        t = pq.read_table(path)
+        for key, ft in feats.items():
+            if ft["dtype"] in ("video", "image", "string"):
+                continue
+            _need(key in t.column_names, f"{path}: no column {key!r}")
+            typ = t.schema.field(key).type
+            if list(ft["shape"]) == [1]:
+                _need(typ == dtypes[ft["dtype"]], f"{path}: column {key!r} is {typ}, expected {ft['dtype']}")
+            else:
+                _need(pa.types.is_fixed_size_list(typ) or pa.types.is_list(typ),
+                      f"{path}: column {key!r} is {typ}, expected a list of {ft['shape']}")
+                _need(typ.value_type == dtypes[ft["dtype"]], f"{path}: column {key!r} holds {typ.value_type}")
+                lens = pc.list_value_length(t.column(key)).to_numpy(zero_copy_only=False)
+                _need(bool((lens == int(np.prod(ft["shape"]))).all()),
+                      f"{path}: column {key!r} rows not of {ft['shape']}")
+        sel = np.flatnonzero((np.asarray(eps["data/chunk_index"]) == c) & (np.asarray(eps["data/file_index"]) == f))
+        idx = t.column("index").to_numpy()
+        _need(bool((idx == np.arange(frm[sel[0]], to[sel[-1]])).all()),
+              f"{path}: global index must run {frm[sel[0]]}..{to[sel[-1]] - 1} for its episodes")
+        ep = t.column("episode_index").to_numpy()
+        fi = t.column("frame_index").to_numpy()
+        _need(bool((ep == np.repeat(sel, length[sel])).all()), f"{path}: episode_index does not match meta/episodes")
+        _need(bool((fi == frame_in_episode(length[sel])).all()), f"{path}: frame_index must restart at 0 per episode")
+        ts = t.column("timestamp").to_numpy()
+        _need(bool(np.allclose(ts, fi / info["fps"], atol=1e-4)), f"{path}: timestamp != frame_index / fps")
+        ti = t.column("task_index").to_numpy()
+        _need(bool(np.isin(ti, tasks["task_index"].to_numpy()).all()), f"{path}: task_index not in {TASKS_PATH}")
+        frames += t.num_rows
+    _need(frames == info["total_frames"], f"data: {frames} frames, info.json says {info['total_frames']}")
+
+    if (root / STATS_PATH).is_file():
+        stats = json.loads((root / STATS_PATH).read_text())
+        for key, ft in feats.items():
+            if ft["dtype"] in ("video", "image", "string"):
+                continue
+            _need(key in stats, f"{STATS_PATH}: no statistics for {key!r}")
+            for s in STAT_KEYS:
+                _need(s in stats[key], f"{STATS_PATH}: {key!r} lacks {s!r}")
+                want = [1] if s == "count" else list(ft["shape"])
+                _need(list(np.shape(stats[key][s])) == want,
+                      f"{STATS_PATH}: {key}/{s} has shape {list(np.shape(stats[key][s]))}, expected {want}")
+    return {"episodes": n, "frames": frames, "tasks": tasks.index.tolist(), "data_files": len(files),
+            "fps": info["fps"]}
+
+
+def read_lerobot_episode(root: str | os.PathLike, episode_index: int) -> dict[str, np.ndarray]:
+    """One episode's frames back from the data files: {feature: array} (vector features as (T, 16))."""
+    root = Path(root)
+    info = json.loads((root / INFO_PATH).read_text())
+    eps = pq.read_table(sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[0]).to_pydict()
+    i = eps["episode_index"].index(episode_index)
+    path = root / info["data_path"].format(chunk_index=eps["data/chunk_index"][i], file_index=eps["data/file_index"][i])
+    t = pq.read_table(path)
+    rows = np.flatnonzero(t.column("episode_index").to_numpy() == episode_index)
+    t = t.slice(int(rows[0]), len(rows))  # an episode's rows are contiguous
+    out = {}
+    for name in t.column_names:
+        col = t.column(name).combine_chunks()
+        out[name] = (np.asarray(col.flatten().to_numpy()).reshape(len(col), -1)
+                     if pa.types.is_fixed_size_list(col.type) or pa.types.is_list(col.type) else col.to_numpy())
+    return out

@@ -1,0 +1,389 @@
+"""Exports: LeRobot v3.0 (read back by Rerun's own LeRobot reader), robomimic hdf5, Rerun recordings.
+
+The episodes are real: the task library's scripted pouring demonstration, augmented by
+lib.augmentation into translated and mirrored episodes, written with the warehouse's contracts.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from lib.exports import ExportError, next_poses
+
+TASK = "pouring"
+TAKE = "synth_pouring_s0000"
+
+
+# ------------------------------------------------------------------------------------------ fixtures
+
+def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1) -> dict:
+    """episodes + episode_steps of a real augmentation of the scripted pouring demo, in ``root``."""
+    from lib.augmentation import DemoSource, generate_episodes
+    from lib.task_library import get_task
+    from schemas.core import write_table
+    from tasks.augment import episode_steps_columns
+
+    spec = get_task(TASK)
+    demo = spec.scripted_demo(0)
+    src = DemoSource(task=TASK, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
+                     keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
+                     segments=demo.segments, object_arm=spec.object_arm(False))
+    batch = generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed, workspace=spec.workspace, workers=1)
+    N = len(batch)
+    write_table("episodes", {
+        "task": [TASK] * N, "take": [TAKE] * N, "episode_id": batch.episode_id.astype(np.int64),
+        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
+        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
+        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
+        "reject_reason": batch.reject_reason.astype(str).tolist(),
+        "min_gripper_distance": batch.min_gripper_distance,
+    }, root)
+    write_table("episode_steps", episode_steps_columns(TASK, TAKE, batch), root)
+    actions = {int(i): batch.actions[k, : batch.lengths[k]].astype(np.float32) for k, i in enumerate(batch.episode_id)}
+    return {"actions": actions, "valid": dict(zip(batch.episode_id.tolist(), batch.valid.tolist())),
+            "kind": dict(zip(batch.episode_id.tolist(), batch.kind.astype(str).tolist())),
+            "keypoints": dict(zip(batch.episode_id.tolist(), batch.keypoints)), "demo": demo}
+
+
+@pytest.fixture(scope="module")
+def episode_wh(tmp_path_factory):
+    root = tmp_path_factory.mktemp("wh_exports") / "warehouse"
+    root.mkdir()
+    info = build_episode_warehouse(root)
+    return root, info
+
+
+def _look_at(eye, target) -> np.ndarray:
+    """camera-to-world of an OpenCV camera at ``eye`` looking at ``target`` (world z up)."""
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0, 0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def build_take(root: Path, warehouse: Path, demo, frames: int = 4, width: int = 64, height: int = 48) -> Path:
+    """A small take folder (camera.json, rgb/, depth/) and its ingested tables, frames from ``demo``."""
+    import cv2
+
+    from lib.task_library import get_task
+    from schemas.core import write_table
+
+    take = root / TAKE
+    (take / "rgb").mkdir(parents=True)
+    (take / "depth").mkdir()
+    K = np.array([[60.0, 0, width / 2], [0, 60.0, height / 2], [0, 0, 1]])
+    T = _look_at(np.array([0.0, -0.6, 0.7]), np.array([0.0, 0.3, 0.0]))
+    (take / "camera.json").write_text(json.dumps({"K": K.tolist(), "width": width, "height": height,
+                                                  "T_world_camera": T.tolist(), "fps": 30.0, "depth_unit": "m"}))
+    rng = np.random.default_rng(0)
+    for f in range(frames):
+        cv2.imwrite(str(take / "rgb" / f"{f:06d}.png"), rng.integers(0, 255, (height, width, 3), dtype=np.uint8))
+        depth = np.full((height, width), 0.9 + 0.01 * f, np.float32)
+        depth[:5] = 0.0  # a band of invalid depth
+        np.save(take / "depth" / f"{f:06d}.npy", depth)
+    poses = demo.gripper_actions()[:frames]
+    joints = poses[:, :, None, :3] + rng.normal(0, 0.02, (frames, 2, 21, 3))
+    # both hands in one write: rows of the left hand, then of the right
+    n2 = 2 * frames
+    present = np.ones((2, frames), bool)
+    present[1, 1] = False  # the right hand is missing in frame 1
+    jw = np.concatenate([joints[:, 0], joints[:, 1]])
+    jw[~present.reshape(-1)] = np.nan
+    flags = ~present.reshape(-1)
+    rows = {"take": [TAKE] * n2, "task": [TASK] * n2, "frame": np.tile(np.arange(frames, dtype=np.int32), 2),
+            "hand": ["left"] * frames + ["right"] * frames, "detector": ["simulated"] * n2}
+    write_table("gripper_poses", {**rows, "pose": np.concatenate([poses[:, 0], poses[:, 1]]), "valid": [True] * n2,
+                                  "fingertip_distance": np.full(n2, 0.05), "g_threshold": np.ones(n2, np.int8),
+                                  "g_auto": np.ones(n2, np.int8), "g_manual": [None] * n2,
+                                  "state_method": ["auto"] * n2}, warehouse)
+    write_table("aligned_keypoints", {**rows, "present": ~flags, "detected": ~flags, "joints_cam": jw,
+                                      "joints_world": jw, "translation": np.zeros((n2, 3)),
+                                      "anchors_used": np.zeros(n2, np.int64), "n_anchors_valid": np.zeros(n2, np.int32),
+                                      "no_depth": flags, "depth_outlier": flags, "outlier_frozen": flags,
+                                      "swap_repaired": flags, "filled_missing": flags}, warehouse)
+    spec = get_task(TASK)
+    kp = demo.keypoints()[0]
+    write_table("object_keypoints", {
+        "take": [TAKE] * len(kp), "task": [TASK] * len(kp), "keypoint": np.arange(len(kp), dtype=np.int32),
+        "name": list(spec.keypoint_names), "uv": np.full((len(kp), 1, 2), np.nan), "point_world": kp,
+        "valid": [True] * len(kp), "reason": ["ok"] * len(kp), "source": ["ground truth"] * len(kp)}, warehouse)
+    return take
+
+
+# ------------------------------------------------------------------------------------------ LeRobot
+
+def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_path):
+    """The export follows the v3.0 layout: our validator agrees, and Rerun's independent LeRobot
+    reader (rerun.experimental.LeRobotReader, written against LeRobot's format) loads every episode
+    with the exported states, actions and task text."""
+    import pyarrow.parquet as pq
+    from rerun.experimental import LeRobotReader
+
+    from flows.export import export_lerobot
+    from lib.exports.lerobot import read_lerobot_episode
+
+    wh, info = episode_wh
+    out = tmp_path / "lerobot"
+    summary = export_lerobot(str(wh), TASK, str(out))
+    valid_ids = sorted(i for i, v in info["valid"].items() if v)
+    assert summary["episodes"] == len(valid_ids) and summary["tasks"] == ["Pour from the bottle into the cup."]
+    assert summary["frames"] == sum(len(info["actions"][i]) for i in valid_ids)
+
+    meta = json.loads((out / "meta/info.json").read_text())
+    assert meta["codebase_version"] == "v3.0" and meta["fps"] == 30 and meta["data_path"].startswith("data/chunk-")
+    assert meta["features"]["observation.state"]["shape"] == [16]
+    assert meta["features"]["action"]["names"][8] == "right_x"
+    for p in ("meta/tasks.parquet", "meta/stats.json", "meta/episodes/chunk-000/file-000.parquet",
+              "data/chunk-000/file-000.parquet"):
+        assert (out / p).is_file(), p
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    assert eps["demoforge/episode_id"] == valid_ids and eps["demoforge/take"] == [TAKE] * len(valid_ids)
+
+    reader = LeRobotReader(out)
+    assert reader.version == "v3" and reader.episodes() == list(range(len(valid_ids)))
+    k = len(valid_ids) - 1  # the last one: a mirrored episode if any is valid
+    src = info["actions"][valid_ids[k]]
+    got: dict[str, np.ndarray] = {}
+    for chunk in reader.stream(k).to_chunks():
+        rb = chunk.to_record_batch()
+        if "Scalars:scalars" in rb.schema.names and "frame_index" in rb.schema.names:
+            order = np.argsort(rb.column("frame_index").to_numpy())
+            got[chunk.entity_path] = np.array(rb.column("Scalars:scalars").to_pylist(), float)[order]
+        if "TextDocument:text" in rb.schema.names:
+            got["task"] = rb.column("TextDocument:text").to_pylist()
+    np.testing.assert_allclose(got["/observation.state"], src.reshape(len(src), 16), atol=1e-6)
+    np.testing.assert_allclose(got["/action"][:-1], src[1:].reshape(-1, 16), atol=1e-6)
+    np.testing.assert_allclose(got["/action"][-1], src[-1].reshape(16), atol=1e-6)  # the last step holds
+    assert set(np.ravel(got["task"])) == {"Pour from the bottle into the cup."}
+
+    # our own reader and the global statistics agree with the source actions
+    back = read_lerobot_episode(out, 0)
+    np.testing.assert_allclose(back["observation.state"], info["actions"][valid_ids[0]].reshape(-1, 16), atol=1e-6)
+    np.testing.assert_allclose(back["timestamp"], np.arange(len(back["timestamp"])) / 30, atol=1e-6)
+    stats = json.loads((out / "meta/stats.json").read_text())
+    every = np.concatenate([info["actions"][i].reshape(-1, 16) for i in valid_ids]).astype(np.float64)
+    np.testing.assert_allclose(stats["observation.state"]["mean"], every.mean(0), atol=1e-5)
+    np.testing.assert_allclose(stats["observation.state"]["q50"], np.quantile(every, 0.5, axis=0), atol=1e-5)
+    assert stats["index"]["count"] == [len(every)] and stats["index"]["max"] == [len(every) - 1]
+
+
+def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode_wh, tmp_path):
+    from flows.export import load_episodes
+    from lib.exports.lerobot import LeRobotFormatError, validate_lerobot_dataset, write_lerobot_dataset
+
+    wh, info = episode_wh
+    sel = load_episodes(str(wh), TASK, include_invalid=True, limit=5)
+    assert sel.episode_id.tolist() == [0, 1, 2, 3, 4] and sel.kind[0] == "original"
+    out = tmp_path / "split"
+    # a tiny file cap: every episode gets its own data file, and the layout still holds
+    write_lerobot_dataset(out, sel.poses, sel.lengths, tasks=["t"], data_files_size_in_mb=0.01)
+    s = validate_lerobot_dataset(out)
+    assert s["data_files"] == 5 and s["frames"] == int(sel.lengths.sum())
+    assert sorted(p.name for p in (out / "data/chunk-000").iterdir()) == [f"file-{i:03d}.parquet" for i in range(5)]
+
+    info_path = out / "meta/info.json"
+    meta = json.loads(info_path.read_text())
+    info_path.write_text(json.dumps({**meta, "codebase_version": "v2.1"}))
+    with pytest.raises(LeRobotFormatError, match="codebase_version"):
+        validate_lerobot_dataset(out)
+    info_path.write_text(json.dumps(meta))
+    (out / "data/chunk-000/file-003.parquet").unlink()
+    with pytest.raises(LeRobotFormatError, match="file-003.parquet"):
+        validate_lerobot_dataset(out)
+
+
+def test_exports_are_atomic_and_refuse_bad_input(episode_wh, tmp_path):
+    from lib.exports.lerobot import write_lerobot_dataset
+
+    wh, info = episode_wh
+    poses = info["actions"][0]
+    out = tmp_path / "ds"
+    write_lerobot_dataset(out, poses, [len(poses)], tasks=["t"])
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+    with pytest.raises(ExportError, match="already exists"):
+        write_lerobot_dataset(out, poses, [len(poses)], tasks=["t"])
+    # a failure while writing (a provenance column of the wrong length) leaves the old export untouched
+    with pytest.raises(ExportError, match="provenance"):
+        write_lerobot_dataset(out, poses, [len(poses)], tasks=["t"], provenance={"take": ["a", "b"]}, overwrite=True)
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["ds"]  # no temporary folder left behind
+    with pytest.raises(ExportError, match="sum to"):
+        write_lerobot_dataset(tmp_path / "x", poses, [len(poses) + 1], tasks=["t"])
+    bad = poses.copy()
+    bad[3, 0, 0] = np.nan
+    with pytest.raises(ExportError, match="NaN"):
+        write_lerobot_dataset(tmp_path / "x", bad, [len(bad)], tasks=["t"])
+    assert not (tmp_path / "x").exists()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(1, 6), min_size=1, max_size=6))
+def test_next_poses_shifts_within_episodes_only(lengths):
+    lengths = np.array(lengths)
+    F = int(lengths.sum())
+    poses = np.arange(F * 16, dtype=float).reshape(F, 2, 8)
+    nxt = next_poses(poses, lengths)
+    ends = np.cumsum(lengths) - 1
+    inner = np.setdiff1d(np.arange(F), ends)
+    np.testing.assert_array_equal(nxt[inner], poses[inner + 1])
+    np.testing.assert_array_equal(nxt[ends], poses[ends])
+
+
+# ------------------------------------------------------------------------------------------ robomimic
+
+def test_robomimic_export_layout_and_provenance(episode_wh, tmp_path):
+    import h5py
+
+    from flows.export import export_robomimic
+    from lib.exports.robomimic import is_demoforge_robomimic, read_robomimic_demo
+
+    wh, info = episode_wh
+    out = tmp_path / "pouring.hdf5"
+    s = export_robomimic(str(wh), TASK, str(out), include_invalid=True, valid_fraction=0.25, seed=3)
+    ids = sorted(info["actions"])
+    assert s["demos"] == len(ids) and s["valid"] == round(0.25 * len(ids))
+    assert is_demoforge_robomimic(out)
+    with h5py.File(out, "r") as f:
+        data = f["data"]
+        assert data.attrs["total"] == sum(len(a) for a in info["actions"].values())
+        env = json.loads(data.attrs["env_args"])
+        assert env["env_name"] == "demoforge/pouring" and env["env_kwargs"]["control_freq"] == 30
+        assert sorted(data.keys(), key=lambda k: int(k.split("_")[1])) == [f"demo_{i}" for i in range(len(ids))]
+        train = {x.decode() for x in f["mask/train"][()]}
+        valid = {x.decode() for x in f["mask/valid"][()]}
+        assert not train & valid and train | valid == set(data.keys())
+        mirrored = {x.decode() for x in f["mask/mirrored"][()]}
+        assert len(mirrored) == sum(k == "mirrored" for k in info["kind"].values())
+    for i in (0, len(ids) - 1):
+        d = read_robomimic_demo(out, f"demo_{i}")
+        src = info["actions"][d["attrs"]["src_episode_id"]].astype(np.float64)
+        assert d["attrs"]["src_take"] == TAKE and d["attrs"]["src_task"] == TASK
+        assert d["attrs"]["src_kind"] == info["kind"][d["attrs"]["src_episode_id"]]
+        assert d["attrs"]["num_samples"] == len(src) == len(d["actions"])
+        np.testing.assert_allclose(d["obs"]["robot0_eef_pos"], src[:, 0, :3], atol=1e-6)
+        np.testing.assert_allclose(d["obs"]["robot1_eef_quat"], src[:, 1, 3:7], atol=1e-6)
+        np.testing.assert_allclose(d["obs"]["robot0_gripper"][:, 0], src[:, 0, 7])
+        np.testing.assert_allclose(d["actions"][:-1], src[1:].reshape(-1, 16), atol=1e-6)
+        np.testing.assert_allclose(d["next_obs"]["robot1_eef_pos"][:-1], src[1:, 1, :3], atol=1e-6)
+        np.testing.assert_allclose(d["obs"]["object"][0], info["keypoints"][d["attrs"]["src_episode_id"]].reshape(-1),
+                                   atol=1e-6)
+        assert d["dones"].sum() == 1 and d["dones"][-1] == 1
+
+
+# ------------------------------------------------------------------------------------------ Rerun
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 5))
+def test_backprojected_points_reproject_onto_their_pixels(seed, stride):
+    from scipy.spatial.transform import Rotation
+
+    from lib.exports.rerun_view import backproject
+
+    rng = np.random.default_rng(seed)
+    H, W = 12, 17
+    K = np.array([[rng.uniform(20, 80), 0, rng.uniform(5, 12)], [0, rng.uniform(20, 80), rng.uniform(4, 8)], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+    T[:3, 3] = rng.normal(0, 1, 3)
+    depth = rng.uniform(0.2, 3, (H, W)).astype(np.float32)
+    depth[rng.random((H, W)) < 0.2] = 0
+    depth[rng.random((H, W)) < 0.1] = np.nan
+    pts, _ = backproject(depth, K, T, stride)
+    grid = depth[::stride, ::stride]
+    v, u = np.mgrid[0:H:stride, 0:W:stride]
+    ok = np.isfinite(grid) & (grid > 0)
+    assert len(pts) == ok.sum()
+    cam = (pts - T[:3, 3]) @ T[:3, :3]             # world -> camera
+    np.testing.assert_allclose(cam[:, 2], grid[ok], rtol=1e-5)
+    uv = cam[:, :2] / cam[:, 2:] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    np.testing.assert_allclose(uv, np.stack([u[ok], v[ok]], 1), atol=1e-6)
+
+
+def test_view_take_and_episode_recordings_hold_the_scene(episode_wh, tmp_path):
+    from flows.export import write_view
+    from lib.exports.rerun_view import read_recording
+    from lib.task_library import get_task
+
+    wh, info = episode_wh
+    take = build_take(tmp_path / "takes", wh, info["demo"])
+    out = tmp_path / "take.rrd"
+    r = write_view(str(wh), str(take), str(out), point_stride=4)
+    assert r["frames"] == 4 and r["hand_frames"] == 7  # the right hand is missing in one frame
+    rec = read_recording(out)
+    pts = [b for b in rec["/world/points"]]
+    n_points = sum(len(p) for b in pts for p in b.column("Points3D:positions").to_pylist())
+    assert n_points == r["points"] == 4 * (12 - 2) * 16  # rows 0-4 of the depth are invalid: grid rows 2..11
+    # the first frame's cloud lies on the depth plane z_cam = 0.9 in front of the camera
+    cam = json.loads((take / "camera.json").read_text())
+    T = np.array(cam["T_world_camera"])
+    first = np.array(pts[0].column("Points3D:positions").to_pylist()[0])
+    np.testing.assert_allclose(((first - T[:3, 3]) @ T[:3, :3])[:, 2], 0.9, atol=1e-5)
+    g = rec["/world/grippers/left"][0]
+    np.testing.assert_allclose(np.array(g.column("Transform3D:translation").to_pylist())[:, 0],
+                               info["demo"].gripper_actions()[:4, 0, :3], atol=1e-5)
+    kp = rec["/world/object_keypoints"][0]
+    assert kp.column("Points3D:labels").to_pylist()[0] == list(get_task(TASK).keypoint_names)
+    bones = rec["/world/hands/right/bones"][0]
+    assert len(bones.column("LineStrips3D:strips").to_pylist()[0]) == 6  # five fingers and the palm
+    assert "/world/camera/image/rgb" in rec and "/world/camera/image" in rec
+
+    ep = tmp_path / "ep.rrd"
+    valid = [i for i, v in info["valid"].items() if v and i]
+    r = write_view(str(wh), f"{TASK}/{valid[0]}", str(ep))
+    rec = read_recording(ep)
+    traj = rec["/world/trajectory/right"]
+    last = max((s for b in traj for s in b.column("LineStrips3D:strips").to_pylist()), key=lambda s: len(s[0]))
+    np.testing.assert_allclose(np.array(last[0]), info["actions"][valid[0]][:, 1, :3], atol=1e-5)
+    assert "/world/reference/left" in rec  # the demonstration for comparison
+    with pytest.raises(ExportError, match="neither a take folder"):
+        write_view(str(wh), "no_such_take", str(tmp_path / "x.rrd"))
+    with pytest.raises(ExportError, match="no episode 99999"):
+        write_view(str(wh), f"{TASK}/99999", str(tmp_path / "x.rrd"))
+    assert not (tmp_path / "x.rrd").exists()
+
+
+# ------------------------------------------------------------------------------------------ CLI errors
+
+def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, monkeypatch):
+    """User errors are caught before any Prefect run: exit code 2 and a message that says what to fix."""
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    wh, _ = episode_wh
+    monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(wh))
+    runner = CliRunner()
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    (tmp_path / "old.rrd").write_bytes(b"x")
+    (tmp_path / "other.hdf5").write_bytes(b"not ours")
+    for args, msg in ((["export", "lerobot", "--task", TASK, "--out", str(foreign)], "not a demoforge export"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "a.zip")], ".hdf5"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "other.hdf5")],
+                       "not a demoforge export"),
+                      (["export", "lerobot", "--task", "juggling", "--out", str(tmp_path / "j")], "unknown task"),
+                      (["export", "lerobot", "--task", "mix_bowl", "--out", str(tmp_path / "m")], "demoforge augment"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "r.hdf5"),
+                        "--valid-fraction", "1.5"], "--valid-fraction"),
+                      (["view", "pouring/123456", "--rrd", str(tmp_path / "v.rrd")], "no episode 123456"),
+                      (["view", "no_such_take", "--rrd", str(tmp_path / "v.rrd")], "neither a take folder"),
+                      (["view", "pouring/0", "--rrd", str(tmp_path / "old.rrd")], "--overwrite"),
+                      (["view", str(tmp_path), "--rrd", str(tmp_path / "v.rrd")], "demoforge ingest"),
+                      (["view", "pouring/0", "--rrd", str(tmp_path / "v.txt")], ".rrd")):
+        r = runner.invoke(app, args)
+        assert r.exit_code == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.output)
+    assert (foreign / "notes.txt").read_text() == "keep me" and not (tmp_path / "j").exists()
+    assert (tmp_path / "other.hdf5").read_bytes() == b"not ours"
+    r = runner.invoke(app, ["export", "--help"])
+    assert r.exit_code == 0 and "lerobot" in r.output and "robomimic" in r.output
