@@ -10,6 +10,7 @@ from prefect import flow
 
 import lib  # noqa: F401
 from flows.ingest import ingest_take
+from flows.runners import run_flow
 from tasks.augment import augment_take, segment_take
 from tasks.common import Manifest, run_stage
 
@@ -35,7 +36,7 @@ def augment_take_flow(
     """
     if n < 1 or not 0 <= n_mirrored <= n:
         raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
-    ingested = ingest_take(path, warehouse, detector=detector, task=task, show_progress=show_progress)
+    ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress)
     common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)

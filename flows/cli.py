@@ -260,39 +260,62 @@ def evaluate(
     task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six)."),
     takes: int = typer.Option(1, "--takes", min=1, envvar="TAKES", help="Synthetic takes per task and mirror flag."),
     seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
+    mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
     trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy (thesis: 10; the local model takes about a minute per trial)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
+    variation_trials: int = typer.Option(2, "--variation-trials", envvar="VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
+    fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
-    A second run with nothing changed is served from the cache.
+    A second run with nothing changed (parameters, code, warehouse files) returns at once; after a
+    change, each stage is served from the cache unless its inputs changed.
     """
-    from flows.evaluate import evaluate as evaluate_flow
+    from flows import run_cache
     from lib.task_library import TASK_NAMES
 
     unknown = [t for t in (task or []) if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
-    report = run_flow(evaluate_flow, str(current_warehouse()), str(reports.resolve()), tasks=task or None,
-                           takes=takes, seed=seed, episodes=episodes, sim_episodes=sim_episodes,
-                           llm_tasks=llm_task or ["pouring"], trials=trials, llm_backend=llm_backend,
-                           llm_options={"model": llm_model} if llm_model else {})
+    if mirror not in ("both", "no", "yes"):
+        raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
+    params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
+                  sim_episodes=sim_episodes, llm_tasks=llm_task or ["pouring"], trials=trials,
+                  llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
+                  variation_trials=variation_trials)
+    warehouse, reports_dir = current_warehouse(), reports.resolve()
+    key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
+                            {"real_hands": str(run_cache.PROJECT_ROOT.parent / "shared" / "data" / "real_hands"),
+                             "arctic": os.environ.get("ARCTIC_ROOT")})
+    if not fresh:
+        cached = run_cache.lookup(warehouse, key)
+        if cached is not None:
+            typer.echo(f"nothing changed since the last complete run (same parameters, code and warehouse): {cached}")
+            typer.echo("report: " + str(cached))
+            return
+    from flows.evaluate import evaluate as evaluate_flow
+
+    report = run_flow(evaluate_flow, str(warehouse), str(reports_dir), **params)
+    run_cache.remember(warehouse, key, report)
     typer.echo(f"report: {report}")
 
 
 @app.command()
 def ingest(
     path: Path = typer.Argument(..., exists=True, file_okay=False, help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
-    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed, hamer (local checkpoint)."),
     predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
     task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
     state_method: str = typer.Option("auto", help="Open/close when the take has no labelled ranges: auto, otsu or threshold."),
     smoothing: int = typer.Option(0, help="Segment-wise pose smoothing window in frames (0 = off)."),
     video: bool = typer.Option(False, "--video", help="Also write an MP4 with the skeletons and gripper frames drawn on the frames."),
+    hamer_checkpoint: Optional[Path] = typer.Option(None, "--hamer-checkpoint", help="For --detector hamer: local hamer.ckpt (licensed; never downloaded)."),
+    mano_model: Optional[Path] = typer.Option(None, "--mano-model", help="For --detector hamer: local MANO_RIGHT.pkl (licensed; never downloaded)."),
+    box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
 
@@ -300,6 +323,7 @@ def ingest(
     object_keypoints (and ingest_metrics for synthetic takes, against their ground truth).
     """
     from flows.ingest import ingest_take
+    from lib.detectors import DetectorError
     from lib.ingest import TakeError
 
     options = {}
@@ -307,11 +331,17 @@ def ingest(
         if predictions is None:
             raise fail("--detector precomputed needs --predictions FILE")
         options["path"] = str(predictions)
+    if detector == "hamer":
+        if hamer_checkpoint is None or mano_model is None:
+            raise fail("--detector hamer needs --hamer-checkpoint PATH and --mano-model PATH (both licensed, not downloaded by demoforge)")
+        if box_source not in ("previous", "mediapipe"):
+            raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
+        options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
     try:
         result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
                              video=video)
-    except (TakeError, ValueError) as e:
+    except (TakeError, ValueError, DetectorError) as e:
         raise fail(str(e))
     for name, m in result.items():
         if m is not None:
@@ -523,7 +553,7 @@ def serve(
 
 
 # Commands of the larger areas live in their own modules and register on `app` when imported.
-from flows import cli_export, cli_hamer, cli_policy  # noqa: E402,F401
+from flows import cli_export, cli_hamer, cli_policy, cli_variations  # noqa: E402,F401
 
 
 def main() -> None:

@@ -32,6 +32,7 @@ def evaluate(
     trials: int = 1,
     llm_backend: str = "local",
     llm_options: dict | None = None,
+    variation_trials: int = 2,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
@@ -51,6 +52,7 @@ def evaluate(
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
     manifests = run_flow(synthesize_takes, warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
+    progress = _Progress(total=len(manifests) + 2)
     for m in manifests:
         name = Path(m.path).name
         if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
@@ -60,10 +62,19 @@ def evaluate(
                 run_flow(simulate_episodes, warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
         else:
             run_flow(ingest_take, m.path, warehouse)
+        progress.step()
     for llm_task in llm_tasks:
         if llm_task in tasks and trials > 0:
             run_flow(llm_eval, warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
                      trials=trials, seed=seed)
+    from flows.variations import evaluate_variations
+    from lib.variations import TABLE4_TASKS
+    from tasks.variations import VARIATION_STRATEGIES
+
+    variation_tasks = [t for t in TABLE4_TASKS if t in tasks]
+    if variation_trials > 0 and variation_tasks:
+        run_flow(evaluate_variations, warehouse, tasks=variation_tasks, trials=variation_trials,
+                 strategies=VARIATION_STRATEGIES, seed=seed)
     run_flow(evaluate_keypoints, warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
     from flows.keypoint_eval import REAL_HANDS
 
@@ -73,10 +84,30 @@ def evaluate(
         logger.warning("%s not found: the real-photo keypoint table is skipped", REAL_HANDS)
     if arctic_root:
         run_flow(evaluate_keypoints, warehouse, dataset="arctic", arctic_root=arctic_root)
+    progress.step()
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
                                                    "mirror": mirror, "episodes": episodes,
                                                    "arctic_root": arctic_root, "sim_episodes": sim_episodes,
                                                    "llm_tasks": list(llm_tasks), "trials": trials,
-                                                   "llm_backend": llm_backend})
+                                                   "llm_backend": llm_backend,
+                                                   "variation_trials": variation_trials})
+    progress.step()
     logger.info("report written: %s", report)
     return str(report)
+
+
+class _Progress:
+    """A progress artifact in the Prefect UI: how far the main job is (takes, then the evaluations)."""
+
+    def __init__(self, total: int):
+        from prefect.artifacts import create_progress_artifact
+
+        self.total, self.done = max(total, 1), 0
+        self.id = create_progress_artifact(0.0, key="evaluate-progress",
+                                           description="The main job: takes processed, then the evaluations and the report.")
+
+    def step(self) -> None:
+        from prefect.artifacts import update_progress_artifact
+
+        self.done += 1
+        update_progress_artifact(self.id, min(100.0, 100.0 * self.done / self.total))

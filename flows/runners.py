@@ -21,6 +21,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import subprocess
+import sys
 from typing import Any
 
 ENV_RUNNER = "DEMOFORGE_TASK_RUNNER"
@@ -71,9 +73,23 @@ def _local_cluster_address() -> str:
         from distributed import LocalCluster
 
         _quiet_dask()
+        _share_prefect_api()
         _LOCAL_CLUSTER = LocalCluster(**local_cluster_kwargs(dask_workers()))
         atexit.register(_close_local_cluster)
     return _LOCAL_CLUSTER.scheduler_address
+
+
+def _share_prefect_api() -> None:
+    """Without PREFECT_API_URL every process uses its own temporary Prefect server; Dask workers would
+    each start one (20 s apiece) and their task runs would not be the flow's. Start this process's
+    temporary server now and publish its URL, so the workers spawned next report to the same API."""
+    if os.environ.get("PREFECT_API_URL"):
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()  # the same singleton the flow's own client would start
+    server.start()
+    os.environ["PREFECT_API_URL"] = server.api_url
 
 
 def _close_local_cluster() -> None:
@@ -102,7 +118,59 @@ def with_runner(flow_obj):
 
 def run_flow(flow_obj, *args: Any, **kwargs: Any) -> Any:
     """Call a flow with the configured task runner."""
+    guard_temporary_api_server()
     return with_runner(flow_obj)(*args, **kwargs)
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    import ctypes
+    import signal
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def guard_temporary_api_server() -> None:
+    """Make Prefect's temporary API server (used when PREFECT_API_URL is unset) survive Ctrl-C and die
+    with its parent.
+
+    Prefect starts it as a plain child process, so Ctrl-C in a terminal (SIGINT to the whole
+    foreground process group) kills it at the same moment as the flow, which then spends minutes
+    retrying to record the interruption against a dead server instead of exiting. Here it runs in a
+    session of its own (no terminal signals) and receives SIGTERM when its parent dies (even by
+    SIGKILL), so no orphan server is left behind either. The command line is Prefect 3.8.8's own.
+    """
+    if os.environ.get("PREFECT_API_URL") or not sys.platform.startswith("linux"):
+        return
+    from prefect.settings import get_current_settings
+
+    if get_current_settings().api.url:  # a real server (or a test harness) is configured
+        return
+    from prefect.server.api import server as api_server
+
+    cls = api_server.SubprocessASGIServer
+    if getattr(cls, "_demoforge_guarded", False):
+        return
+
+    def _run_uvicorn_command(self):
+        import prefect
+        from prefect.settings import get_current_settings
+
+        server_env = {"PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
+        return subprocess.Popen(
+            args=[sys.executable, "-m", "uvicorn", "--app-dir", str(prefect.__module_path__.parent), "--factory",
+                  "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(self.port),
+                  "--log-level", "error", "--lifespan", "on"],
+            env={**os.environ, **server_env, **get_current_settings().to_environment_variables(exclude_unset=True)},
+            start_new_session=True,
+            preexec_fn=_die_with_parent,
+        )
+
+    cls._run_uvicorn_command = _run_uvicorn_command
+    cls._demoforge_guarded = True
+    # start it now, from this (the main) thread: the parent-death signal follows the thread that
+    # started the child, and Prefect might otherwise start it from a short-lived helper thread
+    cls().start()
 
 
 def is_distributed() -> bool:

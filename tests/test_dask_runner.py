@@ -1,0 +1,90 @@
+"""Scale-out: the augmentation and simulation flows on a 2-worker Dask cluster (prefect-dask) write the
+same tables as the default thread-pool runner, and their tasks really ran on the cluster."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+
+VENV_BIN = Path(sys.executable).parent
+pytestmark = pytest.mark.slow
+
+TABLES = ("gripper_poses", "object_keypoints", "segments", "episodes", "episode_steps", "sim_results")
+VOLATILE = {"wall_s"}  # wall-clock time of a simulated episode
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _run_pipeline(take: Path, warehouse: Path, env: dict) -> None:
+    env = {**env, "DEMOFORGE_WAREHOUSE": str(warehouse), "MUJOCO_GL": "egl"}
+    for args in (["augment", str(take), "-n", "60", "--mirrored", "30"],
+                 ["simulate", "--task", "trash_in_bin", "--episodes", "4", "--chunk-size", "2", "--workers", "1"]):
+        r = subprocess.run([str(VENV_BIN / "demoforge"), *args], env=env, capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, f"demoforge {' '.join(args)} failed:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
+
+
+def _same_rows(a: pa.Table, b: pa.Table) -> bool:
+    """Equal schemas and values, NaN equal to NaN (missing uv of keypoints out of view)."""
+    return a.schema == b.schema and json.dumps(a.to_pylist(), default=str) == json.dumps(b.to_pylist(), default=str)
+
+
+def _table(warehouse: Path, name: str) -> pa.Table:
+    from schemas.core import read_table
+
+    t = read_table(name, warehouse)
+    t = t.drop_columns([c for c in t.column_names if c in VOLATILE])
+    # rows in a canonical order: sorted by every scalar column
+    keys = [f.name for f in t.schema if not (pa.types.is_list(f.type) or pa.types.is_fixed_size_list(f.type)
+                                              or pa.types.is_struct(f.type))]
+    return t.sort_by([(k, "ascending") for k in keys])
+
+
+def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_runner(trash_take, tmp_path):
+    from distributed import Client, LocalCluster
+    from prefect.server.api.server import SubprocessASGIServer
+
+    for name in ("distributed", "distributed.nanny", "distributed.scheduler", "distributed.worker"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    base = {k: v for k, v in os.environ.items() if not k.startswith("DEMOFORGE_")}
+    base["PREFECT_HOME"] = str(tmp_path / "prefect_home")
+
+    _run_pipeline(trash_take, tmp_path / "threads", {**base, "DEMOFORGE_TASK_RUNNER": "threads"})
+
+    # An existing cluster, as on a real deployment: a scheduler address plus a shared Prefect API.
+    api = SubprocessASGIServer(port=_free_port())
+    api.start(timeout=180)
+    try:
+        dask_env = {**base, "PREFECT_API_URL": api.api_url}
+        os.environ["PREFECT_API_URL"] = api.api_url  # the workers spawned below inherit it
+        try:
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+                _run_pipeline(trash_take, tmp_path / "dask", {**dask_env, "DEMOFORGE_TASK_RUNNER": "dask",
+                                                              "DEMOFORGE_DASK_ADDRESS": cluster.scheduler_address})
+                with Client(cluster.scheduler_address) as client:
+                    ran = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
+                    workers = len(client.scheduler_info()["workers"])
+        finally:
+            os.environ.pop("PREFECT_API_URL", None)
+    finally:
+        api.stop()
+
+    assert workers == 2
+    # every stage of the two flows was executed by the cluster, not in the flow's process
+    for stage in ("detect_hands", "map_grippers", "segment_take", "augment_take", "simulate_chunk"):
+        assert stage in ran, f"{stage} did not run on the Dask cluster (ran: {ran})"
+    for name in TABLES:
+        a, b = _table(tmp_path / "threads", name), _table(tmp_path / "dask", name)
+        assert a.num_rows > 0, name
+        assert _same_rows(a, b), f"{name}: the Dask run wrote different rows than the default runner"
