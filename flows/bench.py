@@ -295,3 +295,10 @@ def _exports_cases(quick: bool) -> list[BenchCase]:
     from lib.exports.bench_cases import cases
 
     return cases(quick)
+
+
+@register("policy")
+def _policy_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_policy import cases
+
+    return cases(quick)

@@ -268,6 +268,8 @@ def evaluate(
     llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
     variation_trials: int = typer.Option(2, "--variation-trials", envvar="VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
+    policy_epochs: int = typer.Option(6, envvar="POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
+    policy_trials: int = typer.Option(5, envvar="POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
@@ -286,7 +288,7 @@ def evaluate(
     params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
                   sim_episodes=sim_episodes, llm_tasks=llm_task or ["pouring"], trials=trials,
                   llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
-                  variation_trials=variation_trials)
+                  variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials)
     warehouse, reports_dir = current_warehouse(), reports.resolve()
     key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
                             {"real_hands": str(run_cache.PROJECT_ROOT.parent / "shared" / "data" / "real_hands"),

@@ -33,6 +33,10 @@ def evaluate(
     llm_backend: str = "local",
     llm_options: dict | None = None,
     variation_trials: int = 2,
+    policy_tasks: Sequence[str] = ("pouring",),
+    policy_epochs: int = 6,
+    policy_waypoints: int = 40,
+    policy_trials: int = 5,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
@@ -67,6 +71,16 @@ def evaluate(
         if llm_task in tasks and trials > 0:
             run_flow(llm_eval, warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
                      trials=trials, seed=seed)
+    from flows.policy import evaluate_policy, train_policy
+    from tasks.policy import checkpoint_row
+
+    for policy_task in policy_tasks:
+        if policy_task in tasks and policy_trials > 0:
+            # no time cap: a run that stops on a budget is not reproducible from its seed
+            ck = run_flow(train_policy, warehouse, task=policy_task, seed=seed, epochs=policy_epochs,
+                          max_minutes=None, threads=2, n_waypoints=policy_waypoints)
+            run_flow(evaluate_policy, warehouse, task=policy_task, trials=policy_trials, seed=seed,
+                     checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
     from flows.variations import evaluate_variations
     from lib.variations import TABLE4_TASKS
     from tasks.variations import VARIATION_STRATEGIES
@@ -90,7 +104,9 @@ def evaluate(
                                                    "arctic_root": arctic_root, "sim_episodes": sim_episodes,
                                                    "llm_tasks": list(llm_tasks), "trials": trials,
                                                    "llm_backend": llm_backend,
-                                                   "variation_trials": variation_trials})
+                                                   "variation_trials": variation_trials,
+                                                   "policy_epochs": policy_epochs, "policy_trials": policy_trials,
+                                                   "policy_waypoints": policy_waypoints})
     progress.step()
     logger.info("report written: %s", report)
     return str(report)

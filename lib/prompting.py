@@ -114,6 +114,34 @@ def _allocate(gaps: np.ndarray, n_extra: int) -> np.ndarray:
     return base
 
 
+def waypoint_times(gripper_open: np.ndarray, n_waypoints: int, keep_gripper_changes: bool = True) -> np.ndarray:
+    """The (n_waypoints,) fractional step times :func:`resample_actions` picks for an episode whose
+    (n, 2) gripper states (bool, True = open) are given: first and last step, the gripper-change
+    steps (as many as fit, spread over the changes), the rest spread over the gaps in proportion."""
+    g = np.asarray(gripper_open, bool)
+    n, m = len(g), int(n_waypoints)
+    if m < 2:
+        raise ValueError(f"n_waypoints must be >= 2, got {n_waypoints}")
+    if n == 1:
+        return np.zeros(m)
+    fixed = [0, n - 1]
+    if keep_gripper_changes:
+        changes = np.flatnonzero(np.any(g[1:] != g[:-1], axis=1)) + 1
+        changes = changes[changes < n - 1]
+        room = m - 2
+        if len(changes) > room:
+            pick = np.unique(np.round(np.linspace(0, len(changes) - 1, room)).astype(int)) if room > 0 else []
+            changes = changes[pick]
+        fixed = sorted(set(fixed) | set(int(c) for c in changes))
+    fixed_t = np.asarray(fixed, dtype=np.float64)
+    extra = _allocate(np.diff(fixed_t), m - len(fixed_t))
+    times = [fixed_t[:1]]
+    for j, k in enumerate(extra):
+        t0, t1 = fixed_t[j], fixed_t[j + 1]
+        times.append(t0 + (t1 - t0) * np.arange(1, k + 2) / (k + 1))  # k interior points, then t1
+    return np.concatenate(times)
+
+
 def resample_actions(actions: Any, n_waypoints: int = 20, keep_gripper_changes: bool = True) -> np.ndarray:
     """Time-resample an action sequence (n, 2, 8) to exactly ``n_waypoints`` waypoints (n_waypoints >= 2).
 
@@ -145,25 +173,7 @@ def resample_actions(actions: Any, n_waypoints: int = 20, keep_gripper_changes: 
         out[:, :, 7] = g[0]
         out[:, :, 3:7] = quat_normalize(out[:, :, 3:7])
         return out
-    fixed = [0, n - 1]
-    if keep_gripper_changes:
-        changes = np.flatnonzero(np.any(g[1:] != g[:-1], axis=1)) + 1
-        changes = changes[changes < n - 1]
-        room = m - 2
-        if len(changes) > room:
-            pick = np.unique(np.round(np.linspace(0, len(changes) - 1, room)).astype(int)) if room > 0 else []
-            changes = changes[pick]
-        fixed = sorted(set(fixed) | set(int(c) for c in changes))
-    fixed_t = np.asarray(fixed, dtype=np.float64)
-    gaps = np.diff(fixed_t)
-    extra = _allocate(gaps, m - len(fixed_t))
-    times = [fixed_t[0]]
-    for j, k in enumerate(extra):
-        t0, t1 = fixed_t[j], fixed_t[j + 1]
-        if k > 0:
-            times.extend(t0 + (t1 - t0) * np.arange(1, k + 1) / (k + 1))
-        times.append(t1)
-    qt = np.asarray(times, dtype=np.float64)
+    qt = waypoint_times(g.astype(bool), m, keep_gripper_changes)
     src_t = np.arange(n, dtype=np.float64)
     pos, quat = interpolate_poses(src_t, a[:, :, :3], a[:, :, 3:7], qt, rotation="slerp", position="linear")
     nearest = np.clip(np.floor(qt + 0.5).astype(int), 0, n - 1)

@@ -162,6 +162,26 @@ REPORT_VIEWS: dict[str, str] = {
     # Thesis Table 4 analogue: success under simulated scene variations, per task and strategy.
     "report_table4": REPORT_TABLE4_SQL,
     "report_table4_failures": REPORT_TABLE4_FAILURES_SQL,
+    # The learned keypoint policy: success per scene kind, inference latency, the checkpoint's validation errors.
+    "report_policy": """
+        SELECT t.task, t.checkpoint_id, c.n_waypoints, t.scene_kind, count(*) AS trials,
+               count(*) FILTER (WHERE t.success) AS successes,
+               round(avg(CASE WHEN t.success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
+               count(*) FILTER (WHERE t.in_augmented_region) AS in_aug_region,
+               round(median(t.latency_ms), 2) AS median_latency_ms,
+               any_value(c.epochs_run) AS epochs, round(any_value(c.train_seconds), 0) AS train_s,
+               any_value(c.threads) AS threads, round(any_value(c.val_pos_err_mm), 1) AS val_pos_mm,
+               round(any_value(c.val_rot_err_deg), 2) AS val_rot_deg
+        FROM policy_trials t JOIN policy_checkpoints c USING (task, take, checkpoint_id)
+        GROUP BY t.task, t.checkpoint_id, c.n_waypoints, t.scene_kind
+        ORDER BY t.task, t.checkpoint_id, CASE t.scene_kind WHEN 'in_distribution' THEN 0 WHEN 'mirrored' THEN 1
+                                                        WHEN 'out_of_distribution' THEN 2 ELSE 3 END
+    """,
+    "report_policy_failures": """
+        SELECT task, checkpoint_id, scene_kind, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
+               count(*) AS trials
+        FROM policy_trials GROUP BY ALL ORDER BY task, checkpoint_id, scene_kind, trials DESC
+    """,
     # Robot success checks of the augmented episodes, per task and kind.
     "report_sim": """
         SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,
