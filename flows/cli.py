@@ -63,6 +63,7 @@ def _main(
     from flows import runners
 
     State.warehouse = warehouse
+    runners.install_interrupt_handler()
     if task_runner:
         os.environ[runners.ENV_RUNNER] = task_runner
     if dask_address:

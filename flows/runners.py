@@ -21,8 +21,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import subprocess
 import sys
+import threading
 from typing import Any
 
 ENV_RUNNER = "DEMOFORGE_TASK_RUNNER"
@@ -117,14 +119,46 @@ def with_runner(flow_obj):
 
 
 def run_flow(flow_obj, *args: Any, **kwargs: Any) -> Any:
-    """Call a flow with the configured task runner."""
+    """Call a flow with the configured task runner; stop here if Ctrl-C was pressed."""
+    check_interrupted()
     guard_temporary_api_server()
-    return with_runner(flow_obj)(*args, **kwargs)
+    result = with_runner(flow_obj)(*args, **kwargs)
+    check_interrupted()
+    return result
+
+
+_INTERRUPTED = threading.Event()
+
+
+def install_interrupt_handler() -> None:
+    """Ctrl-C stops a command at once, or at the latest when the current flow returns.
+
+    Python raises KeyboardInterrupt wherever the main thread is; if that lands in a part of Prefect
+    that records the interruption and carries on, the run would simply continue. The flag set here
+    is checked around every flow call, so the command stops at the next stage boundary regardless.
+    A second Ctrl-C exits immediately (every table write is atomic, so nothing half-written remains).
+    Left alone when SIGINT is ignored (a command started in the background)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return
+
+    def on_sigint(signum, frame):
+        if _INTERRUPTED.is_set():
+            os._exit(130)
+        _INTERRUPTED.set()
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
+
+
+def check_interrupted() -> None:
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt("interrupted by Ctrl-C: run the command again to resume")
 
 
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     import ctypes
-    import signal
 
     PR_SET_PDEATHSIG = 1
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
