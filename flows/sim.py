@@ -9,7 +9,7 @@ import numpy as np
 from prefect import flow, get_run_logger
 
 import lib  # noqa: F401
-from tasks.common import Manifest, run_stage
+from tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
 from tasks.sim import simulate_chunk
 
 
@@ -52,10 +52,21 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
         raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
+    calls = [dict(task=task, take=take, chunk=k, episode_ids=chunk, warehouse=warehouse, workers=workers,
+                  show_progress=show_progress) for k, chunk in enumerate(chunks)]
+    if in_distributed_flow():
+        # on a Dask cluster the chunks run in parallel, one per worker process
+        for c in calls:
+            c.update(workers=1, show_progress=False)
+        return run_stages(simulate_chunk, warehouse, calls)
+    from prefect.artifacts import create_progress_artifact, update_progress_artifact
+
+    progress = create_progress_artifact(0.0, key=f"simulate-{task}".replace("_", "-"),
+                                        description=f"{task}: chunks of {chunk_size} episodes executed in MuJoCo")
     out = []
-    for k, chunk in enumerate(chunks):
-        out.append(run_stage(simulate_chunk, warehouse, task=task, take=take, chunk=k, episode_ids=chunk,
-                             warehouse=warehouse, workers=workers, show_progress=show_progress))
+    for k, call in enumerate(calls):
+        out.append(run_stage(simulate_chunk, warehouse, **call))
+        update_progress_artifact(progress, 100.0 * (k + 1) / len(calls))
         logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
     return out
 
