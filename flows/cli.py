@@ -318,6 +318,8 @@ def ingest(
     video: bool = typer.Option(False, "--video", help="Also write an MP4 with the skeletons and gripper frames drawn on the frames."),
     hamer_checkpoint: Optional[Path] = typer.Option(None, "--hamer-checkpoint", help="For --detector hamer: local hamer.ckpt (licensed; never downloaded)."),
     mano_model: Optional[Path] = typer.Option(None, "--mano-model", help="For --detector hamer: local MANO_RIGHT.pkl (licensed; never downloaded)."),
+    grasp_prior: str = typer.Option("twist", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'twist' fixes the twist about the approach axis from the whole hand's motion (default), 'pose' also position and approach axis, 'off' keeps the thesis's mapping."),
+    table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
@@ -343,7 +345,8 @@ def ingest(
     try:
         result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
-                             video=video)
+                             video=video, grasp_prior=grasp_prior,
+                             table_clearance=None if table_clearance < 0 else table_clearance)
     except (TakeError, ValueError, DetectorError) as e:
         raise fail(str(e))
     for name, m in result.items():

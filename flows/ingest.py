@@ -24,6 +24,8 @@ def ingest_take(
     smoothing: int = 0,
     show_progress: bool = True,
     video: bool = False,
+    grasp_prior: str = "twist",
+    table_clearance: float | None = 0.010,
 ) -> dict[str, Manifest | None]:
     """Ingest one take folder (layout: README 'Take folders') into the warehouse.
 
@@ -52,8 +54,10 @@ def ingest_take(
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,
                       detector_options=options, frames=frames, show_progress=show_progress)
     aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {})
+    if grasp_prior not in ("twist", "pose", "off"):
+        raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
     grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
-                         smoothing=smoothing)
+                         smoothing=smoothing, grasp_prior=grasp_prior, table_clearance=table_clearance)
     objects = run_stage(object_keypoints, warehouse, **common)
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
                         grippers=grippers)

@@ -43,6 +43,16 @@ Open/close (:func:`gripper_state`), g = 1 open, 0 closed:
 
 Optional smoothing (:func:`smooth_poses`, off by default) filters positions and rotations only
 within constant-state segments, so grasp and release instants stay sharp.
+
+Grasp stabilisation (:func:`stabilize_grasps`, mode "twist" recommended as the default): while a
+hand is closed the grasp is rigid, so the pinch frame is fixed in the hand's frame; the hand's
+rigid motion is fitted over all 21 joints (Kabsch) and the pinch transform averaged robustly over
+the closed interval. On the six ingested synthetic takes it cut the median twist error about the
+approach axis on closed frames from 4-32 deg to 2-4 deg (90th percentile from 10-128 deg to
+5-8 deg). Table floor (:func:`clamp_above_table`): pinch points are kept 10 mm above the table
+top. Robot success on the 20 sampled episodes per task (the same episode ids, re-generated from
+the re-mapped take): 16/120 as mapped, 90/120 with the twist prior, 110/120 with both (trash,
+paper, open_container, mix_bowl 20/20 each, empty_vase 12/20, pouring 18/20).
 """
 
 from __future__ import annotations
@@ -69,6 +79,10 @@ __all__ = [
     "ranges_to_mask",
     "mask_to_ranges",
     "smooth_poses",
+    "stabilize_grasps",
+    "GraspStabilizationConfig",
+    "clamp_above_table",
+    "PINCH_MIN_HEIGHT",
     "to_pose8",
     "REFERENCE_AXIS",
 ]
@@ -76,6 +90,8 @@ __all__ = [
 #: The gripper's approach axis in its own frame (what Rodrigues rotates onto b -> a).
 REFERENCE_AXIS = np.array([0.0, 0.0, 1.0])
 THUMB_TIP, INDEX_TIP = 4, 8
+#: The rigid part of the hand: wrist, thumb CMC and the four finger knuckles (MCP).
+PALM_JOINTS = (0, 1, 5, 9, 13, 17)
 
 
 # --------------------------------------------------------------------------- pose
@@ -436,3 +452,172 @@ def smooth_poses(pose7: np.ndarray, g: np.ndarray, window: int = 5) -> np.ndarra
         out[:, h, :3] = np.where(ok[:, None], mean[:, :3], np.nan)
         out[:, h, 3:] = np.where(ok[:, None], q, np.nan)
     return out
+
+
+# --------------------------------------------------------------------------- grasp stabilisation
+
+
+@dataclass(frozen=True)
+class GraspStabilizationConfig:
+    """Parameters of :func:`stabilize_grasps` (see its docstring).
+
+    mode: "twist" (replace only the twist about the approach axis), "pose" (rotation and
+    position from the hand's rigid motion and the grasp's mean pinch transform) or "off".
+    """
+
+    mode: str = "twist"
+    #: Closed intervals with fewer valid frames than this are left as they are.
+    min_frames: int = 5
+    #: Frames before a grasp / after a release over which the result is blended in / out (the
+    #: gripper starts closing before g switches: gripper.py close_lead_s = 0.3 s = 9 frames at 30 fps).
+    blend_frames: int = 9
+    #: Iterations of the robust (Weiszfeld, L1) mean of the relative rotations and positions.
+    robust_iterations: int = 5
+    #: Joints of the hand's rigid-motion fit: "all" 21, or "palm" (wrist, thumb CMC and the four
+    #: knuckles, rigid also while the fingers open in the blends).
+    hand_points: str = "all"
+
+    def __post_init__(self):
+        if self.mode not in ("twist", "pose", "off"):
+            raise ValueError(f"GraspStabilizationConfig.mode must be 'twist', 'pose' or 'off', got {self.mode!r}")
+        if self.hand_points not in ("all", "palm"):
+            raise ValueError(f"GraspStabilizationConfig.hand_points must be 'all' or 'palm', got {self.hand_points!r}")
+        if self.min_frames < 2 or self.blend_frames < 0 or self.robust_iterations < 0:
+            raise ValueError("GraspStabilizationConfig: need min_frames >= 2, blend_frames >= 0, "
+                             f"robust_iterations >= 0, got {self.min_frames}, {self.blend_frames}, "
+                             f"{self.robust_iterations}")
+
+
+def _project_rotation(M: np.ndarray) -> np.ndarray:
+    """Nearest rotation (SVD, det +1) of (..., 3, 3) matrices."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.ones(M.shape[:-2] + (3,))
+    D[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    return (U * D[..., None, :]) @ Vt
+
+
+def _robust_mean(R: np.ndarray, p: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """L1 (Weiszfeld) means of rotations (L, 3, 3) (chordal) and positions (L, 3): a few badly
+    detected frames of a grasp do not pull the grasp transform."""
+    Rm, pm = _project_rotation(R.mean(0)), np.median(p, axis=0)
+    for _ in range(iterations):
+        wr = 1.0 / np.maximum(np.linalg.norm((R - Rm).reshape(len(R), 9), axis=1), 1e-6)
+        wp = 1.0 / np.maximum(np.linalg.norm(p - pm, axis=1), 1e-6)
+        Rm = _project_rotation((wr[:, None, None] * R).sum(0) / wr.sum())
+        pm = (wp[:, None] * p).sum(0) / wp.sum()
+    return Rm, pm
+
+
+def _hand_motion(joints: np.ndarray, ok: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motion (R (L, 3, 3), t (L, 3)) of the whole hand per frame: joints_t ~ R ref + t (Kabsch,
+    21 points, so far better conditioned than the fingertip pair); identity where not ok."""
+    from lib.geometry import umeyama
+
+    L = joints.shape[0]
+    R = np.tile(np.eye(3), (L, 1, 1))
+    t = np.zeros((L, 3))
+    if ok.any():
+        _, R[ok], t[ok] = umeyama(np.broadcast_to(ref, joints[ok].shape), joints[ok], with_scale=False)
+    return R, t
+
+
+def stabilize_grasps(pose7: np.ndarray, g: np.ndarray, joints: np.ndarray,
+                     config: GraspStabilizationConfig | None = None, **overrides) -> np.ndarray:
+    """Rigid-grasp prior while the gripper is closed: pose7 (T, H, 7), g (T, H), joints (T, H, 21, 3).
+
+    While a hand holds an object the grasp is rigid: the pinch frame is fixed relative to the hand,
+    and the hand moves as one rigid body. Per closed interval (a run of g < 0.5) and hand:
+
+    1. the hand's rigid motion per frame (R_t, t_t) is fitted by Kabsch over all 21 joints against
+       the interval's mean hand shape (two passes: a frame's shape, then the mean of the aligned
+       shapes), far better conditioned than the thumb-tip -> index-tip direction, which on a thin
+       grasp (tips ~1 cm apart) turns by tens of degrees with a few millimetres of keypoint error;
+    2. the grasp transform (the mapped pinch pose in the hand's frame, R_t^T R_pinch and
+       R_t^T (p - t_t)) is averaged robustly (L1 / Weiszfeld) over the interval;
+    3. the stabilised pinch pose is the hand's motion applied to that mean grasp transform. With
+       mode "twist" only the twist about the approach axis is taken from it (x projected orthogonal
+       to the mapped approach axis z; position and z as mapped); with "pose" the whole pose.
+
+    Over ``blend_frames`` before each grasp and after each release the result is blended in / out
+    (slerp / lerp), so the gripper turns to the stabilised twist while it closes, not after.
+    Open intervals outside those blends and frames with non-finite joints are returned unchanged.
+    """
+    cfg = config or GraspStabilizationConfig()
+    if overrides:
+        cfg = replace(cfg, **overrides)
+    p = np.array(pose7, dtype=np.float64)
+    g = np.asarray(g, dtype=np.float64)
+    j = np.asarray(joints, dtype=np.float64)
+    if p.ndim != 3 or p.shape[-1] != 7 or g.shape != p.shape[:2] or j.shape != p.shape[:2] + (21, 3):
+        raise ValueError(f"stabilize_grasps: need pose7 (T, H, 7), g (T, H), joints (T, H, 21, 3); got "
+                         f"{p.shape}, {g.shape}, {j.shape}")
+    if cfg.mode == "off":
+        return p
+    from lib.geometry import quat_slerp
+
+    T, H = p.shape[:2]
+    out = p.copy()
+    pts = np.asarray(PALM_JOINTS if cfg.hand_points == "palm" else np.arange(21))
+    for h in range(H):
+        ok_all = np.isfinite(j[:, h]).all(axis=(-1, -2)) & np.isfinite(p[:, h]).all(-1)
+        for s, e in mask_to_ranges(g[:, h] < 0.5):
+            ok = ok_all[s:e]
+            if ok.sum() < cfg.min_frames:
+                continue
+            # frames touched: the interval plus the blends on either side
+            a, b = max(0, s - cfg.blend_frames), min(T, e + cfg.blend_frames)
+            J = j[a:b, h][:, pts]
+            okw = ok_all[a:b]
+            inside = np.zeros(b - a, bool)
+            inside[s - a:e - a] = True
+            use = okw & inside
+            ref = J[np.flatnonzero(use)[use.sum() // 2]]
+            for _ in range(2):  # template: one frame's shape, then the mean aligned shape
+                R_h, t_h = _hand_motion(J, okw, ref)
+                ref = np.einsum("lji,lkj->lki", R_h[use], J[use] - t_h[use, None, :]).mean(0)
+            R_h, t_h = _hand_motion(J, okw, ref)
+            Rg = quat_to_matrix(np.where(okw[:, None], p[a:b, h, 3:], [0, 0, 0, 1.0]))
+            pg = p[a:b, h, :3]
+            R_rel = np.einsum("lji,ljk->lik", R_h[use], Rg[use])
+            p_rel = np.einsum("lji,lj->li", R_h[use], pg[use] - t_h[use])
+            Rm, pm = _robust_mean(R_rel, p_rel, cfg.robust_iterations)
+            R_new = R_h @ Rm
+            p_new = np.einsum("lij,j->li", R_h, pm) + t_h
+            if cfg.mode == "twist":
+                z = Rg[..., :, 2]
+                x, xn = _unit(R_new[..., :, 0] - np.sum(R_new[..., :, 0] * z, -1, keepdims=True) * z)
+                R_new = np.where((xn > 1e-6)[:, None, None], np.stack([x, np.cross(z, x), z], axis=-1), Rg)
+            # blend weight: 1 inside the interval, ramping to 0 over the blend frames outside it
+            f = np.arange(a, b)
+            n_b = cfg.blend_frames + 1.0
+            w = np.clip(np.minimum((f - (s - n_b)) / n_b, ((e - 1 + n_b) - f) / n_b), 0.0, 1.0)
+            w = np.where(inside, 1.0, w)
+            q_old = np.where(okw[:, None], p[a:b, h, 3:], [0, 0, 0, 1.0])
+            q = quat_slerp(q_old, matrix_to_quat(R_new), w)
+            out[a:b, h, 3:] = np.where(okw[:, None], q, p[a:b, h, 3:])
+            if cfg.mode == "pose":  # twist mode keeps the mapped positions bit for bit
+                pos = (1 - w)[:, None] * pg + w[:, None] * p_new
+                out[a:b, h, :3] = np.where(okw[:, None], pos, pg)
+    return out
+
+
+#: Default lowest pinch height (m) above the table top: the pinch point is the midpoint of the thumb
+#: and index tip keypoints, which lie inside the fingertips, about a fingertip radius (8-10 mm) above
+#: a surface they touch.
+PINCH_MIN_HEIGHT = 0.010
+
+
+def clamp_above_table(pose7: np.ndarray, min_height: float = PINCH_MIN_HEIGHT, table_z: float = 0.0) -> np.ndarray:
+    """Raise pinch points below ``table_z + min_height`` to that height (world frame, z up; DESIGN.md:
+    the table top is z = 0). A human pinch cannot go below the table, but the ingest's ~9 mm
+    position error puts a grasp of an object lying on the table (a whisk handle, approached from
+    above) below it, and the gripper's fingers, which reach 6 mm beyond the pinch point, then push
+    on the table. pose7 (..., 7); NaN rows stay NaN; only z changes, only where it was too low."""
+    if not np.isfinite(min_height) or min_height < 0:
+        raise ValueError(f"clamp_above_table: min_height must be a finite height >= 0 m, got {min_height}")
+    p = np.array(pose7, dtype=np.float64)
+    if p.shape[-1] != 7:
+        raise ValueError(f"clamp_above_table: pose7 must have shape (..., 7), got {p.shape}")
+    z = p[..., 2]
+    p[..., 2] = np.where(z < table_z + min_height, table_z + min_height, z)  # NaN compares False: kept
+    return p

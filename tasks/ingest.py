@@ -173,11 +173,14 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 
 # --- 4. gripper poses ----------------------------------------------------------------------------
 
-@stage_task(name="map_grippers", version=INGEST_VERSION)
+@stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1")
 def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
-                 state_method: str = "auto", smoothing: int = 0) -> Manifest:
-    """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods."""
-    from lib.gripper_mapping import gripper_state, hand_to_gripper, smooth_poses, to_pose8
+                 state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "twist",
+                 table_clearance: float | None = 0.010) -> Manifest:
+    """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods,
+    then the rigid-grasp prior while a hand is closed and the table floor (see lib.gripper_mapping)."""
+    from lib.gripper_mapping import (clamp_above_table, gripper_state, hand_to_gripper, smooth_poses,
+                                     stabilize_grasps, to_pose8)
     from lib.ingest import open_take
 
     take = open_take(take_dir)
@@ -193,8 +196,12 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
     g_man = gripper_state(dist, "manual", closed_ranges=ranges) if ranges else None
     chosen_method = "manual" if g_man is not None else state_method
     g = g_man if g_man is not None else gripper_state(dist, state_method)
+    if grasp_prior != "off":
+        pose7 = stabilize_grasps(pose7, g, a["joints_world"], mode=grasp_prior)
     if smoothing:
         pose7 = smooth_poses(pose7, g, window=int(smoothing))
+    if table_clearance is not None:
+        pose7 = clamp_above_table(pose7, min_height=float(table_clearance))
     valid = a["present"] & np.isfinite(pose7).all(-1)
     pose = np.where(valid[..., None], to_pose8(pose7, g), np.nan)
     written = write_table("gripper_poses", rows(

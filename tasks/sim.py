@@ -9,7 +9,7 @@ import lib  # noqa: F401
 from schemas.core import write_table
 from tasks.common import Manifest, stage_task
 
-SIM_VERSION = "1"
+SIM_VERSION = "2"  # 2: settle phase stopped at rest, constraint islands off (lib/robot_sim)
 
 
 @stage_task(name="simulate_chunk", version=SIM_VERSION)

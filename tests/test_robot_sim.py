@@ -136,3 +136,25 @@ def test_determinism_and_workers():
     r1 = execute("open_container", *eps[0][:2], fps=15.0, options=opt)
     r2 = execute("open_container", *eps[0][:2], fps=15.0, options=opt)
     assert np.array_equal(r1.object_poses, r2.object_poses) and np.array_equal(r1.gripper_poses, r2.gripper_poses)
+
+
+def test_settle_stop_keeps_the_outcome():
+    """The settle phase ends once the scene is at rest; the outcome and predicate are those of the full
+    0.8 s settle, with fewer physics steps and the same records up to the stop."""
+    d, obj, act = _demo("paper_in_case", 2, True)
+    short = execute("paper_in_case", obj, act)
+    full = execute("paper_in_case", obj, act, options=SimOptions(stop_when_settled=False))
+    assert short.success and full.success
+    assert short.predicate_detail == full.predicate_detail
+    assert short.physics_steps < full.physics_steps and len(short.object_poses) < len(full.object_poses)
+    np.testing.assert_array_equal(short.object_poses, full.object_poses[:len(short.object_poses)])
+    # the rest of the settle moves nothing by more than 0.1 mm or 1 mrad
+    np.testing.assert_allclose(short.object_poses[-1][:, :3, 3], full.object_poses[-1][:, :3, 3], atol=1e-4)
+    np.testing.assert_allclose(short.object_poses[-1][:, :3, :3], full.object_poses[-1][:, :3, :3], atol=1e-3)
+
+
+def test_physics_options_are_checked():
+    from lib.robot_sim import PhysicsOptions, get_scene
+
+    with pytest.raises(ValueError, match="integrator"):
+        get_scene("open_container", physics=PhysicsOptions(integrator="leapfrog"))

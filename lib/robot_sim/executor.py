@@ -14,7 +14,17 @@ normal force) -> `settle_s` more seconds holding the last pose -> task predicate
 and the per-frame object history -> failure classification (failures.py).  With
 `stop_on_hard_failure` (default) the simulation stops at the first frame with an arm collision, a table
 collision or a workspace exit: the episode has failed whatever follows, so the remaining physics is
-skipped (the per-frame records end there and the predicate is not evaluated).
+skipped (the per-frame records end there and the predicate is not evaluated).  With
+`stop_when_settled` (default) the settle phase ends once the scene is at rest under constant
+commands (the state cannot change any more); the predicate is evaluated on that state.
+
+Where the time goes (scripted demos, 1/480 s, mjData.timer; lib/bench_cases_sim.breakdown): about
+80-85 % in mj_step (per step: collision detection ~20 %, constraint construction ~15 %, the Newton
+solver 25-45 %, the rest of the pipeline the remainder; ~1-2 solver iterations per step, 8-25
+contacts) and 15-20 % in this module's Python (4 control updates, 4 contact scans and one record per
+30 fps frame).  The per-step cost is set by the scenes (multi-geom containers, pouring's liquid
+spheres), so the remaining levers are fewer steps (timestep: rejected, see PhysicsOptions), shorter
+episodes (the early stops) and the Python share.
 """
 
 from __future__ import annotations
@@ -50,6 +60,16 @@ class SimOptions:
     # the episode has failed whatever follows (failures.py); the per-frame records end there, events
     # list only what happened up to then, and predicate_ok is None (not evaluated)
     stop_on_hard_failure: bool = True
+    # stop the settle phase (after the last action) once the scene is at rest: every free body's and
+    # finger's translation speed below rest_speed (m/s) and every object's and gripper's rotation speed
+    # below rest_spin (rad/s) for rest_frames consecutive frames, with the finger commands at their
+    # goals. A scene at rest under constant commands stays at rest, so the predicate on that state is
+    # the predicate at the end of settle_s (A/B on the scripted demos: identical outcomes and predicate
+    # details, final object positions within 0.01 mm)
+    stop_when_settled: bool = True
+    rest_speed: float = 2e-3
+    rest_spin: float = 0.05
+    rest_frames: int = 3
 
 
 @dataclass
@@ -153,17 +173,20 @@ class _FingerCommand:
     def __init__(self, spec: GripperSpec, closed0: np.ndarray, dt_ctrl: float):
         self.spec = spec
         self.w = np.where(closed0, 0.0, spec.opening).astype(float)
-        self.closed = np.asarray(closed0, bool).copy()
+        self.closed = [bool(x) for x in closed0]  # Python bools: compared every control step
         self.goal_open = np.full(2, spec.opening)
         self.release_pos: list = [None, None]
         self.wmax = spec.speed * dt_ctrl
         self.steady = False
         self.out = spec.stroke - self.w
 
-    def update(self, closed: np.ndarray, target_pos: np.ndarray, finger_q: np.ndarray) -> np.ndarray:
+    def update(self, closed, target_pos: np.ndarray, qpos: np.ndarray, finger_qadr: np.ndarray) -> np.ndarray:
+        """closed: per-arm bools; qpos / finger_qadr: MjData.qpos and the (2, 2) finger joint addresses
+        (read only on a release, so the steady fast path does no indexing)."""
         if self.steady and closed[0] == self.closed[0] and closed[1] == self.closed[1]:
             return self.out  # nothing can change: same g, commands at their goals, no release pending
         sp = self.spec
+        finger_q = qpos[finger_qadr]
         steady = True
         for a in range(2):
             if closed[a]:
@@ -282,7 +305,7 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
 
     ng = m.ngeom
-    pk, pa, pp, po = (x.ravel() for x in (sc.pair_kind, sc.pair_arm, sc.pair_part, sc.pair_obj))
+    pk, pa, pp, po = sc.pair_lists
 
     def contacts(i):
         # called every control step: one table look-up per contact (scene.py pair tables), plain Python
@@ -294,6 +317,8 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         flat = (geom[:, 0] * ng + geom[:, 1]).tolist()
         for j, f in enumerate(flat):
             k = pk[f]
+            if k == 0:  # PAIR_NONE: object-object, object-table (most contacts)
+                continue
             if k == PAIR_TOUCH:
                 touch[i, pa[f], pp[f], po[f]] = True
             elif k == PAIR_TABLE:
@@ -320,6 +345,10 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         p = np.concatenate([gp[i - 5:i + 1, :, :3], hist[i - 5:i + 1, :, :3, 3]], axis=1)
         return bool(((p < lo) | (p > hi)).any())
 
+    sub_l = [int(x) for x in sub]
+    closed_ctrl = [tuple(r) for r in closed_cmd[frame_of_ctrl].tolist()]  # per control step, Python bools
+    closed_last = tuple(closed_cmd[-1].tolist())
+    hard_stop = opt.stop_on_hard_failure
     record(0)
     k = 0
     stop = None  # frame after which the simulation was stopped (stop_on_hard_failure)
@@ -327,34 +356,47 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         for c in range(cpf):
             d.mocap_pos[mocap] = tp[k]
             d.mocap_quat[mocap] = tqu_wxyz[k]
-            d.ctrl[act] = fc.update(closed_cmd[frame_of_ctrl[k]], tp[k], d.qpos[fq])
-            mj.mj_step(m, d, nstep=int(sub[c]))
+            d.ctrl[act] = fc.update(closed_ctrl[k], tp[k], d.qpos, fq)
+            mj.mj_step(m, d, nstep=sub_l[c])
             contacts(i)
             k += 1
         steps += steps_per_frame
         record(i)
-        if opt.stop_on_hard_failure and hard_failure(i):
+        if hard_stop and hard_failure(i):
             stop = i
             break
+    settled = None  # frame at which the settle phase ended early (stop_when_settled)
+    rest_lin, rest_ang = sc.rest_lin, sc.rest_ang
     if stop is None:
+        rest = 0
         for i in range(n, T):
             for c in range(cpf):
-                d.ctrl[act] = fc.update(closed_cmd[-1], pos[-1], d.qpos[fq])
-                mj.mj_step(m, d, nstep=int(sub[c]))
+                d.ctrl[act] = fc.update(closed_last, pos[-1], d.qpos, fq)
+                mj.mj_step(m, d, nstep=sub_l[c])
                 contacts(i)
             steps += steps_per_frame
             record(i)
-            if opt.stop_on_hard_failure and hard_failure(i):
+            if hard_stop and hard_failure(i):
                 stop = i
                 break
+            if opt.stop_when_settled:
+                qv = d.qvel
+                still = (fc.steady and float(np.abs(qv[rest_lin]).max()) < opt.rest_speed
+                         and float(np.abs(qv[rest_ang]).max()) < opt.rest_spin)
+                rest = rest + 1 if still else 0
+                if rest >= opt.rest_frames and i < T - 1:
+                    settled = i
+                    break
 
     g_cmd = np.concatenate([(~closed_cmd).astype(float), np.repeat((~closed_cmd[-1:]).astype(float), settle_frames, 0)])
+    last = stop if stop is not None else settled
+    if last is not None:  # truncate the per-frame records where the simulation stopped
+        hist, gp, touch, arm_contact, table_force, g_cmd = (
+            x[:last + 1] for x in (hist, gp, touch, arm_contact, table_force, g_cmd))
     if stop is None:
         ok, pdetail = sc.task.success(m, d, hist)
         ok = bool(ok)
-    else:  # truncate the per-frame records at the stop; the predicate is not evaluated
-        hist, gp, touch, arm_contact, table_force, g_cmd = (
-            x[:stop + 1] for x in (hist, gp, touch, arm_contact, table_force, g_cmd))
+    else:  # the predicate is not evaluated after a hard failure
         ok, pdetail = None, f"not evaluated: simulation stopped at t = {stop / fps:.2f} s after a hard failure"
     failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), hist, gp, touch, arm_contact,
                                        table_force, g_cmd, n, diag)
