@@ -215,6 +215,17 @@ class HandDetector(abc.ABC):
             B lists of :class:`HandCandidate` (possibly empty).
         """
 
+    @staticmethod
+    def image_batch(rgb_batch: np.ndarray, frame_indices: Sequence[int]) -> tuple[np.ndarray, list[int]]:
+        """detect()'s arguments as a (B, H, W, 3) batch (one image is a batch of 1) and B frame indices."""
+        batch = np.asarray(rgb_batch)
+        if batch.ndim == 3:
+            batch = batch[None]
+        idx = np.asarray(frame_indices).reshape(-1).tolist()
+        if len(idx) != batch.shape[0]:
+            raise ValueError(f"{batch.shape[0]} images but {len(idx)} frame indices")
+        return batch, idx
+
     def close(self) -> None:
         """Release resources (models, sessions). Safe to call twice."""
 

@@ -182,11 +182,6 @@ class MediaPipeDetector(HandDetector):
 
     def detect(self, rgb_batch: np.ndarray, K: np.ndarray,
                frame_indices: Sequence[int]) -> list[list[HandCandidate]]:
-        batch = np.asarray(rgb_batch)
-        if batch.ndim == 3:
-            batch = batch[None]
-        idx = np.asarray(frame_indices).reshape(-1).tolist()
-        if len(idx) != batch.shape[0]:
-            raise ValueError(f"{batch.shape[0]} images but {len(idx)} frame indices")
+        batch, idx = self.image_batch(rgb_batch, frame_indices)
         return [self.detect_image(batch[b], K, idx[b]) for b in range(batch.shape[0])]
 

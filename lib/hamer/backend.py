@@ -174,12 +174,7 @@ class HamerDetector(HandDetector):
         return {s: (box_from_keypoints(c.joints_px), c.confidence) for s, c in best.items()}
 
     def detect(self, rgb_batch: np.ndarray, K: np.ndarray, frame_indices: Sequence[int]) -> list[list[HandCandidate]]:
-        batch = np.asarray(rgb_batch)
-        if batch.ndim == 3:
-            batch = batch[None]
-        idx = np.asarray(frame_indices).reshape(-1).tolist()
-        if len(idx) != batch.shape[0]:
-            raise ValueError(f"{batch.shape[0]} images but {len(idx)} frame indices")
+        batch, idx = self.image_batch(rgb_batch, frame_indices)
         if self.box_source == "mediapipe":
             boxes = []
             for b in range(batch.shape[0]):  # every MediaPipe hand becomes a HaMeR crop; one network batch
