@@ -74,7 +74,6 @@ def _local_cluster_address() -> str:
 
         from distributed import LocalCluster
 
-        _quiet_dask()
         _share_prefect_api()
         _LOCAL_CLUSTER = LocalCluster(**local_cluster_kwargs(dask_workers()))
         atexit.register(_close_local_cluster)
@@ -205,10 +204,3 @@ def guard_temporary_api_server() -> None:
     # start it now, from this (the main) thread: the parent-death signal follows the thread that
     # started the child, and Prefect might otherwise start it from a short-lived helper thread
     cls().start()
-
-
-def is_distributed() -> bool:
-    """True inside a flow whose task runner is Dask (its tasks must be submitted to run there)."""
-    from tasks.common import in_distributed_flow
-
-    return in_distributed_flow()

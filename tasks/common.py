@@ -172,15 +172,18 @@ def run_stages(stage: Any, warehouse: str | os.PathLike, calls: list[dict[str, A
     """
     storage = Path(warehouse).resolve() / PREFECT_DIR / "results"
     configured = stage.with_options(result_storage=storage)
-    if not in_distributed_flow():
-        results = [configured(**kw) for kw in calls]
-        return [r if _intact(r) else configured.with_options(refresh_cache=True)(**kw)
-                for r, kw in zip(results, calls)]
-    futures = [configured.submit(**kw) for kw in calls]
-    results = [f.result() for f in futures]
-    redo = {i: configured.with_options(refresh_cache=True).submit(**calls[i])
-            for i, r in enumerate(results) if not _intact(r)}
-    return [redo[i].result() if i in redo else r for i, r in enumerate(results)]
+    distributed = in_distributed_flow()
+
+    def start(task_obj: Any, kw: dict[str, Any]) -> Any:  # a future on Dask, the result otherwise
+        return task_obj.submit(**kw) if distributed else task_obj(**kw)
+
+    def finish(started: Any) -> Any:
+        return started.result() if distributed else started
+
+    results = [finish(s) for s in [start(configured, kw) for kw in calls]]
+    refresh = configured.with_options(refresh_cache=True)
+    redo = {i: start(refresh, calls[i]) for i, r in enumerate(results) if not _intact(r)}
+    return [finish(redo[i]) if i in redo else r for i, r in enumerate(results)]
 
 
 def in_distributed_flow() -> bool:
