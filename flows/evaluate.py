@@ -7,6 +7,7 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
+from flows.artifacts import ProgressArtifact
 from flows.augment import augment_take_flow
 from flows.ingest import ingest_take
 from flows.keypoint_eval import evaluate_keypoints
@@ -56,7 +57,8 @@ def evaluate(
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
     manifests = run_flow(synthesize_takes, warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
-    progress = _Progress(total=len(manifests) + 2)
+    progress = ProgressArtifact("evaluate-progress", len(manifests) + 2,
+                                "The main job: takes processed, then the evaluations and the report.")
     for m in manifests:
         name = Path(m.path).name
         if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
@@ -110,20 +112,3 @@ def evaluate(
     progress.step()
     logger.info("report written: %s", report)
     return str(report)
-
-
-class _Progress:
-    """A progress artifact in the Prefect UI: how far the main job is (takes, then the evaluations)."""
-
-    def __init__(self, total: int):
-        from prefect.artifacts import create_progress_artifact
-
-        self.total, self.done = max(total, 1), 0
-        self.id = create_progress_artifact(0.0, key="evaluate-progress",
-                                           description="The main job: takes processed, then the evaluations and the report.")
-
-    def step(self) -> None:
-        from prefect.artifacts import update_progress_artifact
-
-        self.done += 1
-        update_progress_artifact(self.id, min(100.0, 100.0 * self.done / self.total))

@@ -59,14 +59,14 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
         for c in calls:
             c.update(workers=1, show_progress=False)
         return run_stages(simulate_chunk, warehouse, calls)
-    from prefect.artifacts import create_progress_artifact, update_progress_artifact
+    from flows.artifacts import ProgressArtifact
 
-    progress = create_progress_artifact(0.0, key=f"simulate-{task}".replace("_", "-"),
-                                        description=f"{task}: chunks of {chunk_size} episodes executed in MuJoCo")
+    progress = ProgressArtifact(f"simulate-{task}", len(calls),
+                                f"{task}: chunks of {chunk_size} episodes executed in MuJoCo")
     out = []
     for k, call in enumerate(calls):
         out.append(run_stage(simulate_chunk, warehouse, **call))
-        update_progress_artifact(progress, 100.0 * (k + 1) / len(calls))
+        progress.step()
         logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
     return out
 
