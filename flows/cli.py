@@ -292,7 +292,7 @@ def evaluate(
                   variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials)
     warehouse, reports_dir = current_warehouse(), reports.resolve()
     key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
-                            {"real_hands": str(run_cache.PROJECT_ROOT.parent / "shared" / "data" / "real_hands"),
+                            {"real_hands": str(lib.SHARED_DATA / "real_hands"),
                              "arctic": os.environ.get("ARCTIC_ROOT")})
     if not fresh:
         cached = run_cache.lookup(warehouse, key)

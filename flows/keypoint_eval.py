@@ -6,11 +6,11 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
+import lib  # sets MUJOCO_GL before mujoco; SHARED_DATA
 from tasks.common import Manifest, run_stage
 from tasks.keypoint_eval import evaluate_arctic_keypoints, evaluate_real_photos, evaluate_synthetic_keypoints
 
-REAL_HANDS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_hands"
+REAL_HANDS = lib.SHARED_DATA / "real_hands"
 
 
 @flow(name="evaluate-keypoints")

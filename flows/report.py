@@ -221,7 +221,7 @@ def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -
     tmp = out.with_name(".REPORT.md.tmp")
     tmp.write_text("\n".join(md))
     tmp.replace(out)
-    publish_artifacts(warehouse, out, sorted(set(REPORT_VIEWS)))
+    publish_artifacts(warehouse, out, sorted(REPORT_VIEWS))
     return out
 
 
@@ -234,7 +234,6 @@ def publish_artifacts(warehouse: Path, report: Path, views: list[str], max_rows:
     if FlowRunContext.get() is None:
         return 0
     text = report.read_text()
-    # images are files beside the report, which the UI cannot show: keep their names only
     create_markdown_artifact(text, key="demoforge-report", description=f"{report} (figures in {report.parent})")
     n = 1
     for name in views:

@@ -19,6 +19,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from schemas.core import file_sha256
+
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 CODE_DIRS = ("lib", "tasks", "flows", "schemas")
 RUNS_DIR = "_runs"
@@ -27,21 +29,13 @@ IGNORED = {"catalog.duckdb", "catalog.duckdb.wal", "_prefect", RUNS_DIR}
 ENV_INPUTS = ("ARCTIC_ROOT", "LLM_BACKEND", "LLM_MODEL", "OPENAI_BASE_URL", "DEMOFORGE_TASK_RUNNER")
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def code_fingerprint(root: Path = PROJECT_ROOT) -> str:
     h = hashlib.sha256()
     files = [p for d in CODE_DIRS for p in (root / d).rglob("*.py")]
     files += sorted((root / "requirements").glob("*.txt")) + [root / "pyproject.toml"]
     for p in sorted(f for f in files if f.is_file()):
         h.update(str(p.relative_to(root)).encode())
-        h.update(_sha256_file(p).encode())
+        h.update(file_sha256(p).encode())
     return h.hexdigest()
 
 

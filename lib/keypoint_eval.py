@@ -389,7 +389,9 @@ def evaluate_real_photos(detector=None, data_dir: str | os.PathLike | None = Non
     and return :func:`real_photo_rows`."""
     from lib.detectors import real_photos_eval as rpe
 
-    data = Path(data_dir) if data_dir is not None else Path(__file__).resolve().parents[2] / "shared" / "data" / "real_hands"
+    from lib import SHARED_DATA
+
+    data = Path(data_dir) if data_dir is not None else SHARED_DATA / "real_hands"
     if detector is None:
         from lib.detectors.mediapipe_backend import MediaPipeDetector
         with MediaPipeDetector() as det:

@@ -1,13 +1,12 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
-from pathlib import Path
 
 import pytest
 
 import lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
 import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = lib.SHARED_DATA
 
 
 @pytest.fixture(scope="session")

@@ -198,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     from lib.detectors.mediapipe_backend import MediaPipeDetector
 
     args = sys.argv[1:] if argv is None else argv
-    data = Path(args[0]) if args else Path(__file__).resolve().parents[3] / "shared" / "data" / "real_hands"
+    from lib import SHARED_DATA
+
+    data = Path(args[0]) if args else SHARED_DATA / "real_hands"
     with MediaPipeDetector() as det:
         res = evaluate(det, data)
     print(format_table(res))
