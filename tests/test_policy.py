@@ -31,9 +31,10 @@ def test_6d_round_trip_keeps_the_rotation(q):
     np.testing.assert_allclose(quat_to_6d(quat_from_6d(d6)), d6, atol=1e-9)  # 6D of a rotation is a fixed point
 
 
+# non-degenerate: neither column tiny (the function clamps norms at 1e-8), not parallel
 @given(st.lists(finite, min_size=6, max_size=6).filter(
-    lambda v: np.linalg.norm(np.cross(v[:3], v[3:])) > 1e-2 * max(np.linalg.norm(v[:3]) * np.linalg.norm(v[3:]), 1e-9)
-    and np.linalg.norm(v[:3]) > 1e-2))
+    lambda v: np.linalg.norm(np.cross(v[:3], v[3:])) > 1e-2 * np.linalg.norm(v[:3]) * np.linalg.norm(v[3:])
+    and np.linalg.norm(v[:3]) > 1e-2 and np.linalg.norm(v[3:]) > 1e-4))
 @settings(max_examples=100, deadline=None)
 def test_any_6d_vector_maps_to_a_proper_rotation_in_numpy_and_torch(v):
     R = matrix_from_6d(np.asarray(v))
