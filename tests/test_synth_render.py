@@ -277,6 +277,28 @@ def test_standin_take(standin_take):
     assert segs["object"] == ["bowl", "cup", None] and segs["hand"] == ["left", "right", "right"]
 
 
+def test_take_write_error_surfaces(tmp_path, monkeypatch):
+    """Frames are written on a background thread: a failing write must still stop the take with that
+    error (and no progress past the last frame written), not vanish in the thread."""
+    import cv2
+
+    real_imwrite = cv2.imwrite
+
+    def flaky_imwrite(path, img, *args):
+        if path.endswith("000003.png"):
+            raise OSError("disk full (injected)")
+        return real_imwrite(path, img, *args)
+
+    monkeypatch.setattr(cv2, "imwrite", flaky_imwrite)
+    calls = []
+    with pytest.raises(OSError, match="disk full"):
+        TK.write_take(tmp_path / "t", task_name="standin", seed=3, mirror=False, scene_xml=STANDIN_XML,
+                      object_names=["cup", "bowl"], keypoint_names=[f"kp{i}" for i in range(11)],
+                      demo=StandInDemo(8), progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(i + 1, 8) for i in range(3)]
+    assert sorted(p.name for p in (tmp_path / "t" / "rgb").iterdir()) == [f"{i:06d}.png" for i in range(3)]
+
+
 def test_real_task_take(real_take):
     out, summary, name = real_take
     _check_take(out, summary)

@@ -40,7 +40,10 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -52,7 +55,7 @@ import schemas.synthetic  # noqa: F401  (registers the gt_* tables)
 from lib.geometry import transform_to_pose8
 from lib.hand_model import HandStyle, hand_from_pinch, sample_style
 from lib.synth.render import (
-    HEIGHT, WIDTH, SceneRenderer, add_depth_noise, camera_K, camera_T_world_camera,
+    HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K, camera_T_world_camera,
     extra_worldbody_xml, hands_assets_xml, joint_visibility, project, world_to_camera,
 )
 from schemas.core import write_table_file
@@ -193,21 +196,50 @@ def write_take(
     visible = np.zeros((n, 2, 21), bool)
     px = np.zeros((n, 2, 21, 2))
     cam = np.zeros((n, 2, 21, 3))
-    try:
-        for t in range(n):
-            renderer.set_state(obj_poses[t], joints[t])
-            fr = renderer.render()
-            vis, p, c = joint_visibility(joints[t], fr.depth, K, T_wc, renderer.joint_radii)
-            visible[t], px[t], cam[t] = vis, p, c
+
+    write_failed = threading.Event()
+
+    def write_frame(t: int, fr: Frame) -> None:
+        # one writer thread, frames in order: the noise generator and the video see the same sequence
+        # as a serial loop, so the files are identical; PNG/MP4 encoding and the noise (NumPy, OpenCV:
+        # both release the GIL) overlap the next frame's rendering, about a third of a frame's time
+        if write_failed.is_set():
+            return  # a frame before this one failed: write nothing after it (the take is abandoned)
+        try:
             depth = add_depth_noise(fr.depth, noise_rng) if depth_noise else fr.depth
             bgr = np.ascontiguousarray(fr.rgb[..., ::-1])
             cv2.imwrite(str(out / "rgb" / f"{t:06d}.png"), bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
             np.save(out / "depth" / f"{t:06d}.npy", depth.astype(np.float32))
             if writer is not None:
                 writer.write(bgr)
-            if progress is not None:
-                progress(t + 1, n)
+        except BaseException:
+            write_failed.set()
+            raise
+
+    pending: deque = deque()
+    written = 0
+
+    def finish_oldest() -> None:
+        nonlocal written
+        pending.popleft().result()  # re-raises a write error here
+        written += 1
+        if progress is not None:
+            progress(written, n)
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="take-writer")
+    try:
+        for t in range(n):
+            renderer.set_state(obj_poses[t], joints[t])
+            fr = renderer.render()
+            vis, p, c = joint_visibility(joints[t], fr.depth, K, T_wc, renderer.joint_radii)
+            visible[t], px[t], cam[t] = vis, p, c
+            pending.append(pool.submit(write_frame, t, fr))
+            while pending and (len(pending) > 4 or pending[0].done()):  # at most 4 frames in memory
+                finish_oldest()
+        while pending:
+            finish_oldest()
     finally:
+        pool.shutdown(wait=True, cancel_futures=True)  # an error: drop queued frames, let the running one end
         renderer.close()
         if writer is not None:
             writer.release()
