@@ -357,3 +357,24 @@ def test_local_backend_generates_a_real_answer(tmp_path):
     cb = CachedBackend(b, tmp_path)
     first = cb.complete(p, s)
     assert cb.complete(p, s).cached and first.text == c.text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
+                    "install requirements/llm.txt (scripts/setup_llm.sh)")
+def test_local_windowed_cache_answer_does_not_depend_on_the_previous_prompt():
+    """Gemma's sliding-window layers keep only the last window (+ one micro-batch) of the KV cache by
+    default. llama-cpp-python would resume a prompt from the previous prompt's shared prefix even when
+    a long answer pushed that prefix's window out of the cache; the backend must answer exactly as on
+    an empty cache. n_batch=64 keeps the window cache small (512 + 64) so a 700-token answer is enough."""
+    from lib.llm.local_backend import LocalBackend
+
+    b = LocalBackend(n_ctx=4096, n_batch=64)
+    assert not b.swa_full and b.cache_identity()["kv"] == "swa-window"
+    first = small_prompt(n_examples=2).text
+    follow_up = first + "0.1"  # shares the whole first prompt as its prefix
+    short = Sampling(temperature=0.0, max_tokens=24, seed=0, stop=())
+    reference = b.complete(follow_up, short)
+    long_answer = b.complete(first, Sampling(temperature=0.0, max_tokens=700, seed=0, stop=()))
+    assert long_answer.completion_tokens > 600  # the window before the shared prefix's end is gone
+    assert b.complete(follow_up, short).text == reference.text
