@@ -264,7 +264,7 @@ def evaluate(
     mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
-    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy (thesis: 10; the local model takes about a minute per trial)."),
+    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy on --llm-task (thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
