@@ -162,7 +162,12 @@ def _grasp_take(seed, aperture_closed=0.012, n=(20, 120, 20), noise=0.003):
 
 
 # derandomized: the same 8 seeds on every machine. Not every seed meets the bounds: seed 56 gives a
-# median ratio of 0.505 (7.8 vs 15.5 degrees), a weak case of the whole-hand fit still to be studied.
+# median ratio of 0.505 (7.8 vs 15.5 degrees). Not a failure of the whole-hand fit: on that seed the
+# stabilised twist error is a constant -7.9 deg (std 1.2 over the 120 closed frames, so the hand's
+# motion is tracked), and the raw mapped twist errors it averages are themselves off-centre (signed
+# median -9.1, mean -4.4 deg; 32 frames below -20 deg, 15 above +20). The grasp transform is an L1
+# mean of those 120 noisy twists (~25 deg each), so its error is that sample's median error: a
+# sampling limit of one noisy closed interval, which no per-interval average can remove.
 @settings(max_examples=8, deadline=None, derandomize=True)
 @given(st.integers(0, 100_000))
 def test_stabilisation_reduces_twist_error_on_a_noisy_thin_grasp(seed):
