@@ -368,9 +368,10 @@ def view_flow(warehouse: str, target: str, out: str, take: str | None = None, po
 
 # ------------------------------------------------------------------------------------------ report plots
 
-def _episodes_by_id(warehouse: str, task: str, take: str, ids, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Episode ids and actions (rows, 2, 8) of the given episodes (all when ``ids`` is None), every n-th step."""
-    e, s, act = _read_steps(warehouse, task, take)
+def _episodes_by_id(steps: tuple[np.ndarray, np.ndarray, np.ndarray], ids, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ids and actions (rows, 2, 8) of the given episodes (all when ``ids`` is None), every n-th
+    step, from one take's ``_read_steps`` (read once per take: it is most of the plots' input time)."""
+    e, s, act = steps
     m = np.ones(len(e), bool) if ids is None else np.isin(e, np.asarray(ids))
     if every > 1:
         m &= s % every == 0
@@ -400,7 +401,8 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
         rng = np.random.default_rng(seed)
         pool = ids[valid & (ids != 0)]
         pick = rng.choice(pool, size=min(n_augmented, len(pool)), replace=False)
-        e, act = _episodes_by_id(warehouse, task, take, np.concatenate([[0], pick]))
+        steps = _read_steps(warehouse, task, take)
+        e, act = _episodes_by_id(steps, np.concatenate([[0], pick]))
         kp_all = column_numpy(eps, "object_keypoints")
         kp0 = kp_all[np.flatnonzero(ids == 0)[0]]
         png = plot_trajectories(act[e == 0], [act[e == i] for i in pick], reports / f"trajectories_{task}.png",
@@ -412,7 +414,8 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
                "in the table plane, so the heights over time repeat the demonstration's (a mirrored episode's "
                "left arm follows the demonstration's right arm).", "",
                f"![trajectories {task}](trajectories_{task}.png)", ""]
-        e_all, act_all = _episodes_by_id(warehouse, task, take, None, every=coverage_every)
+        e_all, act_all = _episodes_by_id(steps, None, every=coverage_every)
+        del steps
         cov = plot_workspace_coverage(act_all[:, :, :3], reports / f"coverage_{task}.png", n_episodes=len(ids),
                                       workspace=spec.workspace, title=f"{task}: workspace coverage")
         md += [f"Workspace coverage of all {len(ids):,} episodes (one step in {coverage_every}, 2 cm cells): the "

@@ -17,8 +17,19 @@ from schemas.reports import REPORT_VIEWS
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 
+# While write_report runs: every view it has queried, so that publishing them as Prefect artifacts
+# after the Markdown does not query each of them a second time.
+_REPORT_VIEWS_READ: dict[tuple[str, str], object] | None = None
+
+
 def _view(name: str, warehouse: Path):
-    return query(f"SELECT * FROM {name}", warehouse)
+    key = (str(warehouse), name)
+    if _REPORT_VIEWS_READ is not None and key in _REPORT_VIEWS_READ:
+        return _REPORT_VIEWS_READ[key]
+    t = query(f"SELECT * FROM {name}", warehouse)
+    if _REPORT_VIEWS_READ is not None:
+        _REPORT_VIEWS_READ[key] = t
+    return t
 
 
 def _section(title: str, name: str, warehouse: Path, reports: Path, stamp: str, intro: str = "") -> str:
@@ -109,7 +120,15 @@ def keypoint_sections(warehouse: Path, reports: Path, commit: str) -> list[str]:
 
 
 def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -> Path:
-    warehouse, reports = Path(warehouse), Path(reports_dir)
+    global _REPORT_VIEWS_READ
+    _REPORT_VIEWS_READ = {}
+    try:
+        return _write_report(Path(warehouse), Path(reports_dir), params)
+    finally:
+        _REPORT_VIEWS_READ = None
+
+
+def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
     reports.mkdir(parents=True, exist_ok=True)
     build_catalog(warehouse)
     commit = git_commit(str(PROJECT_ROOT))

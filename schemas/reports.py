@@ -157,7 +157,7 @@ REPORT_VIEWS: dict[str, str] = {
     "report_llm_failures": """
         SELECT task, strategy, backend, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
                count(*) AS trials
-        FROM llm_trials GROUP BY ALL ORDER BY task, strategy, trials DESC
+        FROM llm_trials GROUP BY ALL ORDER BY task, strategy, trials DESC, backend, outcome
     """,
     # Thesis Table 4 analogue: success under simulated scene variations, per task and strategy.
     "report_table4": REPORT_TABLE4_SQL,
@@ -180,7 +180,7 @@ REPORT_VIEWS: dict[str, str] = {
     "report_policy_failures": """
         SELECT task, checkpoint_id, scene_kind, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
                count(*) AS trials
-        FROM policy_trials GROUP BY ALL ORDER BY task, checkpoint_id, scene_kind, trials DESC
+        FROM policy_trials GROUP BY ALL ORDER BY task, checkpoint_id, scene_kind, trials DESC, outcome
     """,
     # Robot success checks of the augmented episodes, per task and kind.
     "report_sim": """
@@ -192,7 +192,7 @@ REPORT_VIEWS: dict[str, str] = {
     # Why episodes failed in physics.
     "report_sim_failures": """
         SELECT task, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
-        FROM sim_results GROUP BY ALL ORDER BY task, episodes DESC
+        FROM sim_results GROUP BY ALL ORDER BY task, episodes DESC, outcome
     """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """

@@ -57,11 +57,12 @@ REPORT_TABLE4_SQL = """
              CASE strategy WHEN 'replay_top1' THEN 0 WHEN 'transform_demo' THEN 1 ELSE 2 END
 """
 
-#: SQL of the `report_table4_failures` view: what went wrong under each variation.
+#: SQL of the `report_table4_failures` view: what went wrong under each variation (outcome last in the
+#: order: outcomes with equal counts otherwise came out in either order from one run to the next).
 REPORT_TABLE4_FAILURES_SQL = """
     SELECT task, variation, strategy, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
            count(*) AS trials, round(max(distractor_max_shift_m), 3) AS max_distractor_shift_m
     FROM variation_trials GROUP BY task, variation, strategy, outcome
     ORDER BY task, CASE variation WHEN 'nominal' THEN 0 WHEN 'clutter' THEN 1 WHEN 'object' THEN 2 ELSE 3 END,
-             strategy, trials DESC
+             strategy, trials DESC, outcome
 """
