@@ -192,8 +192,35 @@ def _synth_cases(quick: bool) -> list[BenchCase]:
 
         return run(ours), run(naive)
 
+    def setup_write(n: int):
+        from lib.synth.take import generate_take
+
+        root = Path(tempfile.mkdtemp(prefix="demoforge-bench-take-"))
+        generate_take("pouring", 0, False, root / "warm-up", max_frames=2)  # imports, EGL, codecs: untimed
+
+        def run(queue: int):
+            def go():
+                out = root / f"q{queue}"
+                generate_take("pouring", 0, False, out, max_frames=n, write_queue=queue)
+                return out
+            return go
+
+        return run(4), run(0)
+
+    def same_files(ours: Path, baseline: Path) -> None:
+        import filecmp
+
+        for sub in ("rgb", "depth"):
+            names = sorted(p.name for p in (ours / sub).iterdir())
+            match, mismatch, errors = filecmp.cmpfiles(ours / sub, baseline / sub, names, shallow=False)
+            assert not mismatch and not errors, f"{sub}: {mismatch or errors} differ from the serial writer's"
+        assert filecmp.cmp(ours / "rgb.mp4", baseline / "rgb.mp4", shallow=False), "rgb.mp4 differs"
+
     return [BenchCase("synth", "render RGB-D 640x480 (pouring scene)", frames, "frames",
-                      "MuJoCo defaults: shadows, reflections, skybox, 4x multisampling", setup, repeats=1)]
+                      "MuJoCo defaults: shadows, reflections, skybox, 4x multisampling", setup, repeats=1),
+            BenchCase("synth", "write a take (render + noise + PNG/.npy/MP4, pouring)", frames, "frames",
+                      "each frame written before the next renders (write_queue=0)", setup_write,
+                      check=same_files, repeats=1)]
 
 
 @register("ingest")

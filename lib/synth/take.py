@@ -150,13 +150,16 @@ def write_take(
     blur_sigma: float = 0.6,
     progress: Callable[[int, int], None] | None = None,
     extra_meta: dict | None = None,
+    write_queue: int = 4,
 ) -> TakeSummary:
     """Render ``demo`` in ``scene_xml`` and write the take layout (see the module docstring).
 
     ``demo`` follows the task library's contract (fps, pinch_poses (T, 2, 4, 4), aperture (T, 2),
     closed (T, 2), held_object (T, 2), object_poses (T, n, 4, 4), segments, keypoints()).
     ``scene_xml`` must contain the free-joint bodies ``object_names``; the head camera and the hands
-    are added unless present. ``progress(done, total)`` is called after every frame.
+    are added unless present. ``progress(done, total)`` is called after every frame written.
+    ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
+    (0: each frame is written before the next renders, the serial baseline of ``make bench``).
     """
     import cv2
 
@@ -234,7 +237,7 @@ def write_take(
             vis, p, c = joint_visibility(joints[t], fr.depth, K, T_wc, renderer.joint_radii)
             visible[t], px[t], cam[t] = vis, p, c
             pending.append(pool.submit(write_frame, t, fr))
-            while pending and (len(pending) > 4 or pending[0].done()):  # at most 4 frames in memory
+            while pending and (len(pending) > write_queue or pending[0].done()):
                 finish_oldest()
         while pending:
             finish_oldest()
@@ -326,7 +329,7 @@ def write_take(
 def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.PathLike,
                   depth_noise: bool = True, video: bool = True,
                   progress: Callable[[int, int], None] | None = None,
-                  max_frames: int | None = None) -> TakeSummary:
+                  max_frames: int | None = None, write_queue: int = 4) -> TakeSummary:
     """Script ``task_name``'s demo for ``seed`` (mirrored: hands' roles swapped), render and write it.
 
     ``max_frames`` keeps only the first frames (tests, previews). See :func:`write_take`.
@@ -344,7 +347,7 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
         out_dir, task_name=task_name, seed=seed, mirror=mirror, scene_xml=scene,
         object_names=list(task.object_names), keypoint_names=list(task.keypoint_names), demo=demo,
         styles=styles, depth_noise=depth_noise, video=video, progress=progress,
-        extra_meta={"placement": demo.placement},
+        extra_meta={"placement": demo.placement}, write_queue=write_queue,
     )
 
 
