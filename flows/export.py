@@ -391,7 +391,10 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
     tasks = [t for t in (tasks or TASK_NAMES) if t in have]
     if not tasks:
         return md + ["_No episodes in this warehouse yet: `demoforge augment TAKE`._", ""]
-    sim = read_table("sim_results", warehouse) if table_files("sim_results", warehouse) else None
+    from schemas.catalog import query
+
+    # one row per episode, whichever runs (a sample, the whole database) checked it
+    sim = query("SELECT task, take, episode_id, success FROM sim_outcomes", warehouse)
     for task in tasks:
         spec = get_task(task)
         take = sorted({f.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse, task=task)})[0]
@@ -422,9 +425,8 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
                f"left gripper visits {100 * cov['covered_fraction']['left']:.0f} % and the right "
                f"{100 * cov['covered_fraction']['right']:.0f} % of the workspace's cells.", "",
                f"![coverage {task}](coverage_{task}.png)", ""]
-        rows = sim.filter((pc.field("task") == task) & (pc.field("take") == take)) \
-            if sim is not None else None
-        if rows is None or rows.num_rows == 0:
+        rows = sim.filter((pc.field("task") == task) & (pc.field("take") == take))
+        if rows.num_rows == 0:
             md += ["_No physics results for this task yet (`demoforge simulate`)._", ""]
             continue
         sim_ids = rows.column("episode_id").to_numpy()

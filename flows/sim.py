@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import Sequence
 
@@ -31,6 +32,17 @@ def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Se
     return [int(e) for e in episodes]
 
 
+def selection_name(episodes: int | str | Sequence[int], ids: Sequence[int], seed: int) -> str:
+    """The `sim_results` selection of a run: `all`, `sample-N-seedS`, or `ids-<hash of the ids>`. Runs of
+    different selections write separate files, so a sample never overwrites a whole-database run."""
+    if isinstance(episodes, str):
+        return "all"
+    if isinstance(episodes, (int, np.integer)):
+        return f"sample-{len(ids)}-seed{int(seed)}"
+    digest = hashlib.sha256(",".join(str(int(i)) for i in ids).encode()).hexdigest()[:12]
+    return f"ids-{digest}"
+
+
 @flow(name="simulate-episodes")
 def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
                       take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
@@ -38,9 +50,12 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     """Execute episodes of a task's database in MuJoCo (results: `sim_results`), chunk by chunk.
 
     Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
-    the same episodes costs nothing."""
+    the same episodes costs nothing. Its rows carry the run's selection (selection_name): a sample
+    and a whole-database run of the same task keep their own files."""
+    from lib.robot_sim import scene_fingerprint
     from lib.task_library import TASK_NAMES
     from schemas.catalog import query
+    from schemas.core import migrate_warehouse, table_files
 
     logger = get_run_logger()
     if task not in TASK_NAMES:
@@ -50,10 +65,14 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
         take = takes[0]
     if take not in takes:
         raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
+    migrate_warehouse(warehouse)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
-    calls = [dict(task=task, take=take, chunk=k, episode_ids=chunk, warehouse=warehouse, workers=workers,
-                  show_progress=show_progress) for k, chunk in enumerate(chunks)]
+    source = [*table_files("episodes", warehouse, task=task, take=take),
+              *table_files("episode_steps", warehouse, task=task, take=take)]
+    common = dict(task=task, take=take, selection=selection_name(episodes, ids, seed), warehouse=warehouse,
+                  source=source, scene=scene_fingerprint(task), workers=workers, show_progress=show_progress)
+    calls = [dict(common, chunk=k, episode_ids=chunk) for k, chunk in enumerate(chunks)]
     if in_distributed_flow():
         # on a Dask cluster the chunks run in parallel, one per worker process
         for c in calls:

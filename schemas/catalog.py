@@ -17,8 +17,8 @@ from pathlib import Path
 import duckdb
 import pyarrow as pa
 
-from schemas.core import DATA_FILE, TableSchema, registry
-from schemas.reports import REPORT_VIEWS
+from schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
+from schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
 CATALOG_FILE = "catalog.duckdb"
 ENV_WAREHOUSE = "DEMOFORGE_WAREHOUSE"
@@ -70,6 +70,7 @@ def _view_sql(root: Path, schema: TableSchema) -> str:
 def catalog_fingerprint(root: Path) -> str:
     """Changes whenever a table gains or loses files, a contract changes, or the warehouse moves."""
     h = hashlib.sha256(str(root).encode())
+    h.update(repr(sorted(TABLE_VIEWS.items())).encode())
     h.update(repr(sorted(REPORT_VIEWS.items())).encode())
     for name, schema in sorted(registry().items()):
         h.update(f"{name}:{schema.version}:{[(c.name, str(c.type)) for c in schema.columns]}".encode())
@@ -82,6 +83,7 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
     """(Re)build ``<root>/catalog.duckdb`` atomically: built in a temporary file, then renamed."""
     root = warehouse_root(root)
     root.mkdir(parents=True, exist_ok=True)
+    migrate_warehouse(root)  # files of older table contracts first, so the views see one layout
     target = root / CATALOG_FILE
     fd, tmp = tempfile.mkstemp(prefix=".catalog.", suffix=".duckdb", dir=root)
     os.close(fd)
@@ -91,7 +93,7 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
         try:
             for schema in registry().values():
                 con.execute(_view_sql(root, schema))
-            for name, sql in REPORT_VIEWS.items():
+            for name, sql in (*TABLE_VIEWS.items(), *REPORT_VIEWS.items()):
                 con.execute(f'CREATE VIEW "{name}" AS {sql}')
             built = datetime.now(timezone.utc).isoformat(timespec="seconds")
             con.execute(

@@ -16,7 +16,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -99,6 +99,25 @@ def table(
         raise ValueError(f"table {name!r} is declared twice with different contracts")
     _REGISTRY[name] = schema
     return schema
+
+
+_MIGRATIONS: list[tuple[str, Callable[[Path], int]]] = []
+
+
+def register_migration(table_name: str, migrate: Callable[[Path], int]) -> None:
+    """Register ``migrate(root) -> files changed``, which brings a table's files written under an older
+    contract to the current one. It must be idempotent and cheap when there is nothing to do."""
+    _MIGRATIONS.append((table_name, migrate))
+
+
+def migrate_warehouse(root: str | os.PathLike) -> dict[str, int]:
+    """Run every registered migration on the warehouse at ``root``; {table: files changed} where any."""
+    done = {}
+    for name, fn in _MIGRATIONS:
+        n = fn(Path(root))
+        if n:
+            done[name] = n
+    return done
 
 
 def registry() -> Mapping[str, TableSchema]:

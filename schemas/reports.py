@@ -7,6 +7,20 @@ reports/REPORT.md and what they query in SQL are one and the same.
 
 from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
 
+# Views over the tables that are not report sections (the report views may use them).
+TABLE_VIEWS: dict[str, str] = {
+    # One robot check per episode: an episode that several runs (selections) checked keeps the row of
+    # the whole-database run (`all`) if there is one, else of the first selection by name.
+    "sim_outcomes": """
+        SELECT * EXCLUDE (pick) FROM (
+            SELECT *, row_number() OVER (PARTITION BY task, take, episode_id
+                                         ORDER BY selection <> 'all', selection, chunk) AS pick
+            FROM sim_results)
+        WHERE pick = 1
+    """,
+}
+
+
 def _wavg(metric: str, weight: str) -> str:
     """Frame-weighted mean over takes, skipping NaN (the thesis's eq. 4 pooled over all frames)."""
     ok = f"NOT isnan({metric}) AND {weight} > 0"
@@ -187,12 +201,12 @@ REPORT_VIEWS: dict[str, str] = {
         SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,
                round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
                round(avg(wall_s), 2) AS mean_wall_s
-        FROM sim_results GROUP BY task, take, kind ORDER BY task, take, kind
+        FROM sim_outcomes GROUP BY task, take, kind ORDER BY task, take, kind
     """,
     # Why episodes failed in physics.
     "report_sim_failures": """
         SELECT task, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
-        FROM sim_results GROUP BY ALL ORDER BY task, episodes DESC, outcome
+        FROM sim_outcomes GROUP BY ALL ORDER BY task, episodes DESC, outcome
     """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """

@@ -1,17 +1,33 @@
-"""The `sim_results` table: each episode executed by the dual-gripper robot in MuJoCo physics."""
+"""The `sim_results` table: each episode executed by the dual-gripper robot in MuJoCo physics.
+
+Every `demoforge simulate` run writes under its own *selection* (`all`, `sample-20-seed0`,
+`ids-<hash>`), so a 20-episode sample (as `make evaluate` runs) and a whole-database run never
+overwrite each other's chunks. An episode checked by two runs therefore has two rows; the
+`sim_outcomes` view keeps one per episode (the `all` run's where there is one).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
-from schemas.core import Column, table
+from schemas.core import DATA_FILE, Column, atomic_write_parquet, register_migration, table
 
 SIM_RESULTS = table(
     "sim_results",
-    version=1,
-    doc=("One row per episode executed by two parallel-jaw grippers (Robotiq 2F-140-like: 140 mm stroke, "
-         "40 N per pad) in MuJoCo physics with real contacts, friction and gravity; objects are never welded."),
+    version=2,
+    doc=("One row per episode and run (selection) executed by two parallel-jaw grippers (Robotiq 2F-140-like: "
+         "140 mm stroke, 40 N per pad) in MuJoCo physics with real contacts, friction and gravity; objects are "
+         "never welded. One row per episode: the `sim_outcomes` view."),
     columns=[
         Column("task", pa.string(), "Task name."),
         Column("take", pa.string(), "Source take of the episode database."),
+        Column("selection", pa.string(), "Which episodes the run checked: `all`, `sample-N-seedS` (N drawn with seed "
+               "S, the original first), `ids-<hash>` (a given list), or `legacy` (written before runs had selections)."),
         Column("chunk", pa.int32(), "Chunk of the run that simulated the episode (a crash loses at most one chunk)."),
         Column("episode_id", pa.int64(), "Episode (see `episodes`)."),
         Column("kind", pa.string(), "`original`, `translated` or `mirrored`."),
@@ -24,5 +40,41 @@ SIM_RESULTS = table(
         Column("physics_steps", pa.int64(), "Physics steps taken."),
         Column("wall_s", pa.float64(), "Wall time of the episode in its worker process, s."),
     ],
-    partition_by=("task", "take", "chunk"),
+    partition_by=("task", "take", "selection", "chunk"),
 )
+
+LEGACY_SELECTION = "legacy"
+
+
+def migrate_v1(root: str | os.PathLike) -> int:
+    """Move version-1 files (`task=/take=/chunk=`, no selection) to selection `legacy` in the version-2
+    layout; returns how many were moved. Version 1 wrote a sample run and a whole-database run into the
+    same chunk files, so which run a v1 file came from is not recorded; its rows are kept as they are.
+    Each file is written to its new place before the old one is removed (a crash leaves a copy that a
+    re-run migrates again, never a loss)."""
+    base = Path(root) / SIM_RESULTS.name
+    moved = 0
+    for old in sorted(base.glob(f"task=*/take=*/chunk=*/{DATA_FILE}")):
+        t = pq.read_table(old)
+        if (t.schema.metadata or {}).get(b"demoforge.schema_version") != b"1":
+            continue
+        t = t.append_column("selection", pa.array([LEGACY_SELECTION] * t.num_rows, pa.string()))
+        t = t.select(SIM_RESULTS.arrow.names).cast(SIM_RESULTS.arrow)
+        chunk_dir = old.parent
+        new = chunk_dir.parent / f"selection={LEGACY_SELECTION}" / chunk_dir.name / DATA_FILE
+        if new.exists():  # a crash after the copy: keep the copy, drop the old file below
+            existing = pq.read_table(new)
+            if not pc.all(pc.is_in(t.column("episode_id"), existing.column("episode_id"))).as_py():
+                raise RuntimeError(f"{old} and {new} both exist with different episodes; move one away")
+        else:
+            atomic_write_parquet(t, new)
+        old.unlink()
+        try:
+            chunk_dir.rmdir()
+        except OSError:
+            pass
+        moved += 1
+    return moved
+
+
+register_migration(SIM_RESULTS.name, migrate_v1)

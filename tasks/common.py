@@ -116,9 +116,10 @@ def content_fingerprint(value: Any) -> Any:
 
 @dataclass
 class ContentHashPolicy(CachePolicy):
-    """Cache key = sha256(stage salt, content fingerprints of all inputs)."""
+    """Cache key = sha256(stage salt, content fingerprints of all inputs except ``ignore``)."""
 
     salt: str = ""
+    ignore: tuple[str, ...] = ()  # inputs that cannot change the result (worker counts, progress bars)
 
     def compute_key(
         self,
@@ -128,25 +129,27 @@ class ContentHashPolicy(CachePolicy):
         **kwargs: Any,
     ) -> str:
         payload = json.dumps(
-            {"salt": self.salt, "inputs": content_fingerprint(inputs or {})},
+            {"salt": self.salt,
+             "inputs": content_fingerprint({k: v for k, v in (inputs or {}).items() if k not in self.ignore})},
             sort_keys=True,
             separators=(",", ":"),
         )
         return hashlib.sha256(payload.encode()).hexdigest()
 
 
-def stage_task(*, name: str, version: str, **task_options: Any) -> Callable:
+def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), **task_options: Any) -> Callable:
     """Decorate a stage function as a Prefect task with demoforge's cache policy.
 
     ``version`` is the code-version salt: bump it when the stage's logic changes so old cache
-    entries stop matching.
+    entries stop matching. ``key_ignore`` names inputs left out of the cache key because they cannot
+    change the result (how many worker processes, whether a progress bar is shown).
     """
 
     def decorate(fn: Callable) -> Any:
         return task(
             fn,
             name=name,
-            cache_policy=ContentHashPolicy(salt=f"{name}@{version}"),
+            cache_policy=ContentHashPolicy(salt=f"{name}@{version}", ignore=tuple(key_ignore)),
             persist_result=True,
             **task_options,
         )

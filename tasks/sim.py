@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 
@@ -9,13 +11,19 @@ import lib  # noqa: F401
 from schemas.core import write_table
 from tasks.common import Manifest, stage_task
 
-SIM_VERSION = "2"  # 2: settle phase stopped at rest, constraint islands off (lib/robot_sim)
+# 2: settle phase stopped at rest, constraint islands off (lib/robot_sim)
+# 3: results per selection; the key holds the episode database's content and the scene fingerprint
+SIM_VERSION = "3"
 
 
-@stage_task(name="simulate_chunk", version=SIM_VERSION)
-def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], warehouse: str,
-                   workers: int = 2, show_progress: bool = True) -> Manifest:
-    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows."""
+@stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
+def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
+                   source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
+    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
+
+    `source`: the take's `episodes` and `episode_steps` files and `scene`: lib.robot_sim.scene_fingerprint,
+    both only in the cache key, so re-augmenting a take or changing a task's objects or the robot makes
+    the chunk run again instead of returning results of other episodes."""
     from lib.robot_sim import execute_many
     from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
     from schemas.catalog import query
@@ -50,7 +58,8 @@ def simulate_chunk(task: str, take: str, chunk: int, episode_ids: list[int], war
     rows = []
     for e, kind, r in zip(eids, kinds, results):
         d = r.row()
-        rows.append({"task": task, "take": take, "chunk": int(chunk), "episode_id": e, "kind": kind,
+        rows.append({"task": task, "take": take, "selection": selection, "chunk": int(chunk), "episode_id": e,
+                     "kind": kind,
                      "success": bool(d["success"]), "failure": "" if d["success"] else str(d["failure"] or ""),
                      "detail": str(d["detail"] or ""), "predicate_ok": d["predicate_ok"],
                      "predicate_detail": str(d["predicate_detail"] or ""), "duration_s": float(d["duration_s"] or 0.0),

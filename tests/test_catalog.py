@@ -122,3 +122,58 @@ def test_console_script_exit_codes(warehouse):
 def test_query_refused_is_raised_for_library_callers(warehouse):
     with pytest.raises(QueryRefused):
         query("DELETE FROM benchmarks")
+
+
+def _v1_sim_file(root: Path, task: str, chunk: int, ids: list[int]) -> Path:
+    """A sim_results file as schema version 1 wrote it: no selection column, task=/take=/chunk= layout."""
+    import pyarrow as pa
+
+    from schemas.core import get_schema
+
+    v2 = get_schema("sim_results").arrow
+    fields = [f for f in v2 if f.name != "selection"]
+    meta = dict(v2.metadata)
+    meta[b"demoforge.schema_version"] = b"1"
+    n = len(ids)
+    cols = {"task": [task] * n, "take": ["t0"] * n, "chunk": [chunk] * n, "episode_id": ids, "kind": ["translated"] * n,
+            "success": [True] * n, "failure": [""] * n, "detail": ["ok"] * n, "predicate_ok": [True] * n,
+            "predicate_detail": [""] * n, "duration_s": [1.0] * n, "physics_steps": [480] * n, "wall_s": [0.1] * n}
+    t = pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=pa.schema(fields, metadata=meta))
+    path = root / "sim_results" / f"task={task}" / "take=t0" / f"chunk={chunk}" / "data.parquet"
+    path.parent.mkdir(parents=True)
+    pq.write_table(t, path)
+    return path
+
+
+def test_version_1_sim_results_are_moved_to_the_legacy_selection_without_losing_rows(warehouse):
+    from schemas.core import migrate_warehouse, read_table
+
+    old = [_v1_sim_file(warehouse, "pouring", 0, [0, 5, 9]), _v1_sim_file(warehouse, "pouring", 1, [12, 13])]
+    rows = query("SELECT selection, chunk, episode_id FROM sim_results ORDER BY episode_id", warehouse).to_pylist()
+    assert rows == [{"selection": "legacy", "chunk": c, "episode_id": e}
+                    for c, e in [(0, 0), (0, 5), (0, 9), (1, 12), (1, 13)]]
+    assert not any(p.exists() or p.parent.exists() for p in old)
+    assert read_table("sim_results", warehouse).num_rows == 5  # the reader finds them in the new layout
+    assert migrate_warehouse(warehouse) == {}  # nothing left to move
+
+    # a crash between writing the copy and removing the old file: the next migration finishes it
+    again = _v1_sim_file(warehouse, "pouring", 1, [12, 13])
+    assert migrate_warehouse(warehouse) == {"sim_results": 1} and not again.exists()
+    assert read_table("sim_results", warehouse).num_rows == 5
+
+
+def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_run(warehouse):
+    base = {"task": "pouring", "take": "t0", "kind": "translated", "failure": "", "detail": "", "predicate_ok": True,
+            "predicate_detail": "", "duration_s": 1.0, "physics_steps": 480, "wall_s": 0.1}
+    rows = [dict(base, selection="sample-2-seed0", chunk=0, episode_id=0, success=False),
+            dict(base, selection="sample-2-seed0", chunk=0, episode_id=7, success=False),
+            dict(base, selection="all", chunk=0, episode_id=0, success=True),
+            dict(base, selection="all", chunk=0, episode_id=1, success=True)]
+    for sel in ("sample-2-seed0", "all"):
+        part = [r for r in rows if r["selection"] == sel]
+        write_table("sim_results", {k: [r[k] for r in part] for k in part[0]}, warehouse)
+    got = query("SELECT episode_id, selection, success FROM sim_outcomes ORDER BY 1", warehouse).to_pylist()
+    assert got == [{"episode_id": 0, "selection": "all", "success": True},
+                   {"episode_id": 1, "selection": "all", "success": True},
+                   {"episode_id": 7, "selection": "sample-2-seed0", "success": False}]
+    assert query("SELECT sum(episodes) AS n FROM report_sim", warehouse).column("n")[0].as_py() == 3

@@ -133,3 +133,38 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, warehouse, take
 
     row = render_episode_video(str(warehouse), "trash_in_bin", 0, tmp_path / "ep0.mp4")
     assert (tmp_path / "ep0.mp4").stat().st_size > 10_000 and row["success"] == rows[0]["success"]
+
+
+def test_sample_and_whole_runs_keep_their_own_results_and_new_episodes_are_simulated_again(
+        prefect_api, warehouse, take_dir, monkeypatch):
+    from flows.sim import simulate_episodes
+    import lib.robot_sim as rs
+    from schemas.core import column_numpy, read_table, write_table
+
+    augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
+    sample = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=2, show_progress=False)
+    sample_ids = [r["episode_id"] for r in query("SELECT episode_id FROM sim_results ORDER BY 1", warehouse).to_pylist()]
+    valid = [r["episode_id"] for r in query("SELECT episode_id FROM episodes WHERE valid ORDER BY 1", warehouse).to_pylist()]
+    # a second run over other episodes (sharing the original) used to write the same chunk files
+    other = [0] + [e for e in valid if e not in sample_ids][:2]
+    simulate_episodes(str(warehouse), task="trash_in_bin", episodes=other, chunk_size=2, show_progress=False)
+    assert all(m.is_intact() for m in sample), "the second run overwrote the sample's files"
+    per_run = query("SELECT selection, count(*) AS n FROM sim_results GROUP BY 1 ORDER BY 1", warehouse).to_pylist()
+    assert [r["n"] for r in per_run] == [3, 3] and per_run[1]["selection"] == "sample-3-seed0"
+    assert per_run[0]["selection"].startswith("ids-")
+    outcomes = query("SELECT episode_id FROM sim_outcomes ORDER BY 1", warehouse).to_pylist()
+    assert [r["episode_id"] for r in outcomes] == sorted(set(sample_ids) | set(other))  # episode 0 once
+
+    # the same episode ids with other content (a re-augmented take): simulated again, not served from
+    # the cache. Here the actions are lifted 2 m, so every episode must now fail.
+    steps = read_table("episode_steps", warehouse, task="trash_in_bin")
+    lifted = column_numpy(steps, "action").copy()
+    lifted[:, :, 2] += 2.0
+    write_table("episode_steps", {**{c: steps.column(c) for c in steps.column_names}, "action": lifted}, warehouse)
+    calls = []
+    real = rs.execute_many
+    monkeypatch.setattr(rs, "execute_many", lambda task, eps, **kw: calls.append(len(eps)) or real(task, eps, **kw))
+    simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=2, show_progress=False)
+    assert calls == [2, 1]
+    again = query("SELECT success, failure FROM sim_results WHERE selection = 'sample-3-seed0'", warehouse).to_pylist()
+    assert len(again) == 3 and not any(r["success"] for r in again)

@@ -8,7 +8,8 @@ gripper.py: the embodiment (MJCF, parameters, g -> finger command mapping); scen
 cache; executor.py: execute / execute_many; failures.py: failure classification; render.py: MP4.
 """
 
-from .executor import SimOptions, SimResult, as_object_poses, execute, execute_many, validate_actions
+from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_many, scene_fingerprint,
+                       validate_actions)
 from .failures import FAILURES
 from .gripper import GripperSpec
 from .scene import PhysicsOptions, get_scene
@@ -20,4 +21,4 @@ def render_episode(*args, **kwargs):
 
 
 __all__ = ["execute", "execute_many", "render_episode", "SimOptions", "SimResult", "GripperSpec",
-           "PhysicsOptions", "FAILURES", "as_object_poses", "validate_actions", "get_scene"]
+           "PhysicsOptions", "FAILURES", "as_object_poses", "validate_actions", "get_scene", "scene_fingerprint"]

@@ -417,6 +417,20 @@ def _as_index(ids):
     return ids
 
 
+def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
+    """sha256 of what a task's simulation depends on besides the episode and the executor's code: the
+    scene MJCF with the grippers, and every simulation option (gripper, physics, control). A cache of
+    results keyed by it goes stale by itself when a task's objects or the robot change."""
+    import hashlib
+
+    from .scene import robot_scene_xml
+
+    opt = options or SimOptions()
+    h = hashlib.sha256(robot_scene_xml(task_name, opt.gripper).encode())
+    h.update(repr(replace(opt, keep_trajectory=False)).encode())
+    return h.hexdigest()
+
+
 # ------------------------------------------------------------------ many episodes
 _WORKER_STATE: dict = {}
 
@@ -486,5 +500,5 @@ def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
     return out  # type: ignore[return-value]
 
 
-__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "validate_actions", "as_object_poses",
+__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "scene_fingerprint", "validate_actions", "as_object_poses",
            "object_poses_from_keypoints", "FAILURES"]

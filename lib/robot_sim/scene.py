@@ -62,6 +62,19 @@ class PhysicsOptions:
 LEGACY_PHYSICS = PhysicsOptions(islands=True)  # before the speed work (benchmark baseline)
 
 
+def robot_scene_xml(task_name: str, spec: GripperSpec) -> str:
+    """The MJCF of a task's scene (its reference placement; episodes move the free bodies) with the two
+    grippers added."""
+    task = get_task(task_name)
+    ref = task.sample_placement(np.random.default_rng(0))
+    sec = gripper_sections(spec)
+    xml = task.scene_xml(ref, extra_worldbody=sec["worldbody"], extra_equality=sec["equality"])
+    tail = (f"<tendon>\n{sec['tendon']}\n</tendon>\n<actuator>\n{sec['actuator']}\n</actuator>\n"
+            f"<contact>\n{sec['contact']}\n</contact>\n</mujoco>")
+    i = xml.rstrip().rfind("</mujoco>")
+    return xml[:i] + tail
+
+
 class SimScene:
     def __init__(self, task_name: str, spec: GripperSpec, physics: PhysicsOptions):
         import mujoco
@@ -71,14 +84,7 @@ class SimScene:
         self.spec = spec
         self.physics = physics
         task = self.task
-        ref = task.sample_placement(np.random.default_rng(0))
-        sec = gripper_sections(spec)
-        xml = task.scene_xml(ref, extra_worldbody=sec["worldbody"], extra_equality=sec["equality"])
-        tail = (f"<tendon>\n{sec['tendon']}\n</tendon>\n<actuator>\n{sec['actuator']}\n</actuator>\n"
-                f"<contact>\n{sec['contact']}\n</contact>\n</mujoco>")
-        i = xml.rstrip().rfind("</mujoco>")
-        xml = xml[:i] + tail
-        self.xml = xml
+        self.xml = xml = robot_scene_xml(task_name, spec)
         m = mujoco.MjModel.from_xml_string(xml)
         m.opt.timestep = physics.timestep
         m.opt.iterations = physics.iterations
