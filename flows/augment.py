@@ -27,16 +27,23 @@ def augment_take_flow(
     manual_segments: dict | None = None,
     options: dict | None = None,
     show_progress: bool = True,
+    ingest_options: dict | None = None,
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
+    ingest_options: keyword arguments of the ingest it builds on (flows.ingest.ingest_take: smoothing,
+    grasp_prior, table_clearance, state_method, ...). The ingest runs again with them (a cache hit
+    when the take was ingested with the same ones): without them the defaults would rewrite the take's
+    gripper poses, so episodes would silently come from another hand-to-gripper mapping than the one
+    the take was ingested with.
     manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
     options: generate_episodes keyword arguments, e.g. {"translation_range": [[-0.1, 0.1], [-0.1, 0.1]],
     "yaw_range": [-0.5, 0.5], "independent": true, "safety_distance": 0.04, "mode": "thesis"}.
     """
     if n < 1 or not 0 <= n_mirrored <= n:
         raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
-    ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress)
+    ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress,
+                        **(ingest_options or {}))
     common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)

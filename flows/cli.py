@@ -365,15 +365,24 @@ def augment(
     mode: str = typer.Option("object", help="object (timing kept, segments follow their objects) or thesis (the thesis's 3.2 schedule)."),
     independent: bool = typer.Option(False, help="Place the two objects independently (each arm follows its own)."),
     yaw: float = typer.Option(0.0, help="Max rotation about the vertical, rad (the thesis translates only: 0)."),
+    state_method: str = typer.Option("auto", help="As for `demoforge ingest`: the episodes come from the take's ingest with these mapping options."),
+    smoothing: int = typer.Option(0, help="As for `demoforge ingest` (pose smoothing window, 0 = off)."),
+    grasp_prior: str = typer.Option("twist", "--grasp-prior", help="As for `demoforge ingest`: twist, pose or off."),
+    table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
 ) -> None:
-    """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3)."""
+    """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).
+
+    The episodes come from the take's ingest with the mapping options given here (the same defaults as
+    `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
     from flows.augment import augment_take_flow
     from lib.ingest import TakeError
 
     options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
+    ingest_options = {"state_method": state_method, "smoothing": smoothing, "grasp_prior": grasp_prior,
+                      "table_clearance": None if table_clearance < 0 else table_clearance}
     try:
         result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, detector=detector,
-                                   n=episodes, n_mirrored=mirrored, seed=seed, options=options)
+                          n=episodes, n_mirrored=mirrored, seed=seed, options=options, ingest_options=ingest_options)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     typer.echo(f"episodes: {result['episodes'].path}")

@@ -168,3 +168,25 @@ def test_sample_and_whole_runs_keep_their_own_results_and_new_episodes_are_simul
     assert calls == [2, 1]
     again = query("SELECT success, failure FROM sim_results WHERE selection = 'sample-3-seed0'", warehouse).to_pylist()
     assert len(again) == 3 and not any(r["success"] for r in again)
+
+
+def test_augment_keeps_the_mapping_options_the_take_was_ingested_with(prefect_api, warehouse, take_dir):
+    """`demoforge augment` re-runs the (cached) ingest it builds on; it used to do so with the default
+    mapping, silently replacing a take ingested with other options (e.g. --smoothing) before generating."""
+    def poses():
+        t = query("SELECT pose FROM gripper_poses ORDER BY frame, hand", warehouse).column("pose").to_pylist()
+        return np.asarray(t, float)
+
+    runner = CliRunner()
+    r = runner.invoke(app, ["ingest", str(take_dir), "--smoothing", "5", "--grasp-prior", "pose"])
+    assert r.exit_code == 0, r.output
+    ingested = poses()
+    r = runner.invoke(app, ["augment", str(take_dir), "-n", "20", "--mirrored", "10", "--smoothing", "5",
+                            "--grasp-prior", "pose"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(poses(), ingested)
+    # the options matter: augmenting with the defaults gives other gripper poses (and says so in --help)
+    r = runner.invoke(app, ["augment", str(take_dir), "-n", "20", "--mirrored", "10"])
+    assert r.exit_code == 0, r.output
+    assert np.nanmax(np.abs(poses() - ingested)) > 1e-3
+    assert "--smoothing" in runner.invoke(app, ["augment", "--help"]).output
