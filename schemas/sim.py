@@ -51,7 +51,7 @@ def migrate_v1(root: str | os.PathLike) -> int:
     layout; returns how many were moved. Version 1 wrote a sample run and a whole-database run into the
     same chunk files, so which run a v1 file came from is not recorded; its rows are kept as they are.
     Each file is written to its new place before the old one is removed (a crash leaves a copy that a
-    re-run migrates again, never a loss)."""
+    re-run migrates again, never a loss); where the new place already holds rows, both are kept."""
     base = Path(root) / SIM_RESULTS.name
     moved = 0
     for old in sorted(base.glob(f"task=*/take=*/chunk=*/{DATA_FILE}")):
@@ -62,12 +62,13 @@ def migrate_v1(root: str | os.PathLike) -> int:
         t = t.select(SIM_RESULTS.arrow.names).cast(SIM_RESULTS.arrow)
         chunk_dir = old.parent
         new = chunk_dir.parent / f"selection={LEGACY_SELECTION}" / chunk_dir.name / DATA_FILE
-        if new.exists():  # a crash after the copy: keep the copy, drop the old file below
-            existing = pq.read_table(new)
-            if not pc.all(pc.is_in(t.column("episode_id"), existing.column("episode_id"))).as_py():
-                raise RuntimeError(f"{old} and {new} both exist with different episodes; move one away")
-        else:
-            atomic_write_parquet(t, new)
+        if new.exists():
+            # a crash after the copy, or an old process that kept writing v1 files after a migration:
+            # keep every row, the v1 file's where both hold an episode (it was written later)
+            existing = pq.read_table(new).cast(SIM_RESULTS.arrow)
+            keep = pc.invert(pc.is_in(existing.column("episode_id"), t.column("episode_id")))
+            t = pa.concat_tables([existing.filter(keep), t]).sort_by("episode_id")
+        atomic_write_parquet(t, new)
         old.unlink()
         try:
             chunk_dir.rmdir()

@@ -160,6 +160,11 @@ def test_version_1_sim_results_are_moved_to_the_legacy_selection_without_losing_
     again = _v1_sim_file(warehouse, "pouring", 1, [12, 13])
     assert migrate_warehouse(warehouse) == {"sim_results": 1} and not again.exists()
     assert read_table("sim_results", warehouse).num_rows == 5
+    # an old process still running wrote chunk 1 again, with other episodes: both files' rows are kept
+    _v1_sim_file(warehouse, "pouring", 1, [13, 20, 21])
+    assert migrate_warehouse(warehouse) == {"sim_results": 1}
+    rows = query("SELECT chunk, episode_id FROM sim_results WHERE chunk = 1 ORDER BY 2", warehouse).to_pylist()
+    assert [r["episode_id"] for r in rows] == [12, 13, 20, 21]
 
 
 def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_run(warehouse):
