@@ -318,7 +318,7 @@ def ingest(
     video: bool = typer.Option(False, "--video", help="Also write an MP4 with the skeletons and gripper frames drawn on the frames."),
     hamer_checkpoint: Optional[Path] = typer.Option(None, "--hamer-checkpoint", help="For --detector hamer: local hamer.ckpt (licensed; never downloaded)."),
     mano_model: Optional[Path] = typer.Option(None, "--mano-model", help="For --detector hamer: local MANO_RIGHT.pkl (licensed; never downloaded)."),
-    grasp_prior: str = typer.Option("twist", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'twist' fixes the twist about the approach axis from the whole hand's motion (default), 'pose' also position and approach axis, 'off' keeps the thesis's mapping."),
+    grasp_prior: str = typer.Option("pose", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'pose' takes the pinch pose (position and rotation) from the whole hand's motion (default), 'twist' only the twist about the approach axis, 'off' keeps the thesis's mapping."),
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
 ) -> None:
@@ -367,7 +367,7 @@ def augment(
     yaw: float = typer.Option(0.0, help="Max rotation about the vertical, rad (the thesis translates only: 0)."),
     state_method: str = typer.Option("auto", help="As for `demoforge ingest`: the episodes come from the take's ingest with these mapping options."),
     smoothing: int = typer.Option(0, help="As for `demoforge ingest` (pose smoothing window, 0 = off)."),
-    grasp_prior: str = typer.Option("twist", "--grasp-prior", help="As for `demoforge ingest`: twist, pose or off."),
+    grasp_prior: str = typer.Option("pose", "--grasp-prior", help="As for `demoforge ingest`: pose, twist or off."),
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
 ) -> None:
     """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).

@@ -24,7 +24,7 @@ def ingest_take(
     smoothing: int = 0,
     show_progress: bool = True,
     video: bool = False,
-    grasp_prior: str = "twist",
+    grasp_prior: str = "pose",
     table_clearance: float | None = 0.010,
 ) -> dict[str, Manifest | None]:
     """Ingest one take folder (layout: README 'Take folders') into the warehouse.

@@ -44,7 +44,7 @@ Open/close (:func:`gripper_state`), g = 1 open, 0 closed:
 Optional smoothing (:func:`smooth_poses`, off by default) filters positions and rotations only
 within constant-state segments, so grasp and release instants stay sharp.
 
-Grasp stabilisation (:func:`stabilize_grasps`, mode "twist" recommended as the default): while a
+Grasp stabilisation (:func:`stabilize_grasps`, mode "pose" by default): while a
 hand is closed the grasp is rigid, so the pinch frame is fixed in the hand's frame; the hand's
 rigid motion is fitted over all 21 joints (Kabsch) and the pinch transform averaged robustly over
 the closed interval. On the six ingested synthetic takes it cut the median twist error about the
@@ -53,6 +53,13 @@ approach axis on closed frames from 4-32 deg to 2-4 deg (90th percentile from 10
 top. Robot success on the 20 sampled episodes per task (the same episode ids, re-generated from
 the re-mapped take): 16/120 as mapped, 90/120 with the twist prior, 110/120 with both (trash,
 paper, open_container, mix_bowl 20/20 each, empty_vase 12/20, pouring 18/20).
+Mode "pose" (also the pinch position and approach axis from the hand's rigid motion) against
+"twist", 40 sampled episodes per task from 10,000-episode databases of each task's seed-0 take
+(ingest, augment and simulate each with that prior): pose 233/240 (40/40 on five tasks,
+empty_vase 33/40 with its original episode), twist 216/240 (pouring 36/40, empty_vase 20/40 with
+its original failing on the thin stem, the rest 40/40). Around the thin-stem grasp the mapped pinch
+moves 3-21 mm from one frame to the next where the scripted hand moves 0-6 mm; a moving-average smoothing (window 5) instead
+made empty_vase worse (7/40 with twist, 8/40 with pose).
 """
 
 from __future__ import annotations
@@ -465,7 +472,7 @@ class GraspStabilizationConfig:
     position from the hand's rigid motion and the grasp's mean pinch transform) or "off".
     """
 
-    mode: str = "twist"
+    mode: str = "pose"
     #: Closed intervals with fewer valid frames than this are left as they are.
     min_frames: int = 5
     #: Frames before a grasp / after a release over which the result is blended in / out (the

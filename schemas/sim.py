@@ -78,4 +78,23 @@ def migrate_v1(root: str | os.PathLike) -> int:
     return moved
 
 
+def drop_results(root: str | os.PathLike, task: str, take: str) -> int:
+    """Remove every `sim_results` file of one take (all selections), e.g. when its episodes were
+    regenerated; returns how many. The take's folder is first moved out of the table (to
+    `<root>/_trash/`, on the same file system), so a reader sees all of its files or none, and a crash
+    before the deletion leaves nothing in the table."""
+    import shutil
+    import uuid
+
+    d = Path(root) / SIM_RESULTS.name / f"task={task}" / f"take={take}"
+    if not d.is_dir():
+        return 0
+    n = sum(1 for _ in d.rglob(DATA_FILE))
+    trash = Path(root) / "_trash" / f"sim_results-{uuid.uuid4().hex}"
+    trash.parent.mkdir(exist_ok=True)
+    d.rename(trash)
+    shutil.rmtree(trash, ignore_errors=True)
+    return n
+
+
 register_migration(SIM_RESULTS.name, migrate_v1)

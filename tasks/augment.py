@@ -108,6 +108,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     opts.setdefault("workspace", np.asarray(spec.workspace))
     batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
     N = len(batch)
+    before = _episode_file_digests(warehouse, name, take.take_id)
     written = write_table("episodes", {
         "task": [name] * N, "take": [take.take_id] * N, "episode_id": batch.episode_id.astype(np.int64),
         "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
@@ -117,7 +118,35 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
         "min_gripper_distance": batch.min_gripper_distance,
     }, warehouse)
     written += write_table("episode_steps", episode_steps_columns(name, take.take_id, batch), warehouse)
+    if before and before != _episode_file_digests(warehouse, name, take.take_id):
+        # the take's robot checks describe episodes that no longer exist: drop them, so that no
+        # report or query mixes them with the new database (simulate again to refill)
+        from schemas.sim import drop_results
+
+        gone = drop_results(warehouse, name, take.take_id)
+        if gone:
+            _log().warning("%s/%s: the episodes changed; removed %d sim_results file(s) of the previous episodes",
+                           name, take.take_id, gone)
     return Manifest.from_written("episodes", written)
+
+
+def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str]:
+    from schemas.core import file_sha256, table_files
+
+    files = [*table_files("episodes", warehouse, task=task, take=take),
+             *table_files("episode_steps", warehouse, task=task, take=take)]
+    return {str(f): file_sha256(f) for f in files}
+
+
+def _log():
+    import logging
+
+    try:
+        from prefect import get_run_logger
+
+        return get_run_logger()
+    except Exception:  # noqa: BLE001  (called outside a run)
+        return logging.getLogger(__name__)
 
 
 def episode_steps_columns(task: str, take: str, batch) -> dict:

@@ -175,7 +175,7 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 
 @stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1")
 def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
-                 state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "twist",
+                 state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "pose",
                  table_clearance: float | None = 0.010) -> Manifest:
     """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods,
     then the rigid-grasp prior while a hand is closed and the table floor (see lib.gripper_mapping)."""

@@ -174,7 +174,7 @@ def test_stabilisation_reduces_twist_error_on_a_noisy_thin_grasp(seed):
     joints, _, g, Rt, closed = _grasp_take(seed)
     pose7, _ = hand_to_gripper(joints)
     before = np.abs(_twist_deg(pose7[closed, 0, 3:], Rt[closed]))
-    out = stabilize_grasps(pose7, g, joints)
+    out = stabilize_grasps(pose7, g, joints, mode="twist")
     after = np.abs(_twist_deg(out[closed, 0, 3:], Rt[closed]))
     # 3 mm keypoint noise on tips 12 mm apart turns the mapped x axis by ~15 deg (median, with
     # flips of the thumb -> index direction in the tail); the whole-hand fit of the rigid grasp

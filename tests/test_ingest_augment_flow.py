@@ -190,3 +190,21 @@ def test_augment_keeps_the_mapping_options_the_take_was_ingested_with(prefect_ap
     assert r.exit_code == 0, r.output
     assert np.nanmax(np.abs(poses() - ingested)) > 1e-3
     assert "--smoothing" in runner.invoke(app, ["augment", "--help"]).output
+
+
+def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, warehouse, take_dir):
+    from flows.sim import simulate_episodes
+
+    def checked():
+        return query("SELECT count(*) AS n FROM sim_results", warehouse).column("n")[0].as_py()
+
+    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    simulate_episodes(str(warehouse), task="trash_in_bin", episodes=2, chunk_size=2, show_progress=False)
+    assert checked() == 2
+    # the same database again (cached, or rewritten with the same bytes): the checks still describe it
+    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    assert checked() == 2
+    # another database under the same take: the old checks would describe episodes that are gone
+    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=7, show_progress=False)
+    assert checked() == 0
+    assert not list((warehouse / "_trash").rglob("*.parquet"))
