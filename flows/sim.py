@@ -55,17 +55,17 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     from lib.robot_sim import scene_fingerprint
     from lib.task_library import TASK_NAMES
     from schemas.catalog import query
-    from schemas.core import migrate_warehouse, table_files
+    from schemas.core import table_files
 
     logger = get_run_logger()
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    # (query() also brings files of older table contracts to the current layout before anything is written)
     takes = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
     if take is None and takes:
         take = takes[0]
     if take not in takes:
         raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
-    migrate_warehouse(warehouse)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
     source = [*table_files("episodes", warehouse, task=task, take=take),

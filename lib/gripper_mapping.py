@@ -58,8 +58,8 @@ Mode "pose" (also the pinch position and approach axis from the hand's rigid mot
 (ingest, augment and simulate each with that prior): pose 233/240 (40/40 on five tasks,
 empty_vase 33/40 with its original episode), twist 216/240 (pouring 36/40, empty_vase 20/40 with
 its original failing on the thin stem, the rest 40/40). Around the thin-stem grasp the mapped pinch
-moves 3-21 mm from one frame to the next where the scripted hand moves 0-6 mm; a moving-average smoothing (window 5) instead
-made empty_vase worse (7/40 with twist, 8/40 with pose).
+moves 3-21 mm from one frame to the next where the scripted hand moves 0-6 mm; a moving-average
+smoothing (window 5) instead made empty_vase worse (7/40 with twist, 8/40 with pose).
 """
 
 from __future__ import annotations

@@ -118,35 +118,27 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
         "min_gripper_distance": batch.min_gripper_distance,
     }, warehouse)
     written += write_table("episode_steps", episode_steps_columns(name, take.take_id, batch), warehouse)
-    if before and before != _episode_file_digests(warehouse, name, take.take_id):
+    if before and before != {w.path: w.content_hash for w in written}:  # the writer's sha256 of each file
         # the take's robot checks describe episodes that no longer exist: drop them, so that no
         # report or query mixes them with the new database (simulate again to refill)
+        from prefect import get_run_logger
+
         from schemas.sim import drop_results
 
         gone = drop_results(warehouse, name, take.take_id)
         if gone:
-            _log().warning("%s/%s: the episodes changed; removed %d sim_results file(s) of the previous episodes",
+            get_run_logger().warning("%s/%s: the episodes changed; removed %d sim_results file(s) of the previous episodes",
                            name, take.take_id, gone)
     return Manifest.from_written("episodes", written)
 
 
 def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str]:
+    """{path: sha256} of the take's `episodes` and `episode_steps` files (empty before the first write)."""
     from schemas.core import file_sha256, table_files
 
     files = [*table_files("episodes", warehouse, task=task, take=take),
              *table_files("episode_steps", warehouse, task=task, take=take)]
     return {str(f): file_sha256(f) for f in files}
-
-
-def _log():
-    import logging
-
-    try:
-        from prefect import get_run_logger
-
-        return get_run_logger()
-    except Exception:  # noqa: BLE001  (called outside a run)
-        return logging.getLogger(__name__)
 
 
 def episode_steps_columns(task: str, take: str, batch) -> dict:

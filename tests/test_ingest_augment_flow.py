@@ -198,11 +198,16 @@ def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, warehous
     def checked():
         return query("SELECT count(*) AS n FROM sim_results", warehouse).column("n")[0].as_py()
 
-    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    out = augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=2, chunk_size=2, show_progress=False)
     assert checked() == 2
     # the same database again (cached, or rewritten with the same bytes): the checks still describe it
     augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    assert checked() == 2
+    from tasks.augment import augment_take
+
+    augment_take.fn(take_dir.resolve(), None, str(warehouse), out["gripper_poses"], out["object_keypoints"],
+                    out["segments"], n=30, n_mirrored=10, seed=2)  # executed, not served from the cache
     assert checked() == 2
     # another database under the same take: the old checks would describe episodes that are gone
     augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=7, show_progress=False)
