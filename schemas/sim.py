@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from schemas.core import DATA_FILE, Column, atomic_write_parquet, register_migration, table
+from schemas.core import DATA_FILE, Column, register_migration, table, write_table
 
 SIM_RESULTS = table(
     "sim_results",
@@ -68,7 +68,7 @@ def migrate_v1(root: str | os.PathLike) -> int:
             existing = pq.read_table(new).cast(SIM_RESULTS.arrow)
             keep = pc.invert(pc.is_in(existing.column("episode_id"), t.column("episode_id")))
             t = pa.concat_tables([existing.filter(keep), t]).sort_by("episode_id")
-        atomic_write_parquet(t, new)
+        write_table(SIM_RESULTS, t, root)  # validated, atomic, to exactly `new`
         old.unlink()
         try:
             chunk_dir.rmdir()
