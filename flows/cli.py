@@ -499,6 +499,36 @@ def simulate(
     _emit(query(f"SELECT * FROM report_sim WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
 
 
+@app.command()
+def stability(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    episodes: str = typer.Option("40", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
+    repeats: int = typer.Option(5, min=2, help="Executions per episode: the scene as it is, then repeats - 1 shifted copies."),
+    jitter: float = typer.Option(1e-4, help="Standard deviation of the rigid shift of the whole scene along the table, in metres "
+                                 "(default 0.1 mm: physically nothing; only the simulation's rounding changes)."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take); default: the task's first."),
+    workers: int = typer.Option(2, min=1, help="Worker processes."),
+    chunk_size: int = typer.Option(20, min=1, help="Episodes per cached chunk (each executed `repeats` times)."),
+    seed: int = typer.Option(0, help="Seed of the episode sample and of the shifts."),
+) -> None:
+    """Check how stable the robot check's verdicts are: execute each episode several times with the whole
+    scene shifted by micrometres. An episode whose outcome flips is decided by numerical chaos, not by its
+    trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
+    from flows.sim import check_stability
+
+    n: int | str = episodes if episodes == "all" else int(episodes) if episodes.isdigit() else -1
+    if n == -1:
+        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    try:
+        run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
+                 take=take, chunk_size=chunk_size, workers=workers, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    from schemas.catalog import query
+
+    _emit(query(f"SELECT * FROM report_sim_stability WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+
+
 @app.command("render-episode")
 def render_episode_cmd(
     task: str = typer.Option(..., "--task", "-t"),

@@ -1,4 +1,5 @@
-"""Flows: execute a task's episodes with the dual-gripper robot in MuJoCo; render one as a video."""
+"""Flows: execute a task's episodes with the dual-gripper robot in MuJoCo; check how stable the outcomes
+are under a rigid micrometre shift of the scene; render one episode as a video."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from prefect import flow, get_run_logger
 
 import lib  # noqa: F401
 from tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
-from tasks.sim import simulate_chunk
+from tasks.sim import simulate_chunk, stability_chunk
 
 
 def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Sequence[int], seed: int = 0) -> list[int]:
@@ -43,6 +44,31 @@ def selection_name(episodes: int | str | Sequence[int], ids: Sequence[int], seed
     return f"ids-{digest}"
 
 
+def stability_run_name(selection: str, repeats: int, jitter_m: float, seed: int) -> str:
+    """The `sim_stability` run: the episode selection plus repeats, jitter and seed, e.g.
+    `sample-40-seed0-r5-j0.0001-s0`: runs with other settings keep their own files."""
+    return f"{selection}-r{int(repeats)}-j{float(jitter_m):g}-s{int(seed)}"
+
+
+def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str, list]:
+    """The take whose episodes to check (default: the task's first) and its files (for cache keys)."""
+    from lib.task_library import TASK_NAMES
+    from schemas.catalog import query
+    from schemas.core import table_files
+
+    if task not in TASK_NAMES:
+        raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    # (query() also brings files of older table contracts to the current layout before anything is written)
+    takes = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
+    if take is None and takes:
+        take = takes[0]
+    if take not in takes:
+        raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
+    source = [*table_files("episodes", warehouse, task=task, take=take),
+              *table_files("episode_steps", warehouse, task=task, take=take)]
+    return take, source
+
+
 @flow(name="simulate-episodes")
 def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
                       take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
@@ -53,23 +79,11 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     the same episodes costs nothing. Its rows carry the run's selection (selection_name): a sample
     and a whole-database run of the same task keep their own files."""
     from lib.robot_sim import scene_fingerprint
-    from lib.task_library import TASK_NAMES
-    from schemas.catalog import query
-    from schemas.core import table_files
 
     logger = get_run_logger()
-    if task not in TASK_NAMES:
-        raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
-    # (query() also brings files of older table contracts to the current layout before anything is written)
-    takes = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
-    if take is None and takes:
-        take = takes[0]
-    if take not in takes:
-        raise ValueError(f"no episode database for {task!r}{' from take ' + take if take else ''}: run `demoforge augment` first")
+    take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
-    source = [*table_files("episodes", warehouse, task=task, take=take),
-              *table_files("episode_steps", warehouse, task=task, take=take)]
     common = dict(task=task, take=take, selection=selection_name(episodes, ids, seed), warehouse=warehouse,
                   source=source, scene=scene_fingerprint(task), workers=workers, show_progress=show_progress)
     calls = [dict(common, chunk=k, episode_ids=chunk) for k, chunk in enumerate(chunks)]
@@ -87,6 +101,37 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
         out.append(run_stage(simulate_chunk, warehouse, **call))
         progress.step()
         logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
+    return out
+
+
+@flow(name="check-stability")
+def check_stability(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = 40, repeats: int = 5,
+                    jitter_m: float = 1e-4, take: str | None = None, chunk_size: int = 20, workers: int = 2,
+                    seed: int = 0, show_progress: bool = True) -> list[Manifest]:
+    """Execute each selected episode `repeats` times, the scene shifted rigidly along the table by
+    `jitter_m` (standard deviation, metres) in every repeat but the first; rows in `sim_stability`, the
+    summary in the `report_sim_stability` view. Chunks are cached stages, like simulate_episodes."""
+    from lib.robot_sim import scene_fingerprint
+    from lib.robot_sim.stability import scene_offsets
+
+    logger = get_run_logger()
+    scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
+    take, source = _episode_database(warehouse, task, take)
+    ids = pick_episodes(warehouse, task, take, episodes, seed)
+    run = stability_run_name(selection_name(episodes, ids, seed), repeats, jitter_m, seed)
+    chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
+    common = dict(task=task, take=take, run=run, repeats=int(repeats), jitter_m=float(jitter_m), seed=int(seed),
+                  warehouse=warehouse, source=source, scene=scene_fingerprint(task), workers=workers,
+                  show_progress=show_progress)
+    calls = [dict(common, chunk=k, episode_ids=chunk) for k, chunk in enumerate(chunks)]
+    if in_distributed_flow():
+        for c in calls:
+            c.update(workers=1, show_progress=False)
+        return run_stages(stability_chunk, warehouse, calls)
+    out = []
+    for k, call in enumerate(calls):
+        out.append(run_stage(stability_chunk, warehouse, **call))
+        logger.info("%s stability chunk %d/%d done (%s)", task, k + 1, len(chunks), run)
     return out
 
 

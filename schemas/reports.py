@@ -208,6 +208,20 @@ REPORT_VIEWS: dict[str, str] = {
         SELECT task, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
         FROM sim_outcomes GROUP BY ALL ORDER BY task, episodes DESC, outcome
     """,
+    # Outcome stability per task and stability run: how many episodes keep their verdict when the
+    # scene is shifted by micrometres (always / never succeed) and how many flip.
+    "report_sim_stability": """
+        SELECT task, take, run, count(*) AS episodes, max(repeats) AS repeats,
+               count(*) FILTER (WHERE ok = repeats) AS always_succeed,
+               count(*) FILTER (WHERE ok = 0) AS never_succeed,
+               count(*) FILTER (WHERE ok > 0 AND ok < repeats) AS flipping,
+               round(avg(first_ok), 3) AS first_run_success_rate,
+               round(sum(ok) / sum(repeats), 3) AS success_rate
+        FROM (SELECT task, take, run, episode_id, count(*) AS repeats, count(*) FILTER (WHERE success) AS ok,
+                     max(CASE WHEN repeat = 0 AND success THEN 1.0 ELSE 0.0 END) AS first_ok
+              FROM sim_stability GROUP BY ALL)
+        GROUP BY task, take, run ORDER BY task, take, run
+    """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """
         SELECT stage, case_name, size, unit, round(seconds, 4) AS seconds,

@@ -1,4 +1,5 @@
-"""The `sim_results` table: each episode executed by the dual-gripper robot in MuJoCo physics.
+"""The `sim_results` table: each episode executed by the dual-gripper robot in MuJoCo physics; the
+`sim_stability` table: the same check repeated on rigidly shifted copies of the scene.
 
 Every `demoforge simulate` run writes under its own *selection* (`all`, `sample-20-seed0`,
 `ids-<hash>`), so a 20-episode sample (as `make evaluate` runs) and a whole-database run never
@@ -43,6 +44,33 @@ SIM_RESULTS = table(
     partition_by=("task", "take", "selection", "chunk"),
 )
 
+SIM_STABILITY = table(
+    "sim_stability",
+    version=1,
+    doc=("Outcome stability of the robot check: each episode executed `repeats` times, repeat 0 as is and the "
+         "others with the whole scene (objects and gripper poses) shifted rigidly along the table by a few "
+         "micrometres (lib/robot_sim/stability.py). Physically nothing changes; an episode whose outcome flips "
+         "is decided by numerical chaos, and its success is a probability. One row per episode and repeat."),
+    columns=[
+        Column("task", pa.string(), "Task name."),
+        Column("take", pa.string(), "Source take of the episode database."),
+        Column("run", pa.string(), "The stability run: its episode selection (as in `sim_results`), repeats, "
+               "jitter and seed, e.g. `sample-40-seed0-r5-j0.0001-s0`."),
+        Column("chunk", pa.int32(), "Chunk of the run (a crash loses at most one chunk)."),
+        Column("episode_id", pa.int64(), "Episode (see `episodes`)."),
+        Column("kind", pa.string(), "`original`, `translated` or `mirrored`."),
+        Column("repeat", pa.int32(), "0: the unshifted scene (the run `simulate` checks); 1..: shifted."),
+        Column("jitter_m", pa.float64(), "Standard deviation of the shift in x and y, m."),
+        Column("offset_x", pa.float64(), "The repeat's shift in x, m."),
+        Column("offset_y", pa.float64(), "The repeat's shift in y, m."),
+        Column("success", pa.bool_(), "The robot check succeeded (as in `sim_results`)."),
+        Column("failure", pa.string(), "Empty on success, else the failure class (as in `sim_results`)."),
+        Column("detail", pa.string(), "The failure in words."),
+        Column("wall_s", pa.float64(), "Wall time of the execution in its worker process, s."),
+    ],
+    partition_by=("task", "take", "run", "chunk"),
+)
+
 LEGACY_SELECTION = "legacy"
 
 
@@ -79,21 +107,23 @@ def migrate_v1(root: str | os.PathLike) -> int:
 
 
 def drop_results(root: str | os.PathLike, task: str, take: str) -> int:
-    """Remove every `sim_results` file of one take (all selections), e.g. when its episodes were
-    regenerated; returns how many. The take's folder is first moved out of the table (to
-    `<root>/_trash/`, on the same file system), so a reader sees all of its files or none, and a crash
-    before the deletion leaves nothing in the table."""
+    """Remove every `sim_results` and `sim_stability` file of one take (all selections and runs), e.g.
+    when its episodes were regenerated; returns how many. Each table's take folder is first moved out of
+    the table (to `<root>/_trash/`, on the same file system), so a reader sees all of its files or none,
+    and a crash before the deletion leaves nothing in the table."""
     import shutil
     import uuid
 
-    d = Path(root) / SIM_RESULTS.name / f"task={task}" / f"take={take}"
-    if not d.is_dir():
-        return 0
-    n = sum(1 for _ in d.rglob(DATA_FILE))
-    trash = Path(root) / "_trash" / f"sim_results-{uuid.uuid4().hex}"
-    trash.parent.mkdir(exist_ok=True)
-    d.rename(trash)
-    shutil.rmtree(trash, ignore_errors=True)
+    n = 0
+    for name in (SIM_RESULTS.name, SIM_STABILITY.name):
+        d = Path(root) / name / f"task={task}" / f"take={take}"
+        if not d.is_dir():
+            continue
+        n += sum(1 for _ in d.rglob(DATA_FILE))
+        trash = Path(root) / "_trash" / f"{name}-{uuid.uuid4().hex}"
+        trash.parent.mkdir(exist_ok=True)
+        d.rename(trash)
+        shutil.rmtree(trash, ignore_errors=True)
     return n
 
 

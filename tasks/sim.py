@@ -1,4 +1,5 @@
-"""Prefect task of the robot success check: one chunk of a task's episodes executed in MuJoCo."""
+"""Prefect tasks of the robot success check: one chunk of a task's episodes executed in MuJoCo, once
+(simulate_chunk) or repeated on rigidly shifted copies of the scene (stability_chunk)."""
 
 from __future__ import annotations
 
@@ -16,15 +17,8 @@ from tasks.common import Manifest, stage_task
 SIM_VERSION = "3"
 
 
-@stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
-def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
-                   source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
-    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
-
-    `source`: the take's `episodes` and `episode_steps` files and `scene`: lib.robot_sim.scene_fingerprint,
-    both only in the cache key, so re-augmenting a take or changing a task's objects or the robot makes
-    the chunk run again instead of returning results of other episodes."""
-    from lib.robot_sim import execute_many
+def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
+    """(ids, kinds, object keypoints (n, K, 3), {id: actions (L, 2, 8)}) of episodes of a take's database."""
     from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
     from schemas.catalog import query
     from tasks.augment import episode_actions
@@ -38,23 +32,41 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
         raise ValueError(f"{task}/{take}: no such episodes {missing[:10]}")
     kinds = ep.column("kind").to_pylist()
     kps = np.asarray(ep.column("object_keypoints").to_pylist(), float)
-    acts = episode_actions(warehouse, task, take, eids)
+    return eids, kinds, kps, episode_actions(warehouse, task, take, eids)
+
+
+def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool) -> list:
+    """lib.robot_sim.execute_many with a progress bar (closed even when a worker fails)."""
+    from lib.robot_sim import execute_many
+
     bar = None
     if show_progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(eids), desc=f"{task} chunk {chunk}", unit="episode", leave=False)
+        bar = tqdm(total=len(jobs), desc=desc, unit="episode", leave=False)
 
     def progress(done: int, total: int) -> None:
         if bar is not None:
             bar.update(done - bar.n)
 
     try:
-        results = execute_many(task, [{"keypoints": kps[k], "actions": acts[e]} for k, e in enumerate(eids)],
-                               workers=workers, progress=progress)
+        return execute_many(task, jobs, workers=workers, progress=progress)
     finally:
         if bar is not None:
             bar.close()
+
+
+@stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
+def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
+                   source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
+    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
+
+    `source`: the take's `episodes` and `episode_steps` files and `scene`: lib.robot_sim.scene_fingerprint,
+    both only in the cache key, so re-augmenting a take or changing a task's objects or the robot makes
+    the chunk run again instead of returning results of other episodes."""
+    eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
+    results = _execute_with_bar(task, [{"keypoints": kps[k], "actions": acts[e]} for k, e in enumerate(eids)],
+                                workers, f"{task} chunk {chunk}", show_progress)
     rows = []
     for e, kind, r in zip(eids, kinds, results):
         d = r.row()
@@ -66,3 +78,32 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
                      "physics_steps": int(d["physics_steps"] or 0), "wall_s": float(d["wall_s"] or 0.0)})
     written = write_table("sim_results", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("sim_results", written)
+
+
+@stage_task(name="stability_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
+def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: list[int], repeats: int,
+                    jitter_m: float, seed: int, warehouse: str, source: list[Path], scene: str, workers: int = 2,
+                    show_progress: bool = True) -> Manifest:
+    """Execute each of the given episodes `repeats` times, repeat 0 as is and the others with the scene
+    shifted rigidly by lib.robot_sim.stability.scene_offsets, and write their `sim_stability` rows.
+    `source` and `scene` are in the cache key only, as for simulate_chunk."""
+    from lib.robot_sim.stability import scene_offsets, shift_scene
+
+    eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
+    offsets = scene_offsets(eids, repeats, jitter_m, seed)
+    jobs, keys = [], []
+    for k, e in enumerate(eids):
+        for r in range(repeats):
+            kp, a = shift_scene(kps[k], acts[e], offsets[k, r])
+            jobs.append({"keypoints": kp, "actions": a})
+            keys.append((k, r))
+    results = _execute_with_bar(task, jobs, workers, f"{task} stability chunk {chunk}", show_progress)
+    rows = []
+    for (k, r), res in zip(keys, results):
+        rows.append({"task": task, "take": take, "run": run, "chunk": int(chunk), "episode_id": eids[k],
+                     "kind": kinds[k], "repeat": r, "jitter_m": float(jitter_m),
+                     "offset_x": float(offsets[k, r, 0]), "offset_y": float(offsets[k, r, 1]),
+                     "success": bool(res.success), "failure": "" if res.success else str(res.failure or ""),
+                     "detail": str(res.detail or ""), "wall_s": float(res.wall_s or 0.0)})
+    written = write_table("sim_stability", pa.Table.from_pylist(rows), warehouse)
+    return Manifest.from_written("sim_stability", written)

@@ -193,14 +193,18 @@ def test_augment_keeps_the_mapping_options_the_take_was_ingested_with(prefect_ap
 
 
 def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, warehouse, take_dir):
-    from flows.sim import simulate_episodes
+    from flows.sim import check_stability, simulate_episodes
 
     def checked():
         return query("SELECT count(*) AS n FROM sim_results", warehouse).column("n")[0].as_py()
 
+    def repeats():
+        return query("SELECT count(*) AS n FROM sim_stability", warehouse).column("n")[0].as_py()
+
     out = augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=2, chunk_size=2, show_progress=False)
-    assert checked() == 2
+    check_stability(str(warehouse), task="trash_in_bin", episodes=1, repeats=2, show_progress=False)
+    assert checked() == 2 and repeats() == 2
     # the same database again (cached, or rewritten with the same bytes): the checks still describe it
     augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
     assert checked() == 2
@@ -211,5 +215,5 @@ def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, warehous
     assert checked() == 2
     # another database under the same take: the old checks would describe episodes that are gone
     augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=7, show_progress=False)
-    assert checked() == 0
+    assert checked() == 0 and repeats() == 0
     assert not list((warehouse / "_trash").rglob("*.parquet"))
