@@ -264,6 +264,8 @@ def evaluate(
     mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
+    stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on micrometre-shifted copies of the scene (0 skips it)."),
+    stability_repeats: int = typer.Option(3, envvar="STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
     trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy on --llm-task (thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
@@ -287,7 +289,8 @@ def evaluate(
     if mirror not in ("both", "no", "yes"):
         raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
     params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
-                  sim_episodes=sim_episodes, llm_tasks=llm_task or ["pouring"], trials=trials,
+                  sim_episodes=sim_episodes, stability_episodes=stability_episodes,
+                  stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials,
                   llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
                   variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials)
     warehouse, reports_dir = current_warehouse(), reports.resolve()

@@ -14,7 +14,7 @@ from flows.keypoint_eval import evaluate_keypoints
 from flows.llm_eval import llm_eval
 from flows.report import write_report
 from flows.runners import run_flow
-from flows.sim import simulate_episodes
+from flows.sim import check_stability, simulate_episodes
 from flows.synth import synthesize_takes
 
 
@@ -29,6 +29,8 @@ def evaluate(
     episodes: int = 10_000,
     arctic_root: str | None = None,
     sim_episodes: int = 20,
+    stability_episodes: int = 10,
+    stability_repeats: int = 3,
     llm_tasks: Sequence[str] = ("pouring",),
     trials: int = 1,
     llm_backend: str = "local",
@@ -44,7 +46,9 @@ def evaluate(
 
     Every take is ingested with the simulated detector (and measured against its ground truth);
     the first plain take of each task becomes that task's database of `episodes` episodes, of which
-    `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo.
+    `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo,
+    and `stability_episodes` of them `stability_repeats` times with the scene shifted by micrometres (how
+    far a single verdict can be trusted).
     The prompting strategies (thesis Table 3) run `trials` query scenes each on `llm_tasks` with
     `llm_backend` (the embedded Gemma 3 270M by default; answers are cached).
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
@@ -66,6 +70,9 @@ def evaluate(
             task = name.split("_s")[0].removeprefix("synth_")
             if sim_episodes:
                 run_flow(simulate_episodes, warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
+            if stability_episodes and stability_repeats >= 2:
+                run_flow(check_stability, warehouse, task=task, episodes=stability_episodes,
+                         repeats=stability_repeats, take=name, seed=seed)
         else:
             run_flow(ingest_take, m.path, warehouse)
         progress.step()
@@ -104,6 +111,8 @@ def evaluate(
     report = write_report(warehouse, reports_dir, {"tasks": tasks, "takes": takes, "seed": seed,
                                                    "mirror": mirror, "episodes": episodes,
                                                    "arctic_root": arctic_root, "sim_episodes": sim_episodes,
+                                                   "stability_episodes": stability_episodes,
+                                                   "stability_repeats": stability_repeats,
                                                    "llm_tasks": list(llm_tasks), "trials": trials,
                                                    "llm_backend": llm_backend,
                                                    "variation_trials": variation_trials,

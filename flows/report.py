@@ -220,6 +220,12 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "parallel-jaw grippers with real contacts, friction and gravity; the robot replays what "
                        "the ingest recovered from the video, not the script."))
     md.append(_section("Why episodes failed in physics", "report_sim_failures", warehouse, reports, stamp))
+    md.append(_section("How stable the robot check's verdicts are", "report_sim_stability", warehouse, reports, stamp,
+                       "Episodes of the sample executed again with the whole scene (objects and gripper poses) "
+                       "shifted rigidly along the table by about 0.1 mm: physically nothing changes, only the "
+                       "simulation's rounding. `flipping` episodes change outcome under that shift: their single "
+                       "verdict is decided by numerical chaos, and `success_rate` over all repeats estimates "
+                       "their success as a probability (`demoforge stability` for more episodes and repeats)."))
     from flows.export import report_plots  # per task: trajectories before/after, coverage, success map
 
     md += report_plots(str(warehouse), str(reports))
@@ -233,6 +239,7 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                                   "report_ingest_by_task", "report_ingest_accuracy", "report_segmentation",
                                   "report_augmentation", "report_table1", "report_table2", "report_appendix_b",
                                   "report_big_vs_small", "report_real_photos", "report_sim", "report_sim_failures",
+                                  "report_sim_stability",
                                   "report_table3", "report_llm_failures", "report_table4", "report_table4_failures",
                                   "report_policy", "report_policy_failures"}
     assert not unused, f"report views not in the report: {unused}"

@@ -18,7 +18,7 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
                     "## Segmentation against the scripted boundaries", "## Augmented episodes",
                     "## Table 1: MPJPE and PA-MPJPE (m) — synthetic, simulated detector",
                     "## Table 2: 2D MPJPE (px) and PCK", "## Appendix B: per take",
-                    "## A real detector on labelled real photos"):
+                    "## A real detector on labelled real photos", "## How stable the robot check's verdicts are"):
         assert heading in text
     assert "synth_paper_in_case_s0000" in text and "simulated" in text
     assert "![synthetic takes](synthetic_takes.png)" in text and (reports / "synthetic_takes.png").stat().st_size > 10_000
@@ -27,6 +27,8 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
                 "report_table1_synthetic_simulated") + (("report_real_photos",) if HAVE_PHOTOS else ()):
         lines = (reports / f"{csv}.csv").read_text().splitlines()
         assert len(lines) >= 2, csv
+    stability = (reports / "report_sim_stability.csv").read_text().splitlines()
+    assert len(stability) == 2 and "sample-10-seed0-r3-j0.0001-s0" in stability[1]
     aug = (reports / "report_augmentation.csv").read_text()
     assert '"original"' in aug and '"mirrored"' in aug and '"translated"' in aug
 
