@@ -264,7 +264,7 @@ def evaluate(
     mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
     episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
-    stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on micrometre-shifted copies of the scene (0 skips it)."),
+    stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
     stability_repeats: int = typer.Option(3, envvar="STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
     trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy on --llm-task (thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
@@ -515,7 +515,7 @@ def stability(
     seed: int = typer.Option(0, help="Seed of the episode sample and of the shifts."),
 ) -> None:
     """Check how stable the robot check's verdicts are: execute each episode several times with the whole
-    scene shifted by micrometres. An episode whose outcome flips is decided by numerical chaos, not by its
+    scene shifted by a fraction of a millimetre. An episode whose outcome flips is decided by numerical chaos, not by its
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
     from flows.sim import check_stability
 

@@ -47,7 +47,7 @@ def evaluate(
     Every take is ingested with the simulated detector (and measured against its ground truth);
     the first plain take of each task becomes that task's database of `episodes` episodes, of which
     `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo,
-    and `stability_episodes` of them `stability_repeats` times with the scene shifted by micrometres (how
+    and `stability_episodes` of them `stability_repeats` times with the scene shifted by about 0.1 mm (how
     far a single verdict can be trusted).
     The prompting strategies (thesis Table 3) run `trials` query scenes each on `llm_tasks` with
     `llm_backend` (the embedded Gemma 3 270M by default; answers are cached).

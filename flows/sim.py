@@ -1,5 +1,5 @@
 """Flows: execute a task's episodes with the dual-gripper robot in MuJoCo; check how stable the outcomes
-are under a rigid micrometre shift of the scene; render one episode as a video."""
+are under a rigid sub-millimetre shift of the scene; render one episode as a video."""
 
 from __future__ import annotations
 

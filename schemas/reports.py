@@ -209,7 +209,7 @@ REPORT_VIEWS: dict[str, str] = {
         FROM sim_outcomes GROUP BY ALL ORDER BY task, episodes DESC, outcome
     """,
     # Outcome stability per task and stability run: how many episodes keep their verdict when the
-    # scene is shifted by micrometres (always / never succeed) and how many flip.
+    # scene is shifted by a fraction of a millimetre (always / never succeed) and how many flip.
     "report_sim_stability": """
         SELECT task, take, run, count(*) AS episodes, max(repeats) AS repeats,
                count(*) FILTER (WHERE ok = repeats) AS always_succeed,

@@ -48,8 +48,8 @@ SIM_STABILITY = table(
     "sim_stability",
     version=1,
     doc=("Outcome stability of the robot check: each episode executed `repeats` times, repeat 0 as is and the "
-         "others with the whole scene (objects and gripper poses) shifted rigidly along the table by a few "
-         "micrometres (lib/robot_sim/stability.py). Physically nothing changes; an episode whose outcome flips "
+         "others with the whole scene (objects and gripper poses) shifted rigidly along the table by a fraction "
+         "of a millimetre (`jitter_m`; lib/robot_sim/stability.py). Physically nothing changes; an episode whose outcome flips "
          "is decided by numerical chaos, and its success is a probability. One row per episode and repeat."),
     columns=[
         Column("task", pa.string(), "Task name."),

@@ -2,7 +2,7 @@
 
 A rigid shift of the whole scene along the table (every object and every gripper pose moved by the
 same offset) changes nothing physical: contacts, gravity and the table top are translation-invariant
-(the table is 1.5 m x 0.9 m; the offsets are micrometres). Only the floating-point rounding of the
+(the table is 1.5 m x 0.9 m; the offsets are fractions of a millimetre). Only the floating-point rounding of the
 simulation changes. An episode whose outcome flips under such a shift is decided by numerical chaos,
 not by the trajectory, and its single-run verdict is not a reliable label for training or for a
 success rate: its success is a probability, estimated by the share of repeats that succeed.
