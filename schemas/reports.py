@@ -209,7 +209,8 @@ REPORT_VIEWS: dict[str, str] = {
         FROM sim_outcomes GROUP BY ALL ORDER BY task, episodes DESC, outcome
     """,
     # Outcome stability per task and stability run: how many episodes keep their verdict when the
-    # scene is shifted by a fraction of a millimetre (always / never succeed) and how many flip.
+    # scene is shifted by a fraction of a millimetre (always / never succeed) and how many flip. Repeats
+    # are counted once each: the same run re-chunked leaves older chunk files holding the same rows.
     "report_sim_stability": """
         SELECT task, take, run, count(*) AS episodes, max(repeats) AS repeats,
                count(*) FILTER (WHERE ok = repeats) AS always_succeed,
@@ -217,7 +218,8 @@ REPORT_VIEWS: dict[str, str] = {
                count(*) FILTER (WHERE ok > 0 AND ok < repeats) AS flipping,
                round(avg(first_ok), 3) AS first_run_success_rate,
                round(sum(ok) / sum(repeats), 3) AS success_rate
-        FROM (SELECT task, take, run, episode_id, count(*) AS repeats, count(*) FILTER (WHERE success) AS ok,
+        FROM (SELECT task, take, run, episode_id, count(DISTINCT repeat) AS repeats,
+                     count(DISTINCT repeat) FILTER (WHERE success) AS ok,
                      max(CASE WHEN repeat = 0 AND success THEN 1.0 ELSE 0.0 END) AS first_ok
               FROM sim_stability GROUP BY ALL)
         GROUP BY task, take, run ORDER BY task, take, run

@@ -117,6 +117,12 @@ def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simul
                     show_progress=False)
     assert calls == []
 
+    # the same run in other chunks: older chunk files hold the same rows again, each counted once
+    check_stability(str(warehouse), task="trash_in_bin", episodes=3, repeats=2, jitter_m=1e-4, chunk_size=3,
+                    show_progress=False)
+    again = query("SELECT * FROM report_sim_stability", warehouse).to_pylist()
+    assert again == summary
+
     # the CLI explains bad settings instead of running
     r = CliRunner().invoke(app, ["stability", "--task", "trash_in_bin", "--episodes", "3", "--jitter", "0"])
     assert r.exit_code == 2 and "jitter_m must be a positive number of metres" in r.output
