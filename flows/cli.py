@@ -499,7 +499,12 @@ def simulate(
         raise fail(str(e))
     from schemas.catalog import query
 
-    _emit(query(f"SELECT * FROM report_sim WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+    wh = current_warehouse()
+    result = query(f"SELECT * FROM report_sim WHERE task = '{task}'", wh)
+    _emit(result, OutputFormat.table, None, 40)
+    if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
+        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}'\". Whether a "
+                   f"failure is the trajectory's or chance: demoforge stability --task {task}")
 
 
 @app.command()
