@@ -97,11 +97,21 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     progress = ProgressArtifact(f"simulate-{task}", len(calls),
                                 f"{task}: chunks of {chunk_size} episodes executed in MuJoCo")
     out = []
-    for k, call in enumerate(calls):
-        out.append(run_stage(simulate_chunk, warehouse, **call))
-        progress.step()
-        logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
+    with _run_bar(f"{task}: {common['selection']}", len(ids), show_progress) as bar:
+        for k, call in enumerate(calls):
+            out.append(run_stage(simulate_chunk, warehouse, **call))
+            progress.step()
+            bar.update(len(call["episode_ids"]))
+            logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
     return out
+
+
+def _run_bar(desc: str, total: int, show: bool):
+    """The whole run's progress bar (episodes, with the rate and the time left), above each chunk's own;
+    chunks served from the cache advance it at once."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="episode", position=0, disable=not show, smoothing=0.05)
 
 
 @flow(name="check-stability")
@@ -129,9 +139,11 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
             c.update(workers=1, show_progress=False)
         return run_stages(stability_chunk, warehouse, calls)
     out = []
-    for k, call in enumerate(calls):
-        out.append(run_stage(stability_chunk, warehouse, **call))
-        logger.info("%s stability chunk %d/%d done (%s)", task, k + 1, len(chunks), run)
+    with _run_bar(f"{task}: stability {run}", len(ids), show_progress) as bar:
+        for k, call in enumerate(calls):
+            out.append(run_stage(stability_chunk, warehouse, **call))
+            bar.update(len(call["episode_ids"]))
+            logger.info("%s stability chunk %d/%d done (%s)", task, k + 1, len(chunks), run)
     return out
 
 

@@ -43,7 +43,7 @@ def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progr
     if show_progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(jobs), desc=desc, unit="episode", leave=False)
+        bar = tqdm(total=len(jobs), desc=desc, unit="episode", leave=False, position=1)
 
     def progress(done: int, total: int) -> None:
         if bar is not None:
