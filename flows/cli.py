@@ -477,6 +477,15 @@ def llm_eval_cmd(
     _emit(query(f"SELECT * FROM report_table3 WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
 
 
+def _episodes_option(episodes: str) -> int | str:
+    """--episodes of simulate / stability: a count or `all`."""
+    if episodes == "all":
+        return episodes
+    if not episodes.isdigit():
+        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    return int(episodes)
+
+
 @app.command()
 def simulate(
     task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
@@ -489,9 +498,7 @@ def simulate(
     """Execute episodes with two parallel-jaw grippers in MuJoCo physics and record success and failure reasons."""
     from flows.sim import simulate_episodes
 
-    n: int | str = episodes if episodes == "all" else int(episodes) if episodes.isdigit() else -1
-    if n == -1:
-        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    n = _episodes_option(episodes)
     try:
         run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
                           workers=workers, seed=seed)
@@ -524,9 +531,7 @@ def stability(
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
     from flows.sim import check_stability
 
-    n: int | str = episodes if episodes == "all" else int(episodes) if episodes.isdigit() else -1
-    if n == -1:
-        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    n = _episodes_option(episodes)
     try:
         run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
                  take=take, chunk_size=chunk_size, workers=workers, seed=seed)

@@ -80,29 +80,38 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     and a whole-database run of the same task keep their own files."""
     from lib.robot_sim import scene_fingerprint
 
-    logger = get_run_logger()
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
-    chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
-    common = dict(task=task, take=take, selection=selection_name(episodes, ids, seed), warehouse=warehouse,
-                  source=source, scene=scene_fingerprint(task), workers=workers, show_progress=show_progress)
-    calls = [dict(common, chunk=k, episode_ids=chunk) for k, chunk in enumerate(chunks)]
+    selection = selection_name(episodes, ids, seed)
+    common = dict(task=task, take=take, selection=selection, warehouse=warehouse, source=source,
+                  scene=scene_fingerprint(task), workers=workers, show_progress=show_progress)
+    return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection}",
+                       artifact=(f"simulate-{task}", f"{task}: chunks of {chunk_size} episodes executed in MuJoCo"))
+
+
+def _run_chunks(stage, warehouse: str, common: dict, ids: list[int], chunk_size: int, desc: str,
+                artifact: tuple[str, str] | None = None) -> list[Manifest]:
+    """Run a chunked stage over `ids` (one cached call per chunk of chunk_size episodes). On a Dask
+    cluster the chunks run in parallel, one per worker process; here one after the other under the
+    whole run's progress bar, and with a Prefect progress artifact (key, description) if given."""
+    calls = [dict(common, chunk=k, episode_ids=ids[i:i + chunk_size])
+             for k, i in enumerate(range(0, len(ids), chunk_size))]
     if in_distributed_flow():
-        # on a Dask cluster the chunks run in parallel, one per worker process
         for c in calls:
             c.update(workers=1, show_progress=False)
-        return run_stages(simulate_chunk, warehouse, calls)
+        return run_stages(stage, warehouse, calls)
     from flows.artifacts import ProgressArtifact
 
-    progress = ProgressArtifact(f"simulate-{task}", len(calls),
-                                f"{task}: chunks of {chunk_size} episodes executed in MuJoCo")
+    progress = ProgressArtifact(artifact[0], len(calls), artifact[1]) if artifact else None
+    logger = get_run_logger()
     out = []
-    with _run_bar(f"{task}: {common['selection']}", len(ids), show_progress) as bar:
+    with _run_bar(desc, len(ids), common["show_progress"]) as bar:
         for k, call in enumerate(calls):
-            out.append(run_stage(simulate_chunk, warehouse, **call))
-            progress.step()
+            out.append(run_stage(stage, warehouse, **call))
+            if progress is not None:
+                progress.step()
             bar.update(len(call["episode_ids"]))
-            logger.info("%s chunk %d/%d done", task, k + 1, len(chunks))
+            logger.info("%s: chunk %d/%d done", desc, k + 1, len(calls))
     return out
 
 
@@ -124,27 +133,14 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
     from lib.robot_sim import scene_fingerprint
     from lib.robot_sim.stability import scene_offsets
 
-    logger = get_run_logger()
     scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     run = stability_run_name(selection_name(episodes, ids, seed), repeats, jitter_m, seed)
-    chunks = [ids[i:i + chunk_size] for i in range(0, len(ids), chunk_size)]
     common = dict(task=task, take=take, run=run, repeats=int(repeats), jitter_m=float(jitter_m), seed=int(seed),
                   warehouse=warehouse, source=source, scene=scene_fingerprint(task), workers=workers,
                   show_progress=show_progress)
-    calls = [dict(common, chunk=k, episode_ids=chunk) for k, chunk in enumerate(chunks)]
-    if in_distributed_flow():
-        for c in calls:
-            c.update(workers=1, show_progress=False)
-        return run_stages(stability_chunk, warehouse, calls)
-    out = []
-    with _run_bar(f"{task}: stability {run}", len(ids), show_progress) as bar:
-        for k, call in enumerate(calls):
-            out.append(run_stage(stability_chunk, warehouse, **call))
-            bar.update(len(call["episode_ids"]))
-            logger.info("%s stability chunk %d/%d done (%s)", task, k + 1, len(chunks), run)
-    return out
+    return _run_chunks(stability_chunk, warehouse, common, ids, chunk_size, f"{task}: stability {run}")
 
 
 def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None) -> dict:

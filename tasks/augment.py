@@ -127,8 +127,8 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
         gone = drop_results(warehouse, name, take.take_id)
         if gone:
-            get_run_logger().warning("%s/%s: the episodes changed; removed %d sim_results file(s) of the previous episodes",
-                           name, take.take_id, gone)
+            get_run_logger().warning("%s/%s: the episodes changed; removed %d robot-check file(s) (sim_results, "
+                                     "sim_stability) of the previous episodes", name, take.take_id, gone)
     return Manifest.from_written("episodes", written)
 
 

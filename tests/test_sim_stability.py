@@ -103,11 +103,10 @@ def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simul
             assert (r["success"], r["failure"], r["detail"]) == (s["success"], s["failure"], s["detail"])
     summary = query("SELECT * FROM report_sim_stability", warehouse).to_pylist()
     assert len(summary) == 1 and summary[0]["episodes"] == 3 and summary[0]["repeats"] == 2
-    ok = {}
-    for r in rows:
-        ok.setdefault(r["episode_id"], []).append(r["success"])
-    assert summary[0]["always_succeed"] == sum(all(v) for v in ok.values())
-    assert summary[0]["flipping"] == sum(any(v) and not all(v) for v in ok.values())
+    expected = stability_summary(np.array([r["success"] for r in rows]).reshape(3, 2))  # rows: by episode, repeat
+    assert summary[0]["always_succeed"] == expected["always"]
+    assert summary[0]["never_succeed"] == expected["never"]
+    assert summary[0]["flipping"] == expected["flipping"]
 
     # cached: the same run executes nothing again
     calls = []
