@@ -1,12 +1,30 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
 
+import shutil
+import tempfile
+
 import pytest
 
 import lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
 import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
 SHARED_DATA = lib.SHARED_DATA
+
+# Free space the suite needs in the temporary directory (synthetic takes, warehouses, videos, model
+# weights the tests build). Measured peak: see README "Tests". With less, dozens of fixtures fail with
+# scattered OSErrors (a CI run did); one clear message up front is better.
+MIN_FREE_TMP_BYTES = 3 * 1024**3
+
+
+def pytest_sessionstart(session):
+    tmp = tempfile.gettempdir()
+    free = shutil.disk_usage(tmp).free
+    if free < MIN_FREE_TMP_BYTES:
+        pytest.exit(f"only {free / 1024**3:.1f} GiB free in {tmp}; the test suite needs about "
+                    f"{MIN_FREE_TMP_BYTES / 1024**3:.0f} GiB there for its synthetic takes and warehouses. "
+                    f"Free some space (old pytest-of-* folders, warehouse/ copies) or point TMPDIR at a "
+                    f"larger disk, then run `make test` again.", returncode=3)
 
 
 @pytest.fixture(scope="session")
