@@ -56,6 +56,12 @@ def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progr
             bar.close()
 
 
+def _outcome_columns(r) -> dict:
+    """The outcome columns `sim_results` and `sim_stability` share, from a lib.robot_sim.SimResult."""
+    return {"success": bool(r.success), "failure": "" if r.success else str(r.failure or ""),
+            "detail": str(r.detail or ""), "wall_s": float(r.wall_s or 0.0)}
+
+
 @stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
 def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
                    source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
@@ -69,13 +75,10 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
                                 workers, f"{task} chunk {chunk}", show_progress)
     rows = []
     for e, kind, r in zip(eids, kinds, results):
-        d = r.row()
         rows.append({"task": task, "take": take, "selection": selection, "chunk": int(chunk), "episode_id": e,
-                     "kind": kind,
-                     "success": bool(d["success"]), "failure": "" if d["success"] else str(d["failure"] or ""),
-                     "detail": str(d["detail"] or ""), "predicate_ok": d["predicate_ok"],
-                     "predicate_detail": str(d["predicate_detail"] or ""), "duration_s": float(d["duration_s"] or 0.0),
-                     "physics_steps": int(d["physics_steps"] or 0), "wall_s": float(d["wall_s"] or 0.0)})
+                     "kind": kind, **_outcome_columns(r), "predicate_ok": r.predicate_ok,
+                     "predicate_detail": str(r.predicate_detail or ""), "duration_s": float(r.duration_s or 0.0),
+                     "physics_steps": int(r.physics_steps or 0)})
     written = write_table("sim_results", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("sim_results", written)
 
@@ -103,7 +106,6 @@ def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: lis
         rows.append({"task": task, "take": take, "run": run, "chunk": int(chunk), "episode_id": eids[k],
                      "kind": kinds[k], "repeat": r, "jitter_m": float(jitter_m),
                      "offset_x": float(offsets[k, r, 0]), "offset_y": float(offsets[k, r, 1]),
-                     "success": bool(res.success), "failure": "" if res.success else str(res.failure or ""),
-                     "detail": str(res.detail or ""), "wall_s": float(res.wall_s or 0.0)})
+                     **_outcome_columns(res)})
     written = write_table("sim_stability", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("sim_stability", written)

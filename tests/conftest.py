@@ -12,8 +12,8 @@ import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 SHARED_DATA = lib.SHARED_DATA
 
 # Free space the suite needs in the temporary directory (synthetic takes, warehouses, videos, model
-# weights the tests build). Measured peak: see README "Tests". With less, dozens of fixtures fail with
-# scattered OSErrors (a CI run did); one clear message up front is better.
+# weights the tests build): measured peak 1-2 GB (README, Development), plus a margin. A CI run that
+# started on a nearly full disk ended with 71 fixture errors; one clear message up front is better.
 MIN_FREE_TMP_BYTES = 3 * 1024**3
 
 
