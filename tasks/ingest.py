@@ -22,10 +22,12 @@ INGEST_VERSION = "1"
 
 
 def take_task_name(take: Any, task: str | None) -> str:
-    """The task a take belongs to: given explicitly, else from the synthetic take.json, else unknown."""
+    """The task a take belongs to: given explicitly, else from the synthetic take.json, else the
+    task section of annotations.json, else unknown."""
     if task:
         return task
-    return str((take.meta or {}).get("task") or "unknown")
+    annotated = getattr(getattr(take, "annotations", None), "task", None)  # written by `demoforge annotate`
+    return str((take.meta or {}).get("task") or (annotated.name if annotated is not None else "unknown"))
 
 
 def rows(take: str, task: str, T: int, **columns: Any) -> dict[str, Any]:
@@ -215,16 +217,24 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
 
 # --- 5. object keypoints -------------------------------------------------------------------------
 
-@stage_task(name="object_keypoints", version=INGEST_VERSION)
-def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manifest:
+@stage_task(name="object_keypoints", version=f"{INGEST_VERSION}/annotate-1")
+def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manifest | None:
     """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
-    back-projected with depth."""
+    back-projected with depth. None (nothing written) for a take not annotated yet: the stages
+    before this one stand, and `demoforge annotate` is what is missing."""
+    from lib.annotate import annotation_status, not_annotated_message
     from lib.ingest import open_take, read_frame
     from lib.object_keypoints import backproject_keypoints_detailed
     from schemas.core import read_table_file, unsliced_table
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
+    status = annotation_status(take)
+    if not status.annotated:
+        from prefect import get_run_logger
+
+        get_run_logger().warning(not_annotated_message(take.path, status.detail))
+        return None
     if take.has_ground_truth:
         gt = unsliced_table(read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet"))
         first = gt.filter(pa.compute.equal(gt.column("frame"), 0))
@@ -235,14 +245,14 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
                 "source": ["ground truth"] * len(pts)}
     else:
         ann = take.annotations
-        if ann is None or len(ann.object_keypoints_uv) == 0:
-            raise ValueError(
-                f"{take.path}: no annotations.json with object_keypoints_2d; annotate the first frame's "
-                "object keypoints (see README: take folders) to ingest object keypoints")
-        _, depth = read_frame(take, ann.object_keypoints_frame or 0)
-        r = backproject_keypoints_detailed(ann.object_keypoints_uv, depth, take.K, take.camera.T_world_camera)
         names = _keypoint_names(take, len(ann.object_keypoints_uv))
-        uv = np.asarray(ann.object_keypoints_uv, float)[:, None, :]
+        uv2 = np.asarray(ann.object_keypoints_uv, float)
+        if ann.task is not None:  # the task's keypoint order, whatever order the file lists them in
+            order = [names.index(k) for k in ann.task.keypoint_names]
+            names, uv2 = [names[i] for i in order], uv2[order]
+        _, depth = read_frame(take, ann.object_keypoints_frame or 0)
+        r = backproject_keypoints_detailed(uv2, depth, take.K, take.camera.T_world_camera)
+        uv = uv2[:, None, :]
         data = {"point_world": r.points_world, "valid": r.valid, "reason": r.reasons,
                 "source": ["annotation+depth"] * len(names)}
     n = len(names)
