@@ -22,12 +22,14 @@ INGEST_VERSION = "1"
 
 
 def take_task_name(take: Any, task: str | None) -> str:
-    """The task a take belongs to: given explicitly, else from the synthetic take.json, else the
-    task section of annotations.json, else unknown."""
+    """The task a take belongs to: given explicitly, else the task section of annotations.json, else
+    the synthetic take.json's, else unknown."""
     if task:
         return task
     annotated = getattr(getattr(take, "annotations", None), "task", None)  # written by `demoforge annotate`
-    return str((take.meta or {}).get("task") or (annotated.name if annotated is not None else "unknown"))
+    if annotated is not None:
+        return annotated.name
+    return str((take.meta or {}).get("task") or "unknown")
 
 
 def rows(take: str, task: str, T: int, **columns: Any) -> dict[str, Any]:
@@ -235,7 +237,8 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
 
         get_run_logger().warning(not_annotated_message(take.path, status.detail))
         return None
-    if take.has_ground_truth:
+    custom = take.annotations.task is not None and not take.annotations.task.library
+    if take.has_ground_truth and not custom:  # a custom task's points exist only as clicked
         gt = unsliced_table(read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet"))
         first = gt.filter(pa.compute.equal(gt.column("frame"), 0))
         pts = np.array(first.column("keypoints_world")[0].as_py())
