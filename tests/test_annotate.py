@@ -60,17 +60,24 @@ def _one_line_error(r: subprocess.CompletedProcess, *needles: str) -> str:
 
 # ------------------------------------------------------------------------------------------------ lib
 
+def _names(prefix: str, n: int) -> list[str]:
+    return [f"{prefix}{i}" for i in range(n)]
+
+
 def test_custom_task_groups_keypoints_by_object_and_validates_names():
-    t = custom_task("cup:rim,bowl:rim_l,cup:base,bowl:rim_r", name="stack")
+    t = custom_task(["cup:rim", "bowl:rim_l", "cup:base", "bowl:rim_r", *(f"bowl:{k}" for k in _names("b", 7))],
+                    name="stack")
     assert t.object_names == ("cup", "bowl")
-    assert t.keypoint_names == ("rim", "base", "rim_l", "rim_r") and t.keypoint_object == (0, 0, 1, 1)
-    assert custom_task("a,b,c").object_names == ("object_a",)
+    assert t.keypoint_names[:4] == ("rim", "base", "rim_l", "rim_r") and t.keypoint_object == (0, 0) + (1,) * 9
+    assert custom_task(",".join(_names("k", 11))).object_names == ("object_a",)
+    with pytest.raises(TakeError, match="needs 11 object keypoints, got 3"):
+        custom_task("a,b,c")
     with pytest.raises(TakeError, match="unique"):
-        custom_task("a,b,a")
+        custom_task(_names("k", 10) + ["k0"])
     with pytest.raises(TakeError, match="at most 2 objects"):
-        custom_task("x:a,y:b,z:c")
+        custom_task(["x:a", "y:b", *(f"z:{k}" for k in _names("c", 9))])
     with pytest.raises(TakeError, match="letters, digits"):
-        custom_task("a b,c")
+        custom_task(_names("k", 10) + ["a b"])
     with pytest.raises(TakeError, match="--keypoints"):
         custom_task(" , ")
 
@@ -84,8 +91,8 @@ def test_task_section_round_trips_and_library_keypoints_are_fixed(tmp_path):
     with pytest.raises(TakeError, match="library task"):
         parse_task_section(bad)
     f = tmp_path / "task.json"
-    f.write_text(json.dumps({"name": "stack", "objects": [{"name": "cup", "arm": "right", "keypoints": ["rim"]},
-                                                          {"name": "bowl", "arm": "up", "keypoints": ["base"]}]}))
+    f.write_text(json.dumps({"name": "stack", "objects": [{"name": "cup", "arm": "right", "keypoints": _names("c", 5)},
+                                                          {"name": "bowl", "arm": "up", "keypoints": _names("b", 6)}]}))
     with pytest.raises(TakeError, match="'left' or 'right'"):
         load_task_file(f)
     f.write_text("{nope")
@@ -96,7 +103,7 @@ def test_task_section_round_trips_and_library_keypoints_are_fixed(tmp_path):
 
 
 def test_build_annotations_validates_and_writes_atomically(tmp_path):
-    t = custom_task("cup:rim,cup:base,bowl:edge")
+    t = custom_task(["cup:rim", "cup:base", *(f"bowl:{k}" for k in _names("b", 9))])
     obj = build_annotations(t, {"rim": [10, 20], "base": [11.5, 30]}, frame=3, closed_ranges={"left": [[5, 9], [0, 2]]}, n_frames=12)
     assert obj["object_keypoints_2d"] == {"frame": 3, "names": ["rim", "base"], "uv": [[10.0, 20.0], [11.5, 30.0]]}
     assert obj["gripper_closed_ranges"] == {"left": [[0, 2], [5, 9]], "right": []}
@@ -217,7 +224,7 @@ def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api
     assert "not annotated yet" in by["raw"]["error"] and by["raw"]["episodes"] == 0
     assert by["broken"]["status"] == "failed" and "camera.json" in by["broken"]["error"]
     eps = query("SELECT take, count(*) AS n FROM episodes GROUP BY take", wh).to_pylist()
-    assert eps == [{"take": "annotated", "n": 20}]
+    assert eps == [{"take": "annotated", "n": 21}]  # the demonstration and 20 generated
     got = query("SELECT take, status FROM folder_ingests ORDER BY take", wh).to_pylist()
     assert got == [{"take": "annotated", "status": "ingested"}, {"take": "broken", "status": "failed"},
                    {"take": "raw", "status": "needs_annotation"}]
@@ -234,35 +241,36 @@ def test_custom_task_is_annotated_ingested_and_augmented(prefect_api, pouring_ta
     wh = tmp_path / "wh"
     exact = json.loads((pouring_take / "annotations.json").read_text())["object_keypoints_2d"]
     uv = dict(zip(exact["names"], exact["uv"]))
-    session = AnnotationSession(raw_take, wh, task="custom:serve_drink",
-                                keypoints="jug:base,jug:mouth,jug:side,glass:bottom,glass:rim")
+    mine = ["jug:j_base", "jug:j_left", "jug:j_right", "jug:j_shoulder", "jug:j_mouth", "glass:g_base",
+            "glass:g_center", "glass:g_front", "glass:g_back", "glass:g_left", "glass:g_right"]
+    where = {m.split(":")[1]: uv[n] for m, n in zip(mine, exact["names"])}  # the points of the pouring objects
+    session = AnnotationSession(raw_take, wh, task="custom:serve_drink", keypoints=",".join(mine))
     assert session.task.object_names == ("jug", "glass") and session.task.object_arms == (None, None)
     task = session.task.to_json()
-    task["objects"][0]["arm"], task["objects"][1]["arm"] = "right", "left"
-    points = {"base": uv["bottle_base"], "mouth": uv["bottle_mouth"], "side": uv["bottle_right"]}
+    task["objects"][0]["arm"], task["objects"][1]["arm"] = "right", "left"   # chosen on the page
+    points = {k: where[k] for k in list(where)[:5]}
     saved = session.save({"frame": 0, "points": points, "ranges": {"left": [[2, 30]]}, "task": task})
-    assert not saved["status"]["annotated"] and "3 of 5 object keypoints placed, missing bottom, rim" in saved["status"]["detail"]
+    assert not saved["status"]["annotated"]
+    assert saved["status"]["detail"].startswith("5 of 11 object keypoints placed, missing g_base, g_center")
+    bad = json.loads(json.dumps(task))
+    bad["objects"][1]["keypoints"][0] = "j_base"
     with pytest.raises(TakeError, match="keypoint names must be unique"):
-        bad = json.loads(json.dumps(task))
-        bad["objects"][1]["keypoints"] = ["base", "rim"]
         session.save({"frame": 0, "points": {}, "ranges": {}, "task": bad})
-    points.update(bottom=uv["cup_base"], rim=uv["cup_rim_front"])
-    saved = session.save({"frame": 0, "points": points, "ranges": {"left": [[2, 30]]}, "task": task})
+    saved = session.save({"frame": 0, "points": where, "ranges": {"left": [[2, 30]]}, "task": task})
     assert saved["status"] == {"annotated": True, "detail": ""}
     ann = open_take(raw_take).annotations
     assert ann.task.name == "serve_drink" and ann.task.object_arm_index().tolist() == [1, 0]
 
     preds = tmp_path / "preds.npz"
     _write_gt_predictions(pouring_take, preds)
-    out = augment_take_flow(str(raw_take), str(wh), detector="precomputed", n=30, n_mirrored=10,
-                            show_progress=False, ingest_options={"detector_options": {"path": str(preds)}})
-    assert out["episodes"].rows == 30
+    augment_take_flow(str(raw_take), str(wh), detector="precomputed", n=30, n_mirrored=10,
+                      show_progress=False, ingest_options={"detector_options": {"path": str(preds)}})
     kp = query("SELECT name, valid, source FROM object_keypoints ORDER BY keypoint", wh).to_pylist()
-    assert [k["name"] for k in kp] == ["base", "mouth", "side", "bottom", "rim"]
+    assert [k["name"] for k in kp] == list(where)
     assert all(k["valid"] and k["source"] == "annotation+depth" for k in kp)
     eps = query("SELECT task, take, kind, count(*) AS n FROM episodes GROUP BY ALL ORDER BY kind", wh).to_pylist()
     assert {(e["task"], e["take"]) for e in eps} == {("serve_drink", "my_take")}
-    assert {e["kind"]: e["n"] for e in eps}["mirrored"] == 10
+    assert {e["kind"]: e["n"] for e in eps} == {"original": 1, "translated": 20, "mirrored": 10}
     g = query("SELECT hand, state_method FROM gripper_poses WHERE frame = 10 ORDER BY hand", wh).to_pylist()
     assert [r["state_method"] for r in g] == ["manual", "manual"]  # the page's ranges are the labels
 

@@ -35,6 +35,8 @@ SIDES = ("left", "right")
 RANGE_CONVENTION = "[start, end) 0-based frame indices, end exclusive"
 #: The one-line state of a take whose object keypoints are not annotated (printed by ingest, augment).
 NOT_ANNOTATED = "not annotated yet"
+#: Object keypoints per scene in the episode tables (schemas/augment.py) and prompts: a custom task has these.
+EPISODE_KEYPOINTS = 11
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 
@@ -114,6 +116,10 @@ def _definition(name: str, objects: Sequence[tuple[str, str | None, Sequence[str
     for k in [*onames, *kn]:
         if not isinstance(k, str) or not _NAME.match(k):
             raise _err(f"{where}: names must be letters, digits, _ . - (no spaces or commas), got {k!r}")
+    if not library and len(kn) != EPISODE_KEYPOINTS:
+        raise _err(f"{where}: a task of your own needs {EPISODE_KEYPOINTS} object keypoints, got {len(kn)}: the "
+                   f"episode tables and the prompts hold {EPISODE_KEYPOINTS} per scene (the thesis's format); "
+                   f"split them over the two objects, e.g. 5 + 6")
     for o, a, _ in objs:
         if a is not None and a not in SIDES:
             raise _err(f"{where}: object {o!r}: arm must be 'left' or 'right', got {a!r}")
