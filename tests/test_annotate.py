@@ -290,6 +290,58 @@ def _write_gt_predictions(take: Path, out: Path) -> None:
              confidence=np.ones(len(rows)))
 
 
+def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouring_take, tmp_path):
+    """The page's API: an existing annotations.json is what the page starts from; a bad save changes nothing."""
+    import urllib.error
+    import urllib.request
+
+    import cv2
+
+    from flows.annotate import AnnotationSession, server_url, start_server
+
+    take = tmp_path / "take"
+    shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))
+    before = (take / "annotations.json").read_bytes()
+    original = json.loads(before)
+    session = AnnotationSession(take)  # task from take.json (pouring)
+    server = start_server(session, port=0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    url = server_url(server)
+
+    def post(path: str, body: dict):
+        req = urllib.request.Request(url + path, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+        return json.load(urllib.request.urlopen(req, timeout=30))
+
+    try:
+        st = json.load(urllib.request.urlopen(url + "api/state", timeout=30))
+        assert st["exists"] and st["current"]["ranges_from"] == "annotations.json" and st["ingest"] is None
+        okp = original["object_keypoints_2d"]
+        assert st["current"]["points"] == {n: list(map(float, uv)) for n, uv in zip(okp["names"], okp["uv"])}
+        assert st["current"]["ranges"] == original["gripper_closed_ranges"]
+        jpg = urllib.request.urlopen(url + "api/frame/7.jpg", timeout=30).read()
+        img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == (480, 640, 3)
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(url + f"api/frame/{N_FRAMES}.jpg", timeout=30)
+        assert e.value.code == 400 and "out of range" in json.load(e.value)["error"]
+        with pytest.raises(urllib.error.HTTPError) as e:
+            post("api/save", {"frame": 0, "points": st["current"]["points"], "task": st["task"],
+                              "ranges": {"left": [[5, 3]]}})
+        assert e.value.code == 400 and "need 0 <= start < end" in json.load(e.value)["error"]
+        assert (take / "annotations.json").read_bytes() == before
+        moved = dict(st["current"]["points"], cup_base=[300.0, 210.0])
+        out = post("api/save", {"frame": 0, "points": moved, "task": st["task"], "ranges": {"left": [[5, 9]]}})
+        assert out["status"] == {"annotated": True, "detail": ""}
+    finally:
+        server.shutdown()
+        server.server_close()
+    saved = json.loads((take / "annotations.json").read_text())
+    assert saved["object_keypoints_2d"]["uv"][okp["names"].index("cup_base")] == [300.0, 210.0]
+    assert saved["gripper_closed_ranges"] == {"left": [[5, 9]], "right": []}
+    assert sorted(p.name for p in take.iterdir() if p.name.startswith(".")) == []  # no temp file left
+
+
 # ------------------------------------------------------------------------------------------------ browser
 
 def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
