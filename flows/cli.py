@@ -642,6 +642,8 @@ def ingest_folder_cmd(
     This is the flow of the scheduled deployment (`demoforge serve`)."""
     from flows.ingest import ingest_folder
 
+    if not folder.is_dir():  # before the flow starts: one line, no flow-run traceback
+        raise fail(f"{folder}: no such folder to ingest takes from")
     try:
         rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), detector=detector, task=task,
                         augment=augment, episodes=episodes)

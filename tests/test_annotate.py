@@ -170,6 +170,7 @@ def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path):
     _one_line_error(_cli("ingest", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
     _one_line_error(_cli("augment", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
     _one_line_error(_cli("annotate", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
+    _one_line_error(_cli("ingest-folder", str(tmp_path / "nowhere"), warehouse=wh), "no such folder")
     cam = json.loads((raw_take / "camera.json").read_text())
     (raw_take / "camera.json").write_text("{broken")
     _one_line_error(_cli("ingest", str(raw_take), warehouse=wh), "camera.json", "not valid JSON")
