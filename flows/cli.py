@@ -443,9 +443,8 @@ def augment(
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
     from flows.augment import augment_take_flow
-    from lib.ingest import TakeError
-
     from lib.annotate import annotation_status, not_annotated_message
+    from lib.ingest import TakeError
 
     status = annotation_status(_open_take_or_fail(path))
     if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
