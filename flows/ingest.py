@@ -9,7 +9,7 @@ from prefect import flow, get_run_logger
 import lib  # noqa: F401
 from tasks.common import Manifest, run_stage
 from tasks.ingest import (align_keypoints, detect_hands, index_frames, ingest_metrics, map_grippers,
-                          object_keypoints, overlay_video)
+                          object_keypoints, overlay_video, take_media_key, take_task_name)
 
 
 @flow(name="ingest-take")
@@ -49,11 +49,15 @@ def ingest_take(
     for key in ("path", "checkpoint", "mano_model"):  # files: their content, not their name, is the cache key
         if key in options and options[key] is not None:
             options[key] = Path(options[key]).resolve()
-    common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
-    frames = run_stage(index_frames, warehouse, **common)
+    # the task name resolved here is part of every key; the first three stages are keyed on the take's
+    # content without annotations.json (media_key), so annotating later keeps their results
+    common = dict(take_dir=take_dir, task=take_task_name(take, task), warehouse=warehouse)
+    media = take_media_key(take_dir)
+    frames = run_stage(index_frames, warehouse, **common, media_key=media)
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,
-                      detector_options=options, frames=frames, show_progress=show_progress)
-    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {})
+                      detector_options=options, frames=frames, show_progress=show_progress, media_key=media)
+    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {},
+                        media_key=media)
     if grasp_prior not in ("twist", "pose", "off"):
         raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
     grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,

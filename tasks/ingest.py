@@ -19,6 +19,25 @@ from tasks.common import Manifest, stage_task
 
 HANDS = ("left", "right")
 INGEST_VERSION = "1"
+ANNOTATIONS = "annotations.json"
+
+
+def take_media_key(take_dir: Path) -> str:
+    """Content hash of a take folder (its name and every file) except annotations.json: the cache key
+    of the stages that never read the annotation (frames, detection, alignment), so annotating a take
+    after a first ingest does not redo its hand detection."""
+    import hashlib
+
+    from tasks.common import _file_digest
+
+    take_dir = Path(take_dir)
+    h = hashlib.sha256(take_dir.name.encode())
+    for f in sorted(p for p in take_dir.rglob("*") if p.is_file()):
+        rel = f.relative_to(take_dir)
+        if rel != Path(ANNOTATIONS):
+            h.update(str(rel).encode())
+            h.update(_file_digest(f).encode())
+    return h.hexdigest()
 
 
 def take_task_name(take: Any, task: str | None) -> str:
@@ -62,8 +81,9 @@ def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
 
 # --- 1. frames -----------------------------------------------------------------------------------
 
-@stage_task(name="index_frames", version=INGEST_VERSION)
-def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode: bool = True) -> Manifest:
+@stage_task(name="index_frames", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
+def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode: bool = True, *,
+                 media_key: str) -> Manifest:
     """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
     files are reported here, per frame, instead of surfacing later."""
     from lib.ingest import iter_depth, iter_frames, open_take
@@ -86,10 +106,10 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
 
 # --- 2. hand keypoints ---------------------------------------------------------------------------
 
-@stage_task(name="detect_hands", version=INGEST_VERSION)
+@stage_task(name="detect_hands", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
 def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str = "simulated",
                  detector_options: dict | None = None, frames: Manifest | None = None,
-                 show_progress: bool = True) -> Manifest:
+                 show_progress: bool = True, *, media_key: str) -> Manifest:
     """Run a detector backend over the take and keep the most confident left and right hand per frame."""
     from lib.detectors import get_detector
     from lib.ingest import open_take
@@ -139,9 +159,9 @@ def _save_detector_extra(take, track, warehouse: str) -> None:
 
 # --- 3. aligned keypoints ------------------------------------------------------------------------
 
-@stage_task(name="align_keypoints", version=INGEST_VERSION)
+@stage_task(name="align_keypoints", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
-                    alignment: dict | None = None) -> Manifest:
+                    alignment: dict | None = None, *, media_key: str) -> Manifest:
     """Depth alignment (thesis 3.1.2), swap repair, outlier freeze; depth is streamed per batch."""
     from lib.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
     from lib.geometry import transform_points

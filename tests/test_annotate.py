@@ -204,6 +204,29 @@ def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_
     assert not (wh / "episodes").exists()
 
 
+def test_annotating_after_an_ingest_keeps_its_hand_stages(prefect_api, raw_take, pouring_take, tmp_path):
+    """ingest -> annotate -> ingest: detection and alignment come from the cache, the rest is redone."""
+    from flows.ingest import ingest_take
+    from schemas.catalog import query
+
+    wh = tmp_path / "wh"
+    first = ingest_take(str(raw_take), str(wh), task="pouring", show_progress=False)
+    assert first["object_keypoints"] is None
+    hk = Path(first["hand_keypoints"].path)
+    stamp = hk.stat().st_mtime_ns
+    okp = json.loads((pouring_take / "annotations.json").read_text())["object_keypoints_2d"]
+    write_annotations(raw_take / "annotations.json",
+                      build_annotations(library_task("pouring"), dict(zip(okp["names"], okp["uv"])), 0,
+                                        {"left": [[5, 20]]}, N_FRAMES))
+    second = ingest_take(str(raw_take), str(wh), show_progress=False)  # the task now from annotations.json
+    for stage in ("frames", "hand_keypoints", "aligned_keypoints"):
+        assert (second[stage].path, second[stage].content_hash) == (first[stage].path, first[stage].content_hash)
+    assert hk.stat().st_mtime_ns == stamp  # not rewritten: the detector did not run again
+    assert second["object_keypoints"].rows == 11
+    g = query("SELECT hand, state_method FROM gripper_poses WHERE frame = 0 ORDER BY hand", wh).to_pylist()
+    assert [r["state_method"] for r in g] == ["manual", "manual"]
+
+
 def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api, pouring_take, tmp_path):
     from flows.ingest import ingest_folder
     from schemas.catalog import query
