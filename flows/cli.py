@@ -326,9 +326,10 @@ def _open_take_or_fail(path: Path):
 @app.command()
 def annotate(
     path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
-    task: Optional[str] = typer.Option(None, "--task", "-t", help="Task of the take (pouring, ...), or `custom` "
-                                       "(with --keypoints) for a task of your own. Default: what annotations.json says."),
-    keypoints: Optional[str] = typer.Option(None, "--keypoints", help="For --task custom: keypoint names, comma "
+    task: Optional[str] = typer.Option(None, "--task", "-t", help="Task of the take (pouring, ...), or `custom` / "
+                                       "`custom:NAME` (with --keypoints) for a task of your own. Default: what "
+                                       "annotations.json says."),
+    keypoints: Optional[str] = typer.Option(None, "--keypoints", help="For --task custom: 11 keypoint names, comma "
                                             "separated; `object:name` puts a keypoint on an object (at most two objects)."),
     task_file: Optional[Path] = typer.Option(None, "--task-file", help='A task of your own as JSON: {"name": ..., '
                                              '"objects": [{"name": ..., "arm": "left"|"right", "keypoints": [...]}]}.'),
