@@ -44,6 +44,11 @@ def augment_take_flow(
         raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
     ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress,
                         **(ingest_options or {}))
+    if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
+        from lib.annotate import annotation_status, not_annotated_message
+        from lib.ingest import TakeError, open_take
+
+        raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
     common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)

@@ -310,9 +310,69 @@ def evaluate(
     typer.echo(f"report: {report}")
 
 
+def _open_take_or_fail(path: Path):
+    """The opened take, or a one-line error (exit 2) before any flow starts: missing folder, missing or
+    malformed camera.json / annotations.json."""
+    from lib.ingest import TakeError, open_take
+
+    if not path.is_dir():
+        raise fail(f"{path}: no such take folder" if not path.exists() else f"{path}: is a file, not a take folder")
+    try:
+        return open_take(path)
+    except (TakeError, FileNotFoundError) as e:
+        raise fail(str(e))
+
+
+@app.command()
+def annotate(
+    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    task: Optional[str] = typer.Option(None, "--task", "-t", help="Task of the take (pouring, ...), or `custom` / "
+                                       "`custom:NAME` (with --keypoints) for a task of your own. Default: what "
+                                       "annotations.json says."),
+    keypoints: Optional[str] = typer.Option(None, "--keypoints", help="For --task custom: 11 keypoint names, comma "
+                                            "separated; `object:name` puts a keypoint on an object (at most two objects)."),
+    task_file: Optional[Path] = typer.Option(None, "--task-file", help='A task of your own as JSON: {"name": ..., '
+                                             '"objects": [{"name": ..., "arm": "left"|"right", "keypoints": [...]}]}.'),
+    port: int = typer.Option(8765, "--port", "-p", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port)."),
+    open_browser: bool = typer.Option(False, "--open", help="Also open the page in the default browser."),
+) -> None:
+    """Annotate a take in the browser: click the object keypoints, mark gripper open/close ranges, save.
+
+    Serves a page on 127.0.0.1 (printed) until Ctrl-C. It shows the frames (scrub with the slider or
+    the arrow keys), asks for the task's keypoints one by one and shows each click's depth and world
+    position, and plots the fingertip distance of an earlier `demoforge ingest` with the automatic
+    method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited).
+    """
+    from flows.annotate import AnnotationSession, server_url, start_server
+    from lib.ingest import TakeError
+
+    _open_take_or_fail(path)
+    try:
+        session = AnnotationSession(path, current_warehouse(), task=task, keypoints=keypoints, task_file=task_file)
+    except TakeError as e:
+        raise fail(str(e))
+    try:
+        server = start_server(session, port=port)
+    except OSError as e:
+        raise fail(f"cannot listen on 127.0.0.1:{port} ({e.strerror or e}); choose another --port")
+    url = server_url(server)
+    typer.echo(f"annotating {session.take.path} (task {session.task.name}): open {url}  (Ctrl-C to stop)", err=True)
+    typer.echo(url)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+
+
 @app.command()
 def ingest(
-    path: Path = typer.Argument(..., exists=True, file_okay=False, help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
     detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed, hamer (local checkpoint)."),
     predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
     task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
@@ -345,6 +405,7 @@ def ingest(
         if box_source not in ("previous", "mediapipe"):
             raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
         options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
+    _open_take_or_fail(path)
     try:
         result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
@@ -355,11 +416,16 @@ def ingest(
     for name, m in result.items():
         if m is not None:
             typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
+    if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
+        from lib.annotate import annotation_status, not_annotated_message
+
+        take = _open_take_or_fail(path)
+        typer.echo(f"warning: object_keypoints: {not_annotated_message(path, annotation_status(take).detail)}", err=True)
 
 
 @app.command()
 def augment(
-    path: Path = typer.Argument(..., exists=True, file_okay=False, help="Take folder of the demonstration."),
+    path: Path = typer.Argument(..., help="Take folder of the demonstration."),
     task: Optional[str] = typer.Option(None, help="Task of the take (synthetic takes know theirs)."),
     detector: str = typer.Option("simulated", "--detector", "-d", help="Detector used to ingest it."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes to generate."),
@@ -378,8 +444,12 @@ def augment(
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
     from flows.augment import augment_take_flow
+    from lib.annotate import annotation_status, not_annotated_message
     from lib.ingest import TakeError
 
+    status = annotation_status(_open_take_or_fail(path))
+    if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
+        raise fail(not_annotated_message(path, status.detail))
     options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
     ingest_options = {"state_method": state_method, "smoothing": smoothing, "grasp_prior": grasp_prior,
                       "table_clearance": None if table_clearance < 0 else table_clearance}
@@ -572,13 +642,15 @@ def ingest_folder_cmd(
     This is the flow of the scheduled deployment (`demoforge serve`)."""
     from flows.ingest import ingest_folder
 
+    if not folder.is_dir():  # before the flow starts: one line, no flow-run traceback
+        raise fail(f"{folder}: no such folder to ingest takes from")
     try:
         rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), detector=detector, task=task,
                         augment=augment, episodes=episodes)
     except ValueError as e:
         raise fail(str(e))
     for r in rows:
-        typer.echo(f"{r['status']:<9} {r['take']}  {r['error']}")
+        typer.echo(f"{r['status']:<16} {r['take']}  {r['error']}")
     if not rows:
         typer.echo(f"no take folders (folders with camera.json) under {folder}")
 

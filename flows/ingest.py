@@ -9,7 +9,7 @@ from prefect import flow, get_run_logger
 import lib  # noqa: F401
 from tasks.common import Manifest, run_stage
 from tasks.ingest import (align_keypoints, detect_hands, index_frames, ingest_metrics, map_grippers,
-                          object_keypoints, overlay_video)
+                          object_keypoints, overlay_video, take_media_key, take_task_name)
 
 
 @flow(name="ingest-take")
@@ -49,16 +49,20 @@ def ingest_take(
     for key in ("path", "checkpoint", "mano_model"):  # files: their content, not their name, is the cache key
         if key in options and options[key] is not None:
             options[key] = Path(options[key]).resolve()
-    common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
-    frames = run_stage(index_frames, warehouse, **common)
+    # the task name resolved here is part of every key; the first three stages are keyed on the take's
+    # content without annotations.json (media_key), so annotating later keeps their results
+    common = dict(take_dir=take_dir, task=take_task_name(take, task), warehouse=warehouse)
+    media = take_media_key(take_dir)
+    frames = run_stage(index_frames, warehouse, **common, media_key=media)
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,
-                      detector_options=options, frames=frames, show_progress=show_progress)
-    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {})
+                      detector_options=options, frames=frames, show_progress=show_progress, media_key=media)
+    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {},
+                        media_key=media)
     if grasp_prior not in ("twist", "pose", "off"):
         raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
     grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
                          smoothing=smoothing, grasp_prior=grasp_prior, table_clearance=table_clearance)
-    objects = run_stage(object_keypoints, warehouse, **common)
+    objects = run_stage(object_keypoints, warehouse, **common)  # None: not annotated yet (warned)
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
                         grippers=grippers)
     result = {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
@@ -91,8 +95,12 @@ def ingest_folder(
     A take is a folder with camera.json (layout: README 'Take folders'). Takes already ingested are
     served from the cache, so running this on a schedule only processes new or changed takes. A take
     that fails is recorded in `folder_ingests` with the reason and does not stop the others.
+    A take without object-keypoint annotations is ingested up to its gripper poses and recorded as
+    `needs_annotation` (its episodes wait for `demoforge annotate`).
     With `augment`, each ingested take also gets its episode database of `episodes` episodes.
     """
+    from lib.annotate import annotation_status, not_annotated_message
+    from lib.ingest import open_take
     import pyarrow as pa
 
     from flows.augment import augment_take_flow
@@ -108,7 +116,8 @@ def ingest_folder(
         row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": detector,
                "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
         try:
-            if augment:
+            status = annotation_status(open_take(take_dir))
+            if augment and status.annotated:
                 out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, detector=detector,
                                n=episodes, n_mirrored=episodes // 2, show_progress=show_progress)
                 row["episodes"] = int(out["episodes"].rows)
@@ -116,11 +125,15 @@ def ingest_folder(
                 out = run_flow(ingest_take, str(take_dir), warehouse, detector=detector, task=task,
                                show_progress=show_progress)
             row["gripper_rows"] = int(out["gripper_poses"].rows)
+            if out.get("object_keypoints") is None:
+                row.update(status="needs_annotation", error=not_annotated_message(take_dir, status.detail))
         except Exception as e:  # noqa: BLE001  (one bad take must not stop the folder)
             row.update(status="failed", error=f"{type(e).__name__}: {e}"[:2000])
             logger.warning("take %s failed: %s", take_dir.name, row["error"])
         write_table("folder_ingests", pa.Table.from_pylist([row]), warehouse)
         rows.append(row)
     failed = sum(r["status"] == "failed" for r in rows)
-    logger.info("ingested %d take(s), %d failed (see the folder_ingests table)", len(rows) - failed, failed)
+    waiting = sum(r["status"] == "needs_annotation" for r in rows)
+    logger.info("ingested %d take(s), %d need annotation, %d failed (see the folder_ingests table)",
+                len(rows) - failed - waiting, waiting, failed)
     return rows

@@ -140,8 +140,9 @@ FOLDER_INGESTS = table(
         _TAKE,
         Column("path", pa.string(), "The take folder (absolute path)."),
         Column("detector", pa.string(), "Hand detector backend used."),
-        Column("status", pa.string(), "`ingested` or `failed`."),
-        Column("error", pa.string(), "Why the take failed (empty when ingested)."),
+        Column("status", pa.string(), "`ingested`, `needs_annotation` (ingested up to gripper poses; object "
+               "keypoints wait for `demoforge annotate`) or `failed`."),
+        Column("error", pa.string(), "Why the take failed, or what to annotate (empty when ingested)."),
         Column("gripper_rows", pa.int64(), "Rows written to `gripper_poses` for the take (0 when failed)."),
         Column("episodes", pa.int64(), "Episodes generated for the take when the flow augments (0 otherwise)."),
     ],

@@ -17,6 +17,14 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
 
+# The annotation page's test drives a real headless browser (tests/cdp.py: Chrome DevTools protocol).
+if ! command -v chromium >/dev/null 2>&1; then
+    say "installing chromium (the browser test of \`demoforge annotate\`)"
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+fi
+
 if [ ! -x "$VENV/bin/python" ]; then
     say "creating $VENV with $($PYTHON --version)"
     "$PYTHON" -m venv "$VENV"

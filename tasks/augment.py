@@ -31,13 +31,18 @@ def _demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, n
     return traj, kp
 
 
-def _require_task(task: str):
+def _require_task(task: str, take=None):
+    """The task library's Task, or for a custom task the TaskDefinition of the take's annotations.json."""
     from lib.task_library import TASK_NAMES, get_task
 
-    if task not in TASK_NAMES:
-        raise ValueError(f"task {task!r} is not in the task library ({', '.join(TASK_NAMES)}); ingest the "
-                         "take with --task NAME so its objects and keypoints are known")
-    return get_task(task)
+    if task in TASK_NAMES:
+        return get_task(task)
+    defined = getattr(getattr(take, "annotations", None), "task", None)
+    if defined is not None and not defined.library and defined.name == task:
+        return defined
+    raise ValueError(f"task {task!r} is not in the task library ({', '.join(TASK_NAMES)}); ingest the "
+                     "take with --task NAME so its objects and keypoints are known, or annotate it as a task "
+                     "of your own (demoforge annotate TAKE --task custom --keypoints ...)")
 
 
 @stage_task(name="segment_take", version=AUGMENT_VERSION)
@@ -50,7 +55,7 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    spec = _require_task(name)
+    spec = _require_task(name, take)
     traj, kp = _demo_arrays(take.take_id, name, warehouse)
     manual_arms = {int(k): list(v) for k, v in (manual or {}).items()}
     segs = segment_trajectory(traj, kp, spec.keypoint_object, manual=manual_arms or None)
@@ -77,19 +82,24 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     return Manifest.from_written("segments", written)
 
 
-def load_demo_source(take_id: str, task: str, warehouse: str):
+def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
     """The ingested demonstration as the augmentation's DemoSource: gripper trajectory, object
-    keypoints and segments from the warehouse, object models from the task library."""
+    keypoints and segments from the warehouse, object models from the task library (a custom task:
+    its annotated first frame). The arm of each object is the one annotations.json states, else
+    inferred from which hand holds it."""
     from lib.augmentation import DemoSource
     from lib.segmentation import Segment, infer_object_arm
 
-    spec = _require_task(task)
+    spec = _require_task(task, take)
     traj, kp = _demo_arrays(take_id, task, warehouse)
     rows = read_table("segments", warehouse, task=task, take=take_id).to_pylist()
     segs = [Segment(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in rows]
-    return DemoSource(task=task, trajectory=traj, keypoints=kp, keypoint_object=spec.keypoint_object,
-                      keypoints_local=spec.keypoints_local, segments=segs,
-                      object_arm=infer_object_arm(traj, kp, spec.keypoint_object))
+    ko = np.asarray(spec.keypoint_object, int)
+    local = spec.keypoints_local(kp) if callable(spec.keypoints_local) else spec.keypoints_local
+    defined = getattr(getattr(take, "annotations", None), "task", None)
+    stated = defined.object_arm_index() if defined is not None and defined.name == task else None
+    return DemoSource(task=task, trajectory=traj, keypoints=kp, keypoint_object=ko, keypoints_local=local,
+                      segments=segs, object_arm=stated if stated is not None else infer_object_arm(traj, kp, ko))
 
 
 @stage_task(name="augment_take", version=AUGMENT_VERSION)
@@ -102,10 +112,11 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    spec = _require_task(name)
-    source = load_demo_source(take.take_id, name, warehouse)
+    spec = _require_task(name, take)
+    source = load_demo_source(take.take_id, name, warehouse, take)
     opts = dict(options or {})
-    opts.setdefault("workspace", np.asarray(spec.workspace))
+    ws = spec.workspace(source.keypoints, source.trajectory[..., :3]) if callable(spec.workspace) else spec.workspace
+    opts.setdefault("workspace", np.asarray(ws))
     batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
     N = len(batch)
     before = _episode_file_digests(warehouse, name, take.take_id)

@@ -19,12 +19,35 @@ from tasks.common import Manifest, stage_task
 
 HANDS = ("left", "right")
 INGEST_VERSION = "1"
+ANNOTATIONS = "annotations.json"
+
+
+def take_media_key(take_dir: Path) -> str:
+    """Content hash of a take folder (its name and every file) except annotations.json: the cache key
+    of the stages that never read the annotation (frames, detection, alignment), so annotating a take
+    after a first ingest does not redo its hand detection."""
+    import hashlib
+
+    from tasks.common import _file_digest
+
+    take_dir = Path(take_dir)
+    h = hashlib.sha256(take_dir.name.encode())
+    for f in sorted(p for p in take_dir.rglob("*") if p.is_file()):
+        rel = f.relative_to(take_dir)
+        if rel != Path(ANNOTATIONS):
+            h.update(str(rel).encode())
+            h.update(_file_digest(f).encode())
+    return h.hexdigest()
 
 
 def take_task_name(take: Any, task: str | None) -> str:
-    """The task a take belongs to: given explicitly, else from the synthetic take.json, else unknown."""
+    """The task a take belongs to: given explicitly, else the task section of annotations.json, else
+    the synthetic take.json's, else unknown."""
     if task:
         return task
+    annotated = getattr(getattr(take, "annotations", None), "task", None)  # written by `demoforge annotate`
+    if annotated is not None:
+        return annotated.name
     return str((take.meta or {}).get("task") or "unknown")
 
 
@@ -58,8 +81,9 @@ def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
 
 # --- 1. frames -----------------------------------------------------------------------------------
 
-@stage_task(name="index_frames", version=INGEST_VERSION)
-def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode: bool = True) -> Manifest:
+@stage_task(name="index_frames", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
+def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode: bool = True, *,
+                 media_key: str) -> Manifest:
     """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
     files are reported here, per frame, instead of surfacing later."""
     from lib.ingest import iter_depth, iter_frames, open_take
@@ -82,10 +106,10 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
 
 # --- 2. hand keypoints ---------------------------------------------------------------------------
 
-@stage_task(name="detect_hands", version=INGEST_VERSION)
+@stage_task(name="detect_hands", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
 def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str = "simulated",
                  detector_options: dict | None = None, frames: Manifest | None = None,
-                 show_progress: bool = True) -> Manifest:
+                 show_progress: bool = True, *, media_key: str) -> Manifest:
     """Run a detector backend over the take and keep the most confident left and right hand per frame."""
     from lib.detectors import get_detector
     from lib.ingest import open_take
@@ -135,9 +159,9 @@ def _save_detector_extra(take, track, warehouse: str) -> None:
 
 # --- 3. aligned keypoints ------------------------------------------------------------------------
 
-@stage_task(name="align_keypoints", version=INGEST_VERSION)
+@stage_task(name="align_keypoints", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
-                    alignment: dict | None = None) -> Manifest:
+                    alignment: dict | None = None, *, media_key: str) -> Manifest:
     """Depth alignment (thesis 3.1.2), swap repair, outlier freeze; depth is streamed per batch."""
     from lib.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
     from lib.geometry import transform_points
@@ -215,17 +239,26 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
 
 # --- 5. object keypoints -------------------------------------------------------------------------
 
-@stage_task(name="object_keypoints", version=INGEST_VERSION)
-def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manifest:
+@stage_task(name="object_keypoints", version=f"{INGEST_VERSION}/annotate-1")
+def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manifest | None:
     """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
-    back-projected with depth."""
+    back-projected with depth. None (nothing written) for a take not annotated yet: the stages
+    before this one stand, and `demoforge annotate` is what is missing."""
+    from lib.annotate import annotation_status, not_annotated_message
     from lib.ingest import open_take, read_frame
     from lib.object_keypoints import backproject_keypoints_detailed
     from schemas.core import read_table_file, unsliced_table
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    if take.has_ground_truth:
+    status = annotation_status(take)
+    if not status.annotated:
+        from prefect import get_run_logger
+
+        get_run_logger().warning(not_annotated_message(take.path, status.detail))
+        return None
+    custom = take.annotations.task is not None and not take.annotations.task.library
+    if take.has_ground_truth and not custom:  # a custom task's points exist only as clicked
         gt = unsliced_table(read_table_file("gt_object_keypoints", take.ground_truth_dir / "gt_object_keypoints.parquet"))
         first = gt.filter(pa.compute.equal(gt.column("frame"), 0))
         pts = np.array(first.column("keypoints_world")[0].as_py())
@@ -235,14 +268,14 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
                 "source": ["ground truth"] * len(pts)}
     else:
         ann = take.annotations
-        if ann is None or len(ann.object_keypoints_uv) == 0:
-            raise ValueError(
-                f"{take.path}: no annotations.json with object_keypoints_2d; annotate the first frame's "
-                "object keypoints (see README: take folders) to ingest object keypoints")
-        _, depth = read_frame(take, ann.object_keypoints_frame or 0)
-        r = backproject_keypoints_detailed(ann.object_keypoints_uv, depth, take.K, take.camera.T_world_camera)
         names = _keypoint_names(take, len(ann.object_keypoints_uv))
-        uv = np.asarray(ann.object_keypoints_uv, float)[:, None, :]
+        uv2 = np.asarray(ann.object_keypoints_uv, float)
+        if ann.task is not None:  # the task's keypoint order, whatever order the file lists them in
+            order = [names.index(k) for k in ann.task.keypoint_names]
+            names, uv2 = [names[i] for i in order], uv2[order]
+        _, depth = read_frame(take, ann.object_keypoints_frame or 0)
+        r = backproject_keypoints_detailed(uv2, depth, take.K, take.camera.T_world_camera)
+        uv = uv2[:, None, :]
         data = {"point_world": r.points_world, "valid": r.valid, "reason": r.reasons,
                 "source": ["annotation+depth"] * len(names)}
     n = len(names)

@@ -136,6 +136,8 @@ class Annotations:
     object_keypoints_uv: np.ndarray          # (k, 2) px; (0, 2) when absent
     gripper_closed_ranges: dict[str, list[tuple[int, int]]]  # {"left": [(start, end)], "right": ...}
     raw: dict = field(repr=False, default_factory=dict)
+    #: the optional "task" section (lib.annotate.TaskDefinition): task, keypoints per object, arms
+    task: Any = None
 
     def closed_mask(self, n_frames: int) -> np.ndarray:
         """(n_frames, 2) bool: gripper closed per frame and hand (0 = left, 1 = right)."""
@@ -370,10 +372,19 @@ def parse_annotations(obj: Any, path: str | os.PathLike = "annotations.json",
             if n_frames is not None and ranges[side] and ranges[side][-1][1] > n_frames:
                 raise TakeError(f"{path}: gripper_closed_ranges.{side} ends at frame {ranges[side][-1][1]} "
                                 f"but the take has {n_frames} frames")
-    if okp is None and gcr is None:
+    task = None
+    if obj.get("task") is not None:
+        from lib.annotate.model import parse_task_section  # lazy: lib.annotate builds on this module
+
+        task = parse_task_section(obj["task"], str(path))
+        unknown = [n for n in names if n not in task.keypoint_names]
+        if unknown:
+            raise TakeError(f"{path}: object_keypoints_2d.names {unknown} are not keypoints of the file's task "
+                            f"{task.name!r} ({list(task.keypoint_names)})")
+    if okp is None and gcr is None and task is None:
         raise TakeError(f"{path}: has neither 'object_keypoints_2d' nor 'gripper_closed_ranges'")
     return Annotations(object_keypoints_frame=frame, object_keypoint_names=names,
-                       object_keypoints_uv=uv, gripper_closed_ranges=ranges, raw=obj)
+                       object_keypoints_uv=uv, gripper_closed_ranges=ranges, raw=obj, task=task)
 
 
 # ------------------------------------------------------------------------------------------------

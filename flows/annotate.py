@@ -1,0 +1,231 @@
+"""`demoforge annotate`: a local web page to click a take's object keypoints and mark open/close ranges.
+
+A standard-library HTTP server on loopback serves one static page (lib/annotate/page.html) and a
+small JSON API over the take:
+
+    GET  /                     the page
+    GET  /api/state            take, camera, task (keypoints per object, arms), the current
+                               annotations (annotations.json when there is one), fingertip distances
+                               and the automatic method's closed ranges from an earlier ingest
+    GET  /api/frame/N.jpg      frame N as JPEG
+    POST /api/points           {"frame": N, "uv": [[u, v], ...]} -> depth, camera and world point per click
+    POST /api/save             {"frame", "points": {name: [u, v]}, "ranges": {"left": [[s, e]], ...},
+                                "task": {...}} -> annotations.json written atomically
+
+The pure logic (format, validation, back-projection, suggestion) is lib.annotate; this module is glue.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import lib  # noqa: F401
+
+PAGE = Path(lib.__file__).resolve().parent / "annotate" / "page.html"
+
+
+class AnnotationSession:
+    """The take being annotated: frames and depth on demand (a few cached), the task, saving."""
+
+    def __init__(self, take_dir: str | Path, warehouse: str | Path | None = None, task: str | None = None,
+                 keypoints: str | None = None, task_file: str | Path | None = None):
+        from lib.annotate import task_for_take
+        from lib.ingest import open_take
+
+        self.take = open_take(Path(take_dir).resolve())
+        self.task = task_for_take(self.take, task, keypoints, task_file)
+        self.warehouse = Path(warehouse) if warehouse is not None else None
+        self.path = self.take.path / "annotations.json"
+        self._frames: OrderedDict[int, tuple[np.ndarray | None, np.ndarray]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    # --- frames -----------------------------------------------------------------------------------
+    def frame(self, index: int) -> tuple[np.ndarray | None, np.ndarray]:
+        from lib.ingest import read_frame
+
+        if not 0 <= index < self.take.n_frames:
+            raise ValueError(f"frame {index} out of range: the take has {self.take.n_frames} frames")
+        with self._lock:
+            if index in self._frames:
+                self._frames.move_to_end(index)
+                return self._frames[index]
+        got = read_frame(self.take, index)
+        with self._lock:
+            self._frames[index] = got
+            while len(self._frames) > 16:
+                self._frames.popitem(last=False)
+        return got
+
+    def frame_jpeg(self, index: int) -> bytes:
+        import cv2
+
+        rgb, _ = self.frame(index)
+        if rgb is None:  # an unreadable frame: a grey image, the page says why
+            rgb = np.full((self.take.camera.height, self.take.camera.width, 3), 96, np.uint8)
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if not ok:
+            raise RuntimeError(f"frame {index}: JPEG encoding failed")
+        return buf.tobytes()
+
+    def points(self, frame: int, uv: Any) -> list[dict]:
+        from lib.annotate import point_info
+
+        _, depth = self.frame(int(frame))
+        return point_info(np.asarray(uv, float).reshape(-1, 2), depth, self.take.K,
+                          self.take.camera.T_world_camera)
+
+    # --- ingest results ----------------------------------------------------------------------------
+    def ingest_signals(self) -> dict | None:
+        """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
+        import pyarrow.parquet as pq
+
+        from lib.annotate import suggest_closed_ranges
+        from schemas.core import table_files
+        from tasks.ingest import arrays
+
+        if self.warehouse is None:
+            return None
+        files = table_files("gripper_poses", self.warehouse, take=self.take.take_id)
+        if not files:
+            return None
+        newest = max(files, key=lambda f: f.stat().st_mtime_ns)
+        t = pq.read_table(newest, columns=["frame", "hand", "fingertip_distance"])
+        T, a = arrays(t, "fingertip_distance")
+        d = a["fingertip_distance"].astype(float)
+        return {"source": str(newest), "fingertip_distance": {s: [None if not np.isfinite(x) else round(float(x), 5)
+                                                                  for x in d[:, h]]
+                                                              for h, s in enumerate(("left", "right"))},
+                "suggested_ranges": suggest_closed_ranges(d)}
+
+    # --- state and saving --------------------------------------------------------------------------
+    def state(self) -> dict:
+        from lib.annotate import annotation_status
+
+        ann = self.take.annotations
+        cam = self.take.camera
+        signals = self.ingest_signals()
+        current: dict[str, Any] = {"frame": 0, "points": {}, "ranges": None}
+        if ann is not None:
+            if ann.object_keypoints_frame is not None:
+                current["frame"] = int(ann.object_keypoints_frame)
+            current["points"] = {n: [float(u), float(v)] for n, (u, v)
+                                 in zip(ann.object_keypoint_names, ann.object_keypoints_uv)
+                                 if n in self.task.keypoint_names}
+            if "gripper_closed_ranges" in ann.raw:
+                current["ranges"] = {s: [list(r) for r in ann.gripper_closed_ranges.get(s, [])]
+                                     for s in ("left", "right")}
+        if current["ranges"] is None:  # nothing labelled yet: start from the automatic suggestion
+            current["ranges"] = signals["suggested_ranges"] if signals else {"left": [], "right": []}
+            current["ranges_from"] = "suggestion" if signals else "empty"
+        else:
+            current["ranges_from"] = "annotations.json"
+        from lib.task_library import TASK_NAMES
+
+        return {
+            "take": self.take.take_id, "path": str(self.take.path), "n_frames": self.take.n_frames,
+            "fps": self.take.fps, "width": cam.width, "height": cam.height,
+            "frame_status": [f.status for f in self.take.frames],
+            "annotations_file": str(self.path), "exists": self.path.is_file(),
+            "status": annotation_status(self.take).__dict__,
+            "task": self.task.to_json(), "library_tasks": list(TASK_NAMES),
+            "current": current, "ingest": signals,
+        }
+
+    def save(self, payload: dict) -> dict:
+        from lib.annotate import build_annotations, parse_task_section, write_annotations
+        from lib.ingest import open_take
+
+        if not isinstance(payload, dict):
+            raise ValueError("the request body must be a JSON object")
+        task = parse_task_section(payload["task"], "task") if payload.get("task") else self.task
+        if self.task.library and (task.name != self.task.name or task.keypoint_names != self.task.keypoint_names):
+            raise ValueError(f"this is library task {self.task.name!r}: its name and keypoints are fixed")
+        keep = self.take.annotations.raw if self.take.annotations is not None else None
+        obj = build_annotations(task, payload.get("points") or {}, int(payload.get("frame", 0)),
+                                payload.get("ranges") or {}, self.take.n_frames, keep=keep)
+        write_annotations(self.path, obj)
+        self.take = open_take(self.take.path)  # re-read: what ingest will see
+        self.task = task
+        from lib.annotate import annotation_status
+
+        status = annotation_status(self.take)
+        return {"saved": str(self.path), "annotations": obj, "status": status.__dict__}
+
+
+def make_handler(session: AnnotationSession):
+    page = PAGE.read_bytes()
+
+    class Handler(BaseHTTPRequestHandler):
+        server_version = "demoforge-annotate"
+
+        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002  (quiet: the page is the UI)
+            pass
+
+        def _send(self, code: int, body: bytes, ctype: str) -> None:
+            self.send_response(code)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(body)
+
+        def _json(self, obj: Any, code: int = 200) -> None:
+            self._send(code, json.dumps(obj).encode(), "application/json")
+
+        def _error(self, e: Exception, code: int = 400) -> None:
+            self._json({"error": str(e)}, code)
+
+        def do_GET(self) -> None:  # noqa: N802
+            try:
+                if self.path in ("/", "/index.html"):
+                    self._send(200, page, "text/html; charset=utf-8")
+                elif self.path == "/api/state":
+                    self._json(session.state())
+                elif self.path.startswith("/api/frame/") and self.path.endswith(".jpg"):
+                    idx = int(self.path[len("/api/frame/"):-4])
+                    self._send(200, session.frame_jpeg(idx), "image/jpeg")
+                else:
+                    self._json({"error": f"no such page {self.path}"}, HTTPStatus.NOT_FOUND)
+            except (ValueError, IndexError) as e:
+                self._error(e)
+            except Exception as e:  # noqa: BLE001  (the page shows it; the server keeps running)
+                self._error(e, 500)
+
+        def do_POST(self) -> None:  # noqa: N802
+            from lib.ingest import TakeError
+
+            try:
+                n = int(self.headers.get("Content-Length") or 0)
+                body = json.loads(self.rfile.read(n) or b"{}")
+                if self.path == "/api/points":
+                    self._json({"points": session.points(int(body.get("frame", 0)), body.get("uv", []))})
+                elif self.path == "/api/save":
+                    self._json(session.save(body))
+                else:
+                    self._json({"error": f"no such endpoint {self.path}"}, HTTPStatus.NOT_FOUND)
+            except (TakeError, ValueError, KeyError, TypeError, json.JSONDecodeError) as e:
+                self._error(e)
+            except Exception as e:  # noqa: BLE001
+                self._error(e, 500)
+
+    return Handler
+
+
+def start_server(session: AnnotationSession, port: int = 0, host: str = "127.0.0.1") -> ThreadingHTTPServer:
+    """A loopback HTTP server for the session (port 0: any free port); call serve_forever() on it."""
+    server = ThreadingHTTPServer((host, port), make_handler(session))
+    server.daemon_threads = True
+    return server
+
+
+def server_url(server: ThreadingHTTPServer) -> str:
+    host, port = server.server_address[:2]
+    return f"http://{host}:{port}/"

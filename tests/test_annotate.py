@@ -1,0 +1,456 @@
+"""Annotating a recorded take: lib.annotate, the page in a real headless Chromium, ingest and augment
+of takes without annotations, custom tasks, and one-line user errors of the CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lib.annotate import (annotation_status, build_annotations, custom_task, library_task, load_task_file,
+                          mask_to_ranges, not_annotated_message, parse_task_section, point_info,
+                          suggest_closed_ranges, write_annotations)
+from lib.ingest import TakeError, open_take
+
+ROOT = Path(__file__).resolve().parents[1]
+N_FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def pouring_take(tmp_path_factory):
+    """A 40-frame synthetic pouring take (with the generator's exact annotations.json)."""
+    from lib.synth.take import generate_take
+
+    out = tmp_path_factory.mktemp("annotate") / "synth_pouring_s0000"
+    generate_take("pouring", 0, False, out, video=False, max_frames=N_FRAMES)
+    return out
+
+
+@pytest.fixture()
+def raw_take(pouring_take, tmp_path):
+    """The take as a new user has it: frames, depth and camera.json, no annotations.json."""
+    out = tmp_path / "my_take"
+    shutil.copytree(pouring_take, out)
+    (out / "annotations.json").unlink()
+    return out
+
+
+def _cli(*args: str, warehouse: Path, timeout: int = 600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(warehouse), "MUJOCO_GL": "egl"}
+    return subprocess.run([sys.executable, "-m", "flows.cli", *args], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def _one_line_error(r: subprocess.CompletedProcess, *needles: str) -> str:
+    assert r.returncode == 2, r.stdout + r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr
+    assert "Traceback" not in r.stderr + r.stdout
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+# ------------------------------------------------------------------------------------------------ lib
+
+def _names(prefix: str, n: int) -> list[str]:
+    return [f"{prefix}{i}" for i in range(n)]
+
+
+def test_custom_task_groups_keypoints_by_object_and_validates_names():
+    t = custom_task(["cup:rim", "bowl:rim_l", "cup:base", "bowl:rim_r", *(f"bowl:{k}" for k in _names("b", 7))],
+                    name="stack")
+    assert t.object_names == ("cup", "bowl")
+    assert t.keypoint_names[:4] == ("rim", "base", "rim_l", "rim_r") and t.keypoint_object == (0, 0) + (1,) * 9
+    assert custom_task(",".join(_names("k", 11))).object_names == ("object_a",)
+    with pytest.raises(TakeError, match="needs 11 object keypoints, got 3"):
+        custom_task("a,b,c")
+    with pytest.raises(TakeError, match="unique"):
+        custom_task(_names("k", 10) + ["k0"])
+    with pytest.raises(TakeError, match="at most 2 objects"):
+        custom_task(["x:a", "y:b", *(f"z:{k}" for k in _names("c", 9))])
+    with pytest.raises(TakeError, match="letters, digits"):
+        custom_task(_names("k", 10) + ["a b"])
+    with pytest.raises(TakeError, match="--keypoints"):
+        custom_task(" , ")
+
+
+def test_task_section_round_trips_and_library_keypoints_are_fixed(tmp_path):
+    lib_t = library_task("pouring")
+    assert lib_t.n_keypoints == 11 and lib_t.library
+    assert parse_task_section(lib_t.to_json()) == lib_t
+    bad = lib_t.to_json()
+    bad["objects"][0]["keypoints"] = ["x"] + bad["objects"][0]["keypoints"][1:]
+    with pytest.raises(TakeError, match="library task"):
+        parse_task_section(bad)
+    f = tmp_path / "task.json"
+    f.write_text(json.dumps({"name": "stack", "objects": [{"name": "cup", "arm": "right", "keypoints": _names("c", 5)},
+                                                          {"name": "bowl", "arm": "up", "keypoints": _names("b", 6)}]}))
+    with pytest.raises(TakeError, match="'left' or 'right'"):
+        load_task_file(f)
+    f.write_text("{nope")
+    with pytest.raises(TakeError, match="not valid JSON"):
+        load_task_file(f)
+    with pytest.raises(TakeError, match="unknown task"):
+        library_task("juggling")
+
+
+def test_build_annotations_validates_and_writes_atomically(tmp_path):
+    t = custom_task(["cup:rim", "cup:base", *(f"bowl:{k}" for k in _names("b", 9))])
+    obj = build_annotations(t, {"rim": [10, 20], "base": [11.5, 30]}, frame=3, closed_ranges={"left": [[5, 9], [0, 2]]}, n_frames=12)
+    assert obj["object_keypoints_2d"] == {"frame": 3, "names": ["rim", "base"], "uv": [[10.0, 20.0], [11.5, 30.0]]}
+    assert obj["gripper_closed_ranges"] == {"left": [[0, 2], [5, 9]], "right": []}
+    with pytest.raises(TakeError, match="overlapping"):
+        build_annotations(t, {}, 0, {"right": [[0, 5], [4, 8]]}, n_frames=12)
+    with pytest.raises(TakeError, match="take has 12 frames"):
+        build_annotations(t, {}, 0, {"right": [[0, 20]]}, n_frames=12)
+    with pytest.raises(TakeError, match="not keypoints of task"):
+        build_annotations(t, {"lid": [1, 1]}, 0, {}, n_frames=12)
+    p = write_annotations(tmp_path / "annotations.json", obj)
+    assert json.loads(p.read_text()) == obj and [f.name for f in tmp_path.iterdir()] == ["annotations.json"]
+
+
+def test_mask_to_ranges_and_suggestion_follow_the_automatic_method():
+    from lib.gripper_mapping import gripper_state
+
+    assert mask_to_ranges(np.array([1, 1, 0, 0, 1, 0, 1], bool)) == [[0, 2], [4, 5], [6, 7]]
+    assert mask_to_ranges(np.zeros(4, bool)) == []
+    rng = np.random.default_rng(0)
+    d = np.full((120, 2), 0.09) + rng.normal(0, 0.002, (120, 2))
+    d[30:70, 0] = 0.02
+    d[50:100, 1] = 0.025
+    sug = suggest_closed_ranges(d)
+    g = gripper_state(d, "auto")
+    for h, side in enumerate(("left", "right")):
+        mask = np.zeros(120, bool)
+        for a, b in sug[side]:
+            mask[a:b] = True
+        assert np.array_equal(mask, g[:, h] < 0.5)
+    assert len(sug["left"]) == 1 and abs(sug["left"][0][0] - 30) <= 3 and abs(sug["left"][0][1] - 70) <= 3
+    assert suggest_closed_ranges(np.full((5, 2), np.nan)) == {"left": [], "right": []}
+
+
+def test_point_info_back_projects_and_warns_on_invalid_depth():
+    K = np.array([[500.0, 0, 32], [0, 500.0, 24], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    depth = np.full((48, 64), 2.0, np.float32)
+    depth[:, :20] = 0.0                     # a hole on the left
+    depth[30, 40] = 0.0                     # one missing pixel, neighbours valid
+    info = point_info(np.array([[32.0, 24.0], [5.0, 5.0], [40.0, 30.0], [100.0, 5.0]]), depth, K, T)
+    assert info[0]["valid"] and info[0]["warning"] == ""
+    assert np.allclose(info[0]["camera"], [0.0, 0.0, 2.0]) and np.allclose(info[0]["world"], [1.0, 2.0, 5.0])
+    assert not info[1]["valid"] and "invalid depth" in info[1]["warning"] and info[1]["world"] is None
+    assert info[2]["valid"] and not info[2]["pixel_depth_valid"] and "neighbours" in info[2]["warning"]
+    assert not info[3]["valid"] and "outside the image" in info[3]["warning"]
+
+
+def test_annotation_status_needs_every_keypoint_of_the_task(raw_take):
+    take = open_take(raw_take)
+    assert annotation_status(take).annotated is False
+    t = library_task("pouring")
+    write_annotations(raw_take / "annotations.json",
+                      build_annotations(t, {"bottle_base": [100, 100]}, 0, {}, N_FRAMES))
+    st = annotation_status(open_take(raw_take))
+    assert not st.annotated and "1 of 11" in st.detail and "cup_rim_right" in st.detail
+    assert not_annotated_message("TAKE", st.detail).startswith("TAKE: not annotated yet (1 of 11")
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+
+def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path):
+    wh = tmp_path / "wh"
+    _one_line_error(_cli("ingest", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
+    _one_line_error(_cli("augment", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
+    _one_line_error(_cli("annotate", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
+    _one_line_error(_cli("ingest-folder", str(tmp_path / "nowhere"), warehouse=wh), "no such folder")
+    cam = json.loads((raw_take / "camera.json").read_text())
+    (raw_take / "camera.json").write_text("{broken")
+    _one_line_error(_cli("ingest", str(raw_take), warehouse=wh), "camera.json", "not valid JSON")
+    (raw_take / "camera.json").unlink()
+    _one_line_error(_cli("augment", str(raw_take), warehouse=wh), "camera.json is missing")
+    (raw_take / "camera.json").write_text(json.dumps(cam))
+    (raw_take / "annotations.json").write_text(json.dumps({"object_keypoints_2d": {"frame": 0, "names": ["a"]}}))
+    _one_line_error(_cli("ingest", str(raw_take), warehouse=wh), "annotations.json", "lacks key 'uv'")
+    _one_line_error(_cli("annotate", str(raw_take), "--task", "pouring", warehouse=wh), "annotations.json")
+    (raw_take / "annotations.json").unlink()
+    _one_line_error(_cli("annotate", str(raw_take), "--task", "juggling", warehouse=wh), "unknown task 'juggling'")
+    _one_line_error(_cli("annotate", str(raw_take), "--task", "custom", warehouse=wh), "--keypoints")
+    assert not (wh / "frames").exists()  # nothing ran
+
+
+def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_path):
+    from schemas.catalog import query
+
+    wh = tmp_path / "wh"
+    r = _cli("ingest", str(raw_take), warehouse=wh)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr
+    warn = f"warning: object_keypoints: {raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}"
+    assert warn in r.stderr.splitlines()
+    assert "gripper_poses" in r.stdout and "object_keypoints" not in r.stdout
+    n = query("SELECT count(*) AS n, count(*) FILTER (WHERE valid) AS ok FROM gripper_poses", wh).to_pylist()[0]
+    assert n["n"] == 2 * N_FRAMES and n["ok"] > N_FRAMES
+    assert not (wh / "object_keypoints").exists()
+    r = _cli("augment", str(raw_take), "-n", "20", "--mirrored", "10", warehouse=wh)
+    _one_line_error(r, f"{raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}")
+    assert not (wh / "episodes").exists()
+
+
+def test_annotating_after_an_ingest_keeps_its_hand_stages(prefect_api, raw_take, pouring_take, tmp_path):
+    """ingest -> annotate -> ingest: detection and alignment come from the cache, the rest is redone."""
+    from flows.ingest import ingest_take
+    from schemas.catalog import query
+
+    wh = tmp_path / "wh"
+    first = ingest_take(str(raw_take), str(wh), task="pouring", show_progress=False)
+    assert first["object_keypoints"] is None
+    hk = Path(first["hand_keypoints"].path)
+    stamp = hk.stat().st_mtime_ns
+    okp = json.loads((pouring_take / "annotations.json").read_text())["object_keypoints_2d"]
+    write_annotations(raw_take / "annotations.json",
+                      build_annotations(library_task("pouring"), dict(zip(okp["names"], okp["uv"])), 0,
+                                        {"left": [[5, 20]]}, N_FRAMES))
+    second = ingest_take(str(raw_take), str(wh), show_progress=False)  # the task now from annotations.json
+    for stage in ("frames", "hand_keypoints", "aligned_keypoints"):
+        assert (second[stage].path, second[stage].content_hash) == (first[stage].path, first[stage].content_hash)
+    assert hk.stat().st_mtime_ns == stamp  # not rewritten: the detector did not run again
+    assert second["object_keypoints"].rows == 11
+    g = query("SELECT hand, state_method FROM gripper_poses WHERE frame = 0 ORDER BY hand", wh).to_pylist()
+    assert [r["state_method"] for r in g] == ["manual", "manual"]
+
+
+def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api, pouring_take, tmp_path):
+    from flows.ingest import ingest_folder
+    from schemas.catalog import query
+
+    inbox = tmp_path / "inbox"
+    shutil.copytree(pouring_take, inbox / "annotated")
+    shutil.copytree(pouring_take, inbox / "raw")
+    (inbox / "raw" / "annotations.json").unlink()
+    (inbox / "raw" / "take.json").unlink()  # take ids from the folder names
+    (inbox / "annotated" / "take.json").unlink()
+    shutil.copytree(pouring_take, inbox / "broken")
+    (inbox / "broken" / "take.json").unlink()
+    (inbox / "broken" / "camera.json").write_text("[]")
+    wh = tmp_path / "wh"
+    rows = ingest_folder(str(inbox), str(wh), task="pouring", augment=True, episodes=20)
+    by = {r["take"]: r for r in rows}
+    assert by["annotated"]["status"] == "ingested" and by["annotated"]["episodes"] > 0
+    assert by["raw"]["status"] == "needs_annotation" and by["raw"]["gripper_rows"] == 2 * N_FRAMES
+    assert "not annotated yet" in by["raw"]["error"] and by["raw"]["episodes"] == 0
+    assert by["broken"]["status"] == "failed" and "camera.json" in by["broken"]["error"]
+    eps = query("SELECT take, count(*) AS n FROM episodes GROUP BY take", wh).to_pylist()
+    assert eps == [{"take": "annotated", "n": 21}]  # the demonstration and 20 generated
+    got = query("SELECT take, status FROM folder_ingests ORDER BY take", wh).to_pylist()
+    assert got == [{"take": "annotated", "status": "ingested"}, {"take": "broken", "status": "failed"},
+                   {"take": "raw", "status": "needs_annotation"}]
+
+
+def test_custom_task_is_annotated_ingested_and_augmented(prefect_api, pouring_take, raw_take, tmp_path):
+    """A task the library does not know: keypoints named by the user, arms stated on the page."""
+    from flows.annotate import AnnotationSession
+    from flows.augment import augment_take_flow
+    from schemas.catalog import query
+
+    (raw_take / "take.json").unlink()  # a real recording has no take.json
+    shutil.rmtree(raw_take / "ground_truth")
+    wh = tmp_path / "wh"
+    exact = json.loads((pouring_take / "annotations.json").read_text())["object_keypoints_2d"]
+    uv = dict(zip(exact["names"], exact["uv"]))
+    mine = ["jug:j_base", "jug:j_left", "jug:j_right", "jug:j_shoulder", "jug:j_mouth", "glass:g_base",
+            "glass:g_center", "glass:g_front", "glass:g_back", "glass:g_left", "glass:g_right"]
+    where = {m.split(":")[1]: uv[n] for m, n in zip(mine, exact["names"])}  # the points of the pouring objects
+    session = AnnotationSession(raw_take, wh, task="custom:serve_drink", keypoints=",".join(mine))
+    assert session.task.object_names == ("jug", "glass") and session.task.object_arms == (None, None)
+    task = session.task.to_json()
+    task["objects"][0]["arm"], task["objects"][1]["arm"] = "right", "left"   # chosen on the page
+    points = {k: where[k] for k in list(where)[:5]}
+    saved = session.save({"frame": 0, "points": points, "ranges": {"left": [[2, 30]]}, "task": task})
+    assert not saved["status"]["annotated"]
+    assert saved["status"]["detail"].startswith("5 of 11 object keypoints placed, missing g_base, g_center")
+    bad = json.loads(json.dumps(task))
+    bad["objects"][1]["keypoints"][0] = "j_base"
+    with pytest.raises(TakeError, match="keypoint names must be unique"):
+        session.save({"frame": 0, "points": {}, "ranges": {}, "task": bad})
+    saved = session.save({"frame": 0, "points": where, "ranges": {"left": [[2, 30]]}, "task": task})
+    assert saved["status"] == {"annotated": True, "detail": ""}
+    ann = open_take(raw_take).annotations
+    assert ann.task.name == "serve_drink" and ann.task.object_arm_index().tolist() == [1, 0]
+
+    preds = tmp_path / "preds.npz"
+    _write_gt_predictions(pouring_take, preds)
+    augment_take_flow(str(raw_take), str(wh), detector="precomputed", n=30, n_mirrored=10,
+                      show_progress=False, ingest_options={"detector_options": {"path": str(preds)}})
+    kp = query("SELECT name, valid, source FROM object_keypoints ORDER BY keypoint", wh).to_pylist()
+    assert [k["name"] for k in kp] == list(where)
+    assert all(k["valid"] and k["source"] == "annotation+depth" for k in kp)
+    eps = query("SELECT task, take, kind, count(*) AS n FROM episodes GROUP BY ALL ORDER BY kind", wh).to_pylist()
+    assert {(e["task"], e["take"]) for e in eps} == {("serve_drink", "my_take")}
+    assert {e["kind"]: e["n"] for e in eps} == {"original": 1, "translated": 20, "mirrored": 10}
+    g = query("SELECT hand, state_method FROM gripper_poses WHERE frame = 10 ORDER BY hand", wh).to_pylist()
+    assert [r["state_method"] for r in g] == ["manual", "manual"]  # the page's ranges are the labels
+
+
+def _write_gt_predictions(take: Path, out: Path) -> None:
+    """Detector predictions for a take without ground truth: the synthetic take's exact joints."""
+    import pyarrow.parquet as pq
+
+    from tasks.ingest import arrays
+
+    T, a = arrays(pq.read_table(take / "ground_truth" / "gt_hand_joints.parquet"), "joints_camera", "joints_px",
+                  "present")
+    rows = [(f, h) for f in range(T) for h in range(2) if a["present"][f, h]]
+    np.savez(out, frame=np.array([f for f, _ in rows]), hand=np.array([("left", "right")[h] for _, h in rows]),
+             joints_cam=np.stack([a["joints_camera"][f, h] for f, h in rows]),
+             joints_px=np.stack([a["joints_px"][f, h] for f, h in rows]),
+             confidence=np.ones(len(rows)))
+
+
+def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouring_take, tmp_path):
+    """The page's API: an existing annotations.json is what the page starts from; a bad save changes nothing."""
+    import urllib.error
+    import urllib.request
+
+    import cv2
+
+    from flows.annotate import AnnotationSession, server_url, start_server
+
+    take = tmp_path / "take"
+    shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))
+    before = (take / "annotations.json").read_bytes()
+    original = json.loads(before)
+    session = AnnotationSession(take)  # task from take.json (pouring)
+    server = start_server(session, port=0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    url = server_url(server)
+
+    def post(path: str, body: dict):
+        req = urllib.request.Request(url + path, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+        return json.load(urllib.request.urlopen(req, timeout=30))
+
+    try:
+        st = json.load(urllib.request.urlopen(url + "api/state", timeout=30))
+        assert st["exists"] and st["current"]["ranges_from"] == "annotations.json" and st["ingest"] is None
+        okp = original["object_keypoints_2d"]
+        assert st["current"]["points"] == {n: list(map(float, uv)) for n, uv in zip(okp["names"], okp["uv"])}
+        assert st["current"]["ranges"] == original["gripper_closed_ranges"]
+        jpg = urllib.request.urlopen(url + "api/frame/7.jpg", timeout=30).read()
+        img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == (480, 640, 3)
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(url + f"api/frame/{N_FRAMES}.jpg", timeout=30)
+        assert e.value.code == 400 and "out of range" in json.load(e.value)["error"]
+        with pytest.raises(urllib.error.HTTPError) as e:
+            post("api/save", {"frame": 0, "points": st["current"]["points"], "task": st["task"],
+                              "ranges": {"left": [[5, 3]]}})
+        assert e.value.code == 400 and "need 0 <= start < end" in json.load(e.value)["error"]
+        assert (take / "annotations.json").read_bytes() == before
+        moved = dict(st["current"]["points"], cup_base=[300.0, 210.0])
+        out = post("api/save", {"frame": 0, "points": moved, "task": st["task"], "ranges": {"left": [[5, 9]]}})
+        assert out["status"] == {"annotated": True, "detail": ""}
+    finally:
+        server.shutdown()
+        server.server_close()
+    saved = json.loads((take / "annotations.json").read_text())
+    assert saved["object_keypoints_2d"]["uv"][okp["names"].index("cup_base")] == [300.0, 210.0]
+    assert saved["gripper_closed_ranges"] == {"left": [[5, 9]], "right": []}
+    assert sorted(p.name for p in take.iterdir() if p.name.startswith(".")) == []  # no temp file left
+
+
+# ------------------------------------------------------------------------------------------------ browser
+
+def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
+    """Open the page in headless Chromium, click the 11 keypoints, edit a pre-filled range, save."""
+    from flows.annotate import AnnotationSession, server_url, start_server
+    from flows.ingest import ingest_take
+    from tasks.ingest import arrays
+    from tests.cdp import Browser, chromium_path
+
+    assert chromium_path() is not None, "chromium is not installed: run scripts/setup.sh (apt-get install chromium)"
+    wh = tmp_path / "wh"
+    ingest_take(str(raw_take), str(wh), show_progress=False)   # gives the timeline its fingertip distances
+    import pyarrow.parquet as pq
+
+    _, gp = arrays(pq.read_table(next((wh / "gripper_poses").rglob("*.parquet"))), "fingertip_distance")
+    suggested = suggest_closed_ranges(gp["fingertip_distance"])
+    assert suggested["left"], "the take's left hand closes: the suggestion must have a range to edit"
+
+    session = AnnotationSession(raw_take, wh)        # the task comes from the take (synthetic take.json)
+    server = start_server(session, port=0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    browser = Browser.start(tmp_path / "chromium-profile")
+    try:
+        browser.goto(server_url(server))
+        browser.wait_for("!!document.body && document.body.dataset.ready === '1'")
+        assert browser.eval("JSON.stringify(annotator.ranges)") == json.dumps(suggested, separators=(",", ":"))
+        names = browser.eval("annotator.task.keypoints.map(k => k.name)")
+        assert names == list(library_task("pouring").keypoint_names)
+        # click each keypoint where its object really is (the generator's exact projections)
+        exact = _exact_uv(raw_take)
+        canvas = browser.rect("#frame-canvas")
+        sx, sy = canvas["width"] / 640, canvas["height"] / 480
+        clicked = {}
+        for i, name in enumerate(names):
+            u, v = exact[name]
+            x, y = canvas["left"] + (u + 0.5) * sx, canvas["top"] + (v + 0.5) * sy
+            browser.click(x, y)
+            browser.wait_for(f"annotator.info[{json.dumps(name)}] !== undefined")
+            clicked[name] = browser.eval(f"annotator.points[{json.dumps(name)}]")
+            # mouse events land on whole CSS pixels: within one CSS pixel (in image pixels) of the target
+            assert abs(clicked[name][0] - u) <= 1 / sx + 0.05 and abs(clicked[name][1] - v) <= 1 / sy + 0.05
+        assert browser.eval("document.getElementById('kp-count').textContent").startswith("11 of 11")
+        world = browser.eval("annotator.info['cup_base'].world")
+        assert world is not None and len(world) == 3
+        # edit the first left range: type a new start frame, leave the field with Tab
+        start0, end0 = suggested["left"][0]
+        new_start = start0 + 2 if end0 - start0 > 3 else start0
+        browser.click_element('.range-start[data-hand="left"][data-i="0"]')
+        browser.eval("document.activeElement.select()")
+        browser.type_text(str(new_start))
+        browser.press("Tab", 9)
+        browser.wait_for(f"annotator.ranges.left[0][0] === {new_start}")
+        browser.screenshot(tmp_path / "annotate.png")
+        browser.click_element("#save")
+        browser.wait_for("document.getElementById('message').className === 'ok'")
+        msg = browser.eval("document.getElementById('message').textContent")
+        assert "11 of 11 keypoints" in msg and "ready to ingest" in msg
+    finally:
+        browser.close()
+        server.shutdown()
+        server.server_close()
+    saved = json.loads((raw_take / "annotations.json").read_text())
+    assert saved["object_keypoints_2d"]["frame"] == 0 and saved["object_keypoints_2d"]["names"] == names
+    assert np.allclose(saved["object_keypoints_2d"]["uv"], [clicked[n] for n in names])
+    want = {s: [list(r) for r in suggested[s]] for s in ("left", "right")}
+    want["left"][0][0] = new_start
+    assert saved["gripper_closed_ranges"] == want
+    assert saved["task"]["name"] == "pouring" and saved["task"]["library"] is True
+    assert (tmp_path / "annotate.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    take = open_take(raw_take)
+    assert annotation_status(take).annotated
+    assert take.annotations.closed_mask(N_FRAMES)[new_start, 0]
+
+
+def _exact_uv(take: Path) -> dict:
+    """{name: [u, v]} of the generator's exact keypoint projections, kept inside the image."""
+    import pyarrow.parquet as pq
+
+    from lib.alignment import project
+    from lib.geometry import transform_inverse, transform_points
+
+    gt = pq.read_table(take / "ground_truth" / "gt_object_keypoints.parquet").to_pylist()
+    first = next(r for r in gt if r["frame"] == 0)
+    cam = open_take(take).camera
+    pc = transform_points(transform_inverse(cam.T_world_camera), np.asarray(first["keypoints_world"], float))
+    uv = np.clip(project(pc, cam.K), 1, [cam.width - 2, cam.height - 2])
+    names = library_task("pouring").keypoint_names
+    return {n: [round(float(a), 1), round(float(b), 1)] for n, (a, b) in zip(names, uv)}
