@@ -128,6 +128,9 @@ class AlignmentConfig:
     max_freeze_frames: int = 15
     #: How frozen and missing frames are filled: "interpolate" or "hold" (the thesis).
     fill: str = "interpolate"
+    #: Longest run of frames filled (between accepted frames, or before the first / after the last
+    #: one); longer gaps stay empty (NaN, not present). None = fill everything (the thesis).
+    max_gap_frames: int | None = None
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.window % 2 == 0:
@@ -142,6 +145,8 @@ class AlignmentConfig:
             raise ValueError(f"translation must be 'ray' or 'free', got {self.translation!r}")
         if self.fill not in ("interpolate", "hold"):
             raise ValueError(f"fill must be 'interpolate' or 'hold', got {self.fill!r}")
+        if self.max_gap_frames is not None and self.max_gap_frames < 0:
+            raise ValueError(f"max_gap_frames must be >= 0 or None, got {self.max_gap_frames}")
         if self.min_anchors < 1 or self.min_valid < 1 or self.max_freeze_frames < 0:
             raise ValueError("min_anchors and min_valid must be >= 1, max_freeze_frames >= 0")
 
@@ -599,6 +604,11 @@ def align_to_depth(joints_cam: np.ndarray, depth: np.ndarray | None, K: np.ndarr
         out = fill_gaps(Xa, good, "hold")
     else:
         out = fill_gaps(Xa, good, "interpolate")
+    if cfg.max_gap_frames is not None:
+        from lib.perception.tracking import bounded_fill_mask
+
+        # bounded on missing detections only: frozen frames were detected and keep their held values
+        out = np.where(bounded_fill_mask(detected, cfg.max_gap_frames)[..., None, None], out, np.nan)
     present_out = np.isfinite(out).all(axis=(2, 3))
     filled_missing = present_out & ~detected
     return AlignmentResult(
