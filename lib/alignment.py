@@ -298,12 +298,14 @@ def read_depth_robust(depth: np.ndarray, uv: np.ndarray, window: int = 5,
 
 
 def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float = 10.0,
-                 majority: bool = True) -> np.ndarray:
+                 majority: bool = True, max_age: int | None = None) -> np.ndarray:
     """Decide per frame whether the two slots are swapped. Returns swapped (T,) bool.
 
     centroids_px: (T, 2, 2) 2D centroid of each slot's hand (NaN if absent); present (T, 2).
     Sequential assignment against the last repaired position of each physical hand (see the
     module docstring); ``majority`` keeps the take-level labelling closest to the detector's.
+    ``max_age``: a hand's last position older than this many frames is forgotten (with sparse
+    detections a stale position says nothing about where the hand is now); None = never.
     """
     c = np.asarray(centroids_px, dtype=np.float64)
     p = np.asarray(present, dtype=bool) & np.isfinite(c).all(-1)
@@ -312,10 +314,13 @@ def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float
     cl = c.tolist()
     pl = p.tolist()
     ref = [None, None]  # last repaired (x, y) of physical left / right
+    ref_t = [0, 0]
     for t in range(T):
         p0, p1 = pl[t]
         if not (p0 or p1):
             continue
+        if max_age is not None:
+            ref = [r if r is None or t - rt <= max_age else None for r, rt in zip(ref, ref_t)]
         a, b = cl[t]
         sw = False
         r0, r1 = ref
@@ -339,14 +344,14 @@ def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float
         swapped[t] = sw
         if sw:
             if p0:
-                ref[1] = a
+                ref[1], ref_t[1] = a, t
             if p1:
-                ref[0] = b
+                ref[0], ref_t[0] = b, t
         else:
             if p0:
-                ref[0] = a
+                ref[0], ref_t[0] = a, t
             if p1:
-                ref[1] = b
+                ref[1], ref_t[1] = b, t
     if majority:
         any_p = p.any(axis=1)
         if np.count_nonzero(swapped & any_p) * 2 > np.count_nonzero(any_p):

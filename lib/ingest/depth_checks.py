@@ -7,8 +7,8 @@ and names the first problem it finds, with how to fix it:
 
 1. **Frames with depth**: the fraction of frames with any valid pixel (``min_frame_fraction``).
 2. **Range and table plane** (needs no hand): valid pixels closer than ``near_m`` (no RGB-D camera
-   measures there: metres read as millimetres) or, on pixels whose ray meets the table plane
-   (world z = 0), much farther than that plane (``beyond_table_factor``: millimetres read as
+   measures there: metres read as millimetres), farther than ``far_m`` (beyond any RGB-D sensor) or,
+   on pixels whose ray meets the table plane (world z = 0), much farther than that plane (``beyond_table_factor``: millimetres read as
    metres, or a wrong ``T_world_camera``).
 3. **Hands** (when a detector found hands): the fraction of detected hands with a valid depth reading
    at their anchors (``min_anchor_fraction``), and the depth-to-size ratio ``s = z_read /
@@ -69,13 +69,14 @@ class DepthFrameStats:
 
     valid_fraction: np.ndarray
     near_fraction: np.ndarray       # of valid pixels
+    far_fraction: np.ndarray        # of valid pixels
     beyond_table_fraction: np.ndarray  # of valid pixels whose ray meets the table in front
     table_pixels: np.ndarray        # how many valid subsampled pixels face the table
 
     @classmethod
     def empty(cls, T: int) -> "DepthFrameStats":
         z = np.zeros(T)
-        return cls(z.copy(), z.copy(), z.copy(), np.zeros(T, np.int64))
+        return cls(z.copy(), z.copy(), z.copy(), z.copy(), np.zeros(T, np.int64))
 
 
 @dataclass
@@ -100,7 +101,8 @@ class DepthReport:
 
 
 def frame_depth_stats(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray | None = None,
-                      step: int = 8, near_m: float = 0.05, beyond_table_factor: float = 3.0) -> DepthFrameStats:
+                      step: int = 8, near_m: float = 0.05, far_m: float = 15.0,
+                      beyond_table_factor: float = 3.0) -> DepthFrameStats:
     """Statistics of a batch of depth images (B, H, W) in metres on a ``step``-pixel grid."""
     d = np.asarray(depth, dtype=np.float64)[:, step // 2::step, step // 2::step]
     B, h, w = d.shape
@@ -108,6 +110,7 @@ def frame_depth_stats(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarr
     n_valid = valid.sum(axis=(1, 2))
     vf = n_valid / max(h * w, 1)
     near = (valid & (d < near_m)).sum(axis=(1, 2)) / np.maximum(n_valid, 1)
+    far = (valid & (d > far_m)).sum(axis=(1, 2)) / np.maximum(n_valid, 1)
     beyond = np.zeros(B)
     table_px = np.zeros(B, np.int64)
     if T_world_camera is not None:
@@ -123,7 +126,7 @@ def frame_depth_stats(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarr
         tv = valid & faces[None]
         table_px = tv.sum(axis=(1, 2))
         beyond = (tv & (d > beyond_table_factor * z_table[None])).sum(axis=(1, 2)) / np.maximum(table_px, 1)
-    return DepthFrameStats(vf, near, beyond, table_px)
+    return DepthFrameStats(vf, near, far, beyond, table_px)
 
 
 def _fmt(x: float) -> str:
@@ -141,6 +144,7 @@ def check_depth(stats: DepthFrameStats, hand_detected: np.ndarray | None = None,
     frames_ok = float(has.mean()) if T else 0.0
     w = stats.valid_fraction[has]
     near = float(np.average(stats.near_fraction[has], weights=w)) if has.any() else 0.0
+    far = float(np.average(stats.far_fraction[has], weights=w)) if has.any() else 0.0
     tw = stats.table_pixels * has
     beyond = float(np.average(stats.beyond_table_fraction, weights=tw)) if tw.sum() > 0 else 0.0
     det = np.zeros((T, 2), bool) if hand_detected is None else np.asarray(hand_detected, bool)
@@ -160,9 +164,11 @@ def check_depth(stats: DepthFrameStats, hand_detected: np.ndarray | None = None,
         return DepthReport("empty_depth", (
             f"depth is empty (all 0 / NaN) in {int((~has).sum())} of {T} frames: check the take's depth/ "
             f"files (a missing, all-zero or misnamed depth stream){fix}"), **rep)
-    if (enough_hands and med > cfg.unit_factor) or (not enough_hands and beyond > cfg.max_bad_pixel_fraction):
+    far_or_beyond = max(far, beyond)
+    if (enough_hands and med > cfg.unit_factor) or (not enough_hands and far_or_beyond > cfg.max_bad_pixel_fraction):
         what = (f"hands read at {_fmt(med)} x the depth their size implies" if enough_hands else
-                f"{100 * beyond:.0f} % of the pixels lie far below the table plane")
+                f"{100 * far_or_beyond:.0f} % of the valid pixels lie beyond the sensor's range or far "
+                "below the table plane")
         return DepthReport("unit_mm_read_as_m", (
             f"depth looks like millimetres read as metres ({what}): fix {_FIX_UNIT}{fix}"), **rep)
     if (enough_hands and med < 1 / cfg.unit_factor) or (not enough_hands and near > cfg.max_bad_pixel_fraction):

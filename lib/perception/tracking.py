@@ -6,17 +6,17 @@ the gaps between such detections invents trajectories. This module decides, per 
 slot (0 = left, 1 = right; DESIGN.md section 3), which detections belong to a hand track:
 
 1. **Depth consistency** (when depth at the hand is given): a detected hand must lie on depth pixels
-   at a distance consistent with its apparent size. The detector's root-relative 3D hand (metric, its
-   own size estimate) is placed at the read depth along its wrist's viewing ray and projected; the
-   ratio ``s = z_read / z_implied`` (``z_implied``: the depth at which the detector's hand has the
-   2D spread of its keypoints) is about 1 for a real hand, far from 1 for a "hand" on the background
+   at a distance consistent with its apparent size. The ratio ``s = z_read / z_implied``
+   (``z_implied = f * spread_xy / spread_px``: the depth at which the detector's metric hand, its own
+   size estimate, has the 2D spread of its keypoints under weak perspective) is about 1 for a real hand, far from 1 for a "hand" on the background
    or for depth in the wrong unit. Detections with ``s`` outside ``[1/depth_ratio_tol,
    depth_ratio_tol]`` are rejected (no reading: not judged).
 2. **Duplicates**: both labels on the same physical hand (mean 2D joint distance under
    ``duplicate_sizes`` hand sizes): the less confident one is dropped.
 3. **Identity**: left/right swaps and handedness flips are repaired from 2D continuity
    (:func:`lib.alignment.repair_swaps`: each detection goes to the physical hand whose last
-   position is closer).
+   position is closer; positions older than ``max_gap_frames`` are forgotten, so sparse
+   detections are not re-labelled against where a hand was seconds ago).
 4. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
    ``max_gap_frames`` and at jumps no hand can make (centroid moved more than
    ``max_jump_sizes + max_jump_sizes_per_frame * frames`` hand sizes). A segment becomes a track only
@@ -37,7 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lib.geometry import backproject, project_points
 
 __all__ = ["TrackerConfig", "TrackResult", "REJECT_REASONS", "depth_size_ratio", "hand_size_px",
            "track_hands", "bounded_fill_mask", "hand_trust"]
@@ -136,12 +135,12 @@ def depth_size_ratio(joints_cam: np.ndarray, joints_px: np.ndarray, anchor_depth
     from lib.alignment import nan_median
 
     z, _ = nan_median(np.where(np.isfinite(anchor_depth), anchor_depth, np.nan), axis=-1)
+    f = 0.5 * (float(K[0, 0]) + float(K[1, 1]))
     with np.errstate(all="ignore"):
-        ray = backproject(P[..., 0, :], np.ones(P.shape[:-2]), K)            # wrist ray, z = 1
-        placed = X - X[..., :1, :] + (ray * z[..., None])[..., None, :]
-        s2d = _spread(P)
-        sproj = _spread(project_points(placed, K))
-        ratio = s2d / sproj      # spread scales as 1 / depth: z_implied = z_read * sproj / s2d
+        # weak perspective: the detector's hand, seen across the viewing direction, spans
+        # f * spread_xy / z pixels at depth z (no singularity for absurd depths, e.g. 0.6 mm)
+        z_implied = f * _spread((X - X[..., :1, :])[..., :2]) / _spread(P)
+        ratio = z / z_implied
     return np.where(np.isfinite(ratio) & (ratio > 0), ratio, np.nan)
 
 
@@ -223,7 +222,7 @@ def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarr
     if cfg.repair_identity:
         from lib.alignment import repair_swaps
 
-        swapped = repair_swaps(cen, det, cfg.swap_margin_px)
+        swapped = repair_swaps(cen, det, cfg.swap_margin_px, max_age=cfg.max_gap_frames)
     else:
         swapped = np.zeros(T, bool)
     src = np.where(swapped[:, None], np.array([1, 0]), np.array([0, 1]))
