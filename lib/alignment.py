@@ -47,7 +47,9 @@ Pipeline of :func:`align_to_depth` (every stage can be switched off in :class:`A
 5. **Filling**: hands not detected (``present`` False) and frozen frames are filled from the
    accepted frames: ``fill="interpolate"`` (linear between the neighbouring accepted frames, held
    at the ends; default) or ``fill="hold"`` (the thesis: keep the previous accepted frame, the
-   first accepted frame before it). A hand never detected in the take stays NaN.
+   first accepted frame before it). A hand never detected in the take stays NaN. With
+   ``max_gap_frames`` only runs of at most that many undetected frames are filled (the ingest sets
+   it from the hand tracker, lib.perception.tracking); longer gaps stay NaN (not present).
 
 The output never contains NaN for a frame where a hand was detected, nor anywhere for a hand
 that was detected at least once.
