@@ -64,6 +64,7 @@ def _main(
 
     State.warehouse = warehouse
     runners.install_interrupt_handler()
+    _quiet_user_error_tracebacks()
     if task_runner:
         os.environ[runners.ENV_RUNNER] = task_runner
     if dask_address:
@@ -74,6 +75,26 @@ def _main(
             runners.dask_workers()
     except ValueError as e:
         raise fail(str(e))
+
+
+def _quiet_user_error_tracebacks() -> None:
+    """Prefect logs a failed task or flow with its traceback; for the user errors that the commands
+    report in one line (a bad take, untrustworthy depth, ...) that traceback is noise: drop it."""
+    import logging
+
+    from lib.ingest import TakeError
+
+    class _Filter(logging.Filter):
+        def filter(self, record: logging.LogRecord) -> bool:
+            exc = record.exc_info[1] if record.exc_info else None
+            if isinstance(exc, (TakeError, ValueError)):
+                record.exc_info, record.exc_text = None, None
+            return True
+
+    for name in ("prefect.task_runs", "prefect.flow_runs"):
+        logger = logging.getLogger(name)
+        if not any(type(f).__name__ == "_Filter" for f in logger.filters):
+            logger.addFilter(_Filter())
 
 
 class OutputFormat(str, enum.Enum):
