@@ -177,14 +177,16 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 
     # the take's depth verdict: stop loudly rather than write hands a metre off
     present = a["present"] & np.isfinite(uv_src).all(axis=(2, 3))
-    ratio = depth_size_ratio(joints_cam, uv_src, anchor_depth, take.K)
+    # the size check needs the detector's own 2D; 2D projected from its 3D would measure its depth error
+    ratio = (depth_size_ratio(joints_cam, uv_src, anchor_depth, take.K) if have_px.all()
+             else np.full(present.shape, np.nan))
     anchor_ok = np.isfinite(anchor_depth).sum(-1) >= cfg.min_anchors
     report = check_depth(stats, present, anchor_ok, ratio)
     if not report.ok and not accept_bad_depth:
         raise DepthError(f"take {take.take_id}: {report.message}")
 
     tr = track_hands(uv_src, present, a["confidence"], joints_cam=joints_cam, anchor_depth=anchor_depth,
-                     K=take.K, config=tcfg, use_depth=report.ok)
+                     K=take.K, config=tcfg, use_depth=report.ok and bool(have_px.all()))
     tt = np.arange(T)[:, None]
     src = np.where(tr.swapped[:, None], np.array([1, 0]), np.array([0, 1]))
     keep = tr.accepted[..., None, None]
