@@ -28,6 +28,7 @@ def augment_take_flow(
     options: dict | None = None,
     show_progress: bool = True,
     ingest_options: dict | None = None,
+    allow_untrusted_hands: bool = False,
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
@@ -36,6 +37,8 @@ def augment_take_flow(
     when the take was ingested with the same ones): without them the defaults would rewrite the take's
     gripper poses, so episodes would silently come from another hand-to-gripper mapping than the one
     the take was ingested with.
+    allow_untrusted_hands: build the database even when a hand's trajectory is not trusted (the
+    `hand_presence` table: too few tracked frames); without it such a take stops with a ValueError.
     manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
     options: generate_episodes keyword arguments, e.g. {"translation_range": [[-0.1, 0.1], [-0.1, 0.1]],
     "yaw_range": [-0.5, 0.5], "independent": true, "safety_distance": 0.04, "mode": "thesis"}.
@@ -49,12 +52,26 @@ def augment_take_flow(
         from lib.ingest import TakeError, open_take
 
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
+    if not allow_untrusted_hands:
+        require_trusted_hands(ingested["hand_presence"])
     common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=n, n_mirrored=n_mirrored,
                          seed=seed, options=options or {})
     return {**ingested, "segments": segments, "episodes": episodes}
+
+
+def require_trusted_hands(presence: Manifest) -> None:
+    """Raise a one-line ValueError naming the take's untrusted hands (see the `hand_presence` table)."""
+    from schemas.core import read_table_file
+
+    rows = [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]
+    bad = [r for r in rows if not r["trusted"]]
+    if bad:
+        what = "; ".join(f"the {r['hand']} hand: {r['reason']}" for r in bad)
+        raise ValueError(f"take {bad[0]['take']}: no episode database from an untrusted hand ({what}); "
+                         "pass --allow-untrusted-hands to build it anyway")
 
 
 def read_scene(path: str | Path) -> dict:

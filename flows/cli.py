@@ -64,6 +64,7 @@ def _main(
 
     State.warehouse = warehouse
     runners.install_interrupt_handler()
+    _quiet_user_error_tracebacks()
     if task_runner:
         os.environ[runners.ENV_RUNNER] = task_runner
     if dask_address:
@@ -74,6 +75,26 @@ def _main(
             runners.dask_workers()
     except ValueError as e:
         raise fail(str(e))
+
+
+def _quiet_user_error_tracebacks() -> None:
+    """Prefect logs a failed task or flow with its traceback; for the user errors that the commands
+    report in one line (a bad take, untrustworthy depth, ...) that traceback is noise: drop it."""
+    import logging
+
+    from lib.ingest import TakeError
+
+    class _Filter(logging.Filter):
+        def filter(self, record: logging.LogRecord) -> bool:
+            exc = record.exc_info[1] if record.exc_info else None
+            if isinstance(exc, (TakeError, ValueError)):
+                record.exc_info, record.exc_text = None, None
+            return True
+
+    for name in ("prefect.task_runs", "prefect.flow_runs"):
+        logger = logging.getLogger(name)
+        if not any(type(f).__name__ == "_Filter" for f in logger.filters):
+            logger.addFilter(_Filter())
 
 
 class OutputFormat(str, enum.Enum):
@@ -384,11 +405,15 @@ def ingest(
     grasp_prior: str = typer.Option("pose", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'pose' takes the pinch pose (position and rotation) from the whole hand's motion (default), 'twist' only the twist about the approach axis, 'off' keeps the thesis's mapping."),
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
+    accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="Go on when the take's depth fails a check (empty, wrong unit, misaligned): every row is flagged in `depth_problem` instead of stopping."),
 ) -> None:
-    """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
+    """Ingest one take: frames, hand keypoints, depth checks, hand tracking, depth alignment, gripper
+    poses, object keypoints.
 
-    Results go to the warehouse tables frames, hand_keypoints, aligned_keypoints, gripper_poses,
-    object_keypoints (and ingest_metrics for synthetic takes, against their ground truth).
+    Results go to the warehouse tables frames, hand_keypoints, aligned_keypoints, hand_presence,
+    gripper_poses, object_keypoints (and ingest_metrics for synthetic takes, against their ground
+    truth). Depth that cannot be trusted stops the take (exit 2) unless --accept-bad-depth; a hand
+    tracked in too few frames is reported as not trusted (and `augment` refuses it).
     """
     from flows.ingest import ingest_take
     from lib.detectors import DetectorError
@@ -410,17 +435,35 @@ def ingest(
         result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
                              video=video, grasp_prior=grasp_prior,
-                             table_clearance=None if table_clearance < 0 else table_clearance)
+                             table_clearance=None if table_clearance < 0 else table_clearance,
+                             accept_bad_depth=accept_bad_depth)
     except (TakeError, ValueError, DetectorError) as e:
         raise fail(str(e))
     for name, m in result.items():
         if m is not None:
             typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
+    _echo_hand_presence(result["hand_presence"])
     if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
         from lib.annotate import annotation_status, not_annotated_message
 
         take = _open_take_or_fail(path)
         typer.echo(f"warning: object_keypoints: {not_annotated_message(path, annotation_status(take).detail)}", err=True)
+
+
+def _echo_hand_presence(presence) -> None:
+    """The take's per-hand tracking summary (the `hand_presence` table), untrusted hands on stderr."""
+    from schemas.core import read_table_file
+
+    for r in [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]:
+        line = (f"{r['hand']} hand: detected in {r['frames_detected']} of {r['frames']} frames, "
+                f"{r['frames_accepted']} in {r['tracks']} track(s), {r['frames_filled']} filled, "
+                f"trajectory on {r['frames_tracked']} frames")
+        if r["depth_problem"]:
+            line += f"; depth accepted despite `{r['depth_problem']}`"
+        if r["trusted"]:
+            typer.echo(line + " -- trusted")
+        else:
+            typer.echo(f"warning: {line} -- NOT TRUSTED: {r['reason']}", err=True)
 
 
 @app.command()
@@ -438,6 +481,8 @@ def augment(
     smoothing: int = typer.Option(0, help="As for `demoforge ingest` (pose smoothing window, 0 = off)."),
     grasp_prior: str = typer.Option("pose", "--grasp-prior", help="As for `demoforge ingest`: pose, twist or off."),
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
+    allow_untrusted_hands: bool = typer.Option(False, "--allow-untrusted-hands", help="Build the database even from a hand tracked in too few frames (see the hand_presence table)."),
+    accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="As for `demoforge ingest`."),
 ) -> None:
     """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).
 
@@ -452,10 +497,12 @@ def augment(
         raise fail(not_annotated_message(path, status.detail))
     options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
     ingest_options = {"state_method": state_method, "smoothing": smoothing, "grasp_prior": grasp_prior,
-                      "table_clearance": None if table_clearance < 0 else table_clearance}
+                      "table_clearance": None if table_clearance < 0 else table_clearance,
+                      "accept_bad_depth": accept_bad_depth}
     try:
         result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, detector=detector,
-                          n=episodes, n_mirrored=mirrored, seed=seed, options=options, ingest_options=ingest_options)
+                          n=episodes, n_mirrored=mirrored, seed=seed, options=options, ingest_options=ingest_options,
+                          allow_untrusted_hands=allow_untrusted_hands)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     typer.echo(f"episodes: {result['episodes'].path}")

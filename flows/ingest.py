@@ -8,8 +8,8 @@ from prefect import flow, get_run_logger
 
 import lib  # noqa: F401
 from tasks.common import Manifest, run_stage
-from tasks.ingest import (align_keypoints, detect_hands, index_frames, ingest_metrics, map_grippers,
-                          object_keypoints, overlay_video, take_media_key, take_task_name)
+from tasks.ingest import (align_keypoints, detect_hands, hand_presence, index_frames, ingest_metrics,
+                          map_grippers, object_keypoints, overlay_video, take_media_key, take_task_name)
 
 
 @flow(name="ingest-take")
@@ -26,6 +26,8 @@ def ingest_take(
     video: bool = False,
     grasp_prior: str = "pose",
     table_clearance: float | None = 0.010,
+    tracker: dict | None = None,
+    accept_bad_depth: bool = False,
 ) -> dict[str, Manifest | None]:
     """Ingest one take folder (layout: README 'Take folders') into the warehouse.
 
@@ -33,6 +35,10 @@ def ingest_take(
     (detector_options={"path": ...}: the thesis code's keypoint JSON, or Parquet/NPZ predictions).
     Every stage is cached on the content of its inputs: a second run is served from the cache.
     video: also write warehouse/videos/<take>.<detector>.mp4 with the skeletons and gripper frames.
+    tracker: lib.perception.tracking.TrackerConfig fields (births, longest filled gap, trust thresholds);
+    the per-hand verdict is the `hand_presence` table.
+    accept_bad_depth: go on when the take's depth fails a check (lib.ingest.depth_checks), flagging every
+    row in `depth_problem`, instead of stopping with tasks.ingest.DepthError.
     """
     from lib.detectors import available_detectors
     from lib.ingest import open_take
@@ -57,7 +63,8 @@ def ingest_take(
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,
                       detector_options=options, frames=frames, show_progress=show_progress, media_key=media)
     aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {},
-                        media_key=media)
+                        tracker=tracker or {}, accept_bad_depth=bool(accept_bad_depth), media_key=media)
+    presence = run_stage(hand_presence, warehouse, **common, aligned=aligned, tracker=tracker or {})
     if grasp_prior not in ("twist", "pose", "off"):
         raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
     grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
@@ -66,7 +73,7 @@ def ingest_take(
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
                         grippers=grippers)
     result = {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
-              "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
+              "hand_presence": presence, "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
     if video:
         result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers)
     return result

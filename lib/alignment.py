@@ -47,7 +47,9 @@ Pipeline of :func:`align_to_depth` (every stage can be switched off in :class:`A
 5. **Filling**: hands not detected (``present`` False) and frozen frames are filled from the
    accepted frames: ``fill="interpolate"`` (linear between the neighbouring accepted frames, held
    at the ends; default) or ``fill="hold"`` (the thesis: keep the previous accepted frame, the
-   first accepted frame before it). A hand never detected in the take stays NaN.
+   first accepted frame before it). A hand never detected in the take stays NaN. With
+   ``max_gap_frames`` only runs of at most that many undetected frames are filled (the ingest sets
+   it from the hand tracker, lib.perception.tracking); longer gaps stay NaN (not present).
 
 The output never contains NaN for a frame where a hand was detected, nor anywhere for a hand
 that was detected at least once.
@@ -128,6 +130,9 @@ class AlignmentConfig:
     max_freeze_frames: int = 15
     #: How frozen and missing frames are filled: "interpolate" or "hold" (the thesis).
     fill: str = "interpolate"
+    #: Longest run of frames filled (between accepted frames, or before the first / after the last
+    #: one); longer gaps stay empty (NaN, not present). None = fill everything (the thesis).
+    max_gap_frames: int | None = None
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.window % 2 == 0:
@@ -142,6 +147,8 @@ class AlignmentConfig:
             raise ValueError(f"translation must be 'ray' or 'free', got {self.translation!r}")
         if self.fill not in ("interpolate", "hold"):
             raise ValueError(f"fill must be 'interpolate' or 'hold', got {self.fill!r}")
+        if self.max_gap_frames is not None and self.max_gap_frames < 0:
+            raise ValueError(f"max_gap_frames must be >= 0 or None, got {self.max_gap_frames}")
         if self.min_anchors < 1 or self.min_valid < 1 or self.max_freeze_frames < 0:
             raise ValueError("min_anchors and min_valid must be >= 1, max_freeze_frames >= 0")
 
@@ -293,12 +300,14 @@ def read_depth_robust(depth: np.ndarray, uv: np.ndarray, window: int = 5,
 
 
 def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float = 10.0,
-                 majority: bool = True) -> np.ndarray:
+                 majority: bool = True, max_age: int | None = None) -> np.ndarray:
     """Decide per frame whether the two slots are swapped. Returns swapped (T,) bool.
 
     centroids_px: (T, 2, 2) 2D centroid of each slot's hand (NaN if absent); present (T, 2).
     Sequential assignment against the last repaired position of each physical hand (see the
     module docstring); ``majority`` keeps the take-level labelling closest to the detector's.
+    ``max_age``: a hand's last position older than this many frames is forgotten (with sparse
+    detections a stale position says nothing about where the hand is now); None = never.
     """
     c = np.asarray(centroids_px, dtype=np.float64)
     p = np.asarray(present, dtype=bool) & np.isfinite(c).all(-1)
@@ -307,10 +316,13 @@ def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float
     cl = c.tolist()
     pl = p.tolist()
     ref = [None, None]  # last repaired (x, y) of physical left / right
+    ref_t = [0, 0]
     for t in range(T):
         p0, p1 = pl[t]
         if not (p0 or p1):
             continue
+        if max_age is not None:
+            ref = [r if r is None or t - rt <= max_age else None for r, rt in zip(ref, ref_t)]
         a, b = cl[t]
         sw = False
         r0, r1 = ref
@@ -334,14 +346,14 @@ def repair_swaps(centroids_px: np.ndarray, present: np.ndarray, margin_px: float
         swapped[t] = sw
         if sw:
             if p0:
-                ref[1] = a
+                ref[1], ref_t[1] = a, t
             if p1:
-                ref[0] = b
+                ref[0], ref_t[0] = b, t
         else:
             if p0:
-                ref[0] = a
+                ref[0], ref_t[0] = a, t
             if p1:
-                ref[1] = b
+                ref[1], ref_t[1] = b, t
     if majority:
         any_p = p.any(axis=1)
         if np.count_nonzero(swapped & any_p) * 2 > np.count_nonzero(any_p):
@@ -599,6 +611,11 @@ def align_to_depth(joints_cam: np.ndarray, depth: np.ndarray | None, K: np.ndarr
         out = fill_gaps(Xa, good, "hold")
     else:
         out = fill_gaps(Xa, good, "interpolate")
+    if cfg.max_gap_frames is not None:
+        from lib.perception.tracking import bounded_fill_mask
+
+        # bounded on missing detections only: frozen frames were detected and keep their held values
+        out = np.where(bounded_fill_mask(detected, cfg.max_gap_frames)[..., None, None], out, np.nan)
     present_out = np.isfinite(out).all(axis=(2, 3))
     filled_missing = present_out & ~detected
     return AlignmentResult(

@@ -45,7 +45,7 @@ HAND_KEYPOINTS = table(
 
 ALIGNED_KEYPOINTS = table(
     "aligned_keypoints",
-    version=1,
+    version=2,
     doc=("Hand keypoints after depth alignment (thesis 3.1.2: anchor joints read on the depth image, all 21 "
          "joints translated), left/right swap repair, outlier freeze and gap filling. Never NaN where `present`."),
     columns=[
@@ -61,14 +61,18 @@ ALIGNED_KEYPOINTS = table(
         Column("depth_outlier", pa.bool_(), "The depth reading was rejected by the temporal check."),
         Column("outlier_frozen", pa.bool_(), "Frame judged an outlier (thesis MSE rule): the previous keypoints were kept."),
         Column("swap_repaired", pa.bool_(), "The detector's left/right labels were swapped back in this frame."),
-        Column("filled_missing", pa.bool_(), "The hand was not detected; the joints were filled from neighbouring frames."),
+        Column("filled_missing", pa.bool_(), "The hand was not detected; the joints were filled from neighbouring frames (gaps of at most the tracker's `max_gap_frames`)."),
+        Column("track_id", pa.int32(), "Hand track (0, 1, ... per hand) whose span holds this frame; -1 outside every track (then the hand is absent)."),
+        Column("rejected", pa.string(), "Why the detector's detection here was not used: `isolated` (no sustained track), `depth_inconsistent` (not on depth at a distance matching its size), `duplicate` (both labels on one hand); empty when used or none."),
+        Column("depth_ratio", pa.float64(), "Depth read under the detection / depth its apparent size implies (about 1 for a real hand; NaN without a reading)."),
+        Column("depth_problem", pa.string(), "The take's depth failed a check (`empty_depth`, `unit_mm_read_as_m`, `unit_m_read_as_mm`, `mostly_invalid_depth`, `misaligned_depth`) and the user accepted it (`--accept-bad-depth`): every row of the take carries the code. Empty when the depth passed."),
     ],
     partition_by=_PARTS,
 )
 
 GRIPPER_POSES = table(
     "gripper_poses",
-    version=1,
+    version=2,
     doc=("The thesis's hand-to-gripper mapping (3.1.3) per frame and arm: position = midpoint of thumb and "
          "index tips, orientation from the base (joints 0, 1) towards that midpoint, x from thumb to index."),
     columns=[
@@ -80,6 +84,7 @@ GRIPPER_POSES = table(
         Column("g_auto", pa.int8(), "Open/close by the automatic per-take method (see README)."),
         Column("g_manual", pa.int8(), "Open/close from the annotation's labelled frame ranges; null without annotation.", nullable=True),
         Column("state_method", pa.string(), "Which of the three gives `pose`'s g: `manual` when labelled ranges exist, else the configured method."),
+        Column("depth_problem", pa.string(), "As in `aligned_keypoints`: the take's failed depth check the user accepted, empty when the depth passed."),
     ],
     partition_by=_PARTS,
 )
@@ -126,6 +131,30 @@ INGEST_METRICS = table(
         Column("swap_frames_injected", pa.int32(), "Frames where the simulated detector swapped the labels (take-level; 0 for real detectors)."),
         Column("swap_frames_repaired", pa.int32(), "Frames where the ingest swapped the labels back (take-level)."),
         Column("swap_frames_repaired_correctly", pa.int32(), "Repaired frames that were really swapped (take-level)."),
+    ],
+    partition_by=_PARTS,
+)
+
+HAND_PRESENCE = table(
+    "hand_presence",
+    version=1,
+    doc=("Per take and hand: how much of the take the hand tracker (lib.perception.tracking) could follow, and "
+         "whether the hand's trajectory can be trusted. `demoforge augment` refuses to build episodes from an "
+         "untrusted hand unless forced (`--allow-untrusted-hands`)."),
+    columns=[
+        _TAKE, _TASK, _DETECTOR, _HAND,
+        Column("frames", pa.int32(), "Frames in the take."),
+        Column("frames_detected", pa.int32(), "Frames where the detector reported this hand (after left/right identity repair)."),
+        Column("frames_accepted", pa.int32(), "Detections that belong to a confirmed track (the only ones used)."),
+        Column("frames_isolated", pa.int32(), "Detections rejected as isolated (no sustained track)."),
+        Column("frames_depth_inconsistent", pa.int32(), "Detections rejected because the depth under them does not match their size."),
+        Column("frames_duplicate", pa.int32(), "Detections dropped as a second label on the other hand."),
+        Column("frames_filled", pa.int32(), "Frames filled between accepted detections (bounded gaps), flagged `filled_missing`."),
+        Column("frames_tracked", pa.int32(), "Frames where the hand's trajectory has a value (accepted + filled + frozen)."),
+        Column("tracks", pa.int32(), "Number of separate tracks of the hand."),
+        Column("trusted", pa.bool_(), "The trajectory covers enough of the take to build episodes from."),
+        Column("reason", pa.string(), "Why the hand is not trusted, in words (empty when trusted)."),
+        Column("depth_problem", pa.string(), "The take's failed depth check the user accepted (empty when the depth passed)."),
     ],
     partition_by=_PARTS,
 )

@@ -159,30 +159,66 @@ def _save_detector_extra(take, track, warehouse: str) -> None:
 
 # --- 3. aligned keypoints ------------------------------------------------------------------------
 
-@stage_task(name="align_keypoints", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
+class DepthError(ValueError):
+    """The take's depth cannot be trusted (one-line message: what is wrong and how to fix it)."""
+
+
+@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-1", key_ignore=("take_dir",))  # keyed on media_key
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
-                    alignment: dict | None = None, *, media_key: str) -> Manifest:
-    """Depth alignment (thesis 3.1.2), swap repair, outlier freeze; depth is streamed per batch."""
+                    alignment: dict | None = None, tracker: dict | None = None,
+                    accept_bad_depth: bool = False, *, media_key: str) -> Manifest:
+    """Depth checks (lib.ingest.depth_checks), hand tracking (lib.perception.tracking), then depth
+    alignment (thesis 3.1.2), outlier freeze and bounded gap filling; depth is streamed per batch.
+
+    Raises :class:`DepthError` when the take's depth fails a check, unless ``accept_bad_depth``
+    (then every row carries the problem in ``depth_problem`` and the tracker ignores depth)."""
     from lib.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
     from lib.geometry import transform_points
     from lib.ingest import iter_depth, open_take
+    from lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
+    from lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, track_hands
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
     hk = read_table("hand_keypoints", warehouse, task=name, take=take.take_id)
-    T, a = arrays(hk, "joints_cam", "joints_px", "present")
+    T, a = arrays(hk, "joints_cam", "joints_px", "present", "confidence")
     detector = hk.column("detector")[0].as_py()
     cfg = AlignmentConfig(**(alignment or {}))
+    tcfg = TrackerConfig(**(tracker or {}))
+    tcfg = dataclasses.replace(tcfg, repair_identity=cfg.repair_swaps, swap_margin_px=cfg.swap_margin_px)
     joints_cam = np.where(a["present"][..., None, None], a["joints_cam"], np.nan)
     joints_px = np.where(a["present"][..., None, None], a["joints_px"], np.nan)
     have_px = np.isfinite(joints_px).all(axis=(2, 3)) | ~a["present"]
     uv_src = joints_px if have_px.all() else project(joints_cam, take.K)
     uv = uv_src[:, :, list(cfg.anchors), :]
     anchor_depth = np.full(uv.shape[:-1], np.nan)
+    stats = DepthFrameStats.empty(T)
     for idx, depth in iter_depth(take):
         anchor_depth[idx], _ = read_depth_robust(depth, uv[idx], cfg.window, cfg.min_valid)
-    res = align_to_depth(joints_cam, None, take.K, uv_src if have_px.all() else None, cfg,
-                         anchor_depth=anchor_depth)
+        fs = frame_depth_stats(depth, take.K, take.camera.T_world_camera)
+        for f in dataclasses.fields(fs):
+            getattr(stats, f.name)[idx] = getattr(fs, f.name)
+
+    # the take's depth verdict: stop loudly rather than write hands a metre off
+    present = a["present"] & np.isfinite(uv_src).all(axis=(2, 3))
+    # the size check needs the detector's own 2D; 2D projected from its 3D would measure its depth error
+    ratio = (depth_size_ratio(joints_cam, uv_src, anchor_depth, take.K) if have_px.all()
+             else np.full(present.shape, np.nan))
+    anchor_ok = np.isfinite(anchor_depth).sum(-1) >= cfg.min_anchors
+    report = check_depth(stats, present, anchor_ok, ratio)
+    if not report.ok and not accept_bad_depth:
+        raise DepthError(f"take {take.take_id}: {report.message}")
+
+    tr = track_hands(uv_src, present, a["confidence"], joints_cam=joints_cam, anchor_depth=anchor_depth,
+                     K=take.K, config=tcfg, use_depth=report.ok and bool(have_px.all()))
+    tt = np.arange(T)[:, None]
+    src = np.where(tr.swapped[:, None], np.array([1, 0]), np.array([0, 1]))
+    keep = tr.accepted[..., None, None]
+    X = np.where(keep, joints_cam[tt, src], np.nan)
+    P = np.where(keep, uv_src[tt, src], np.nan)
+    res = align_to_depth(X, None, take.K, P if have_px.all() else None,
+                         cfg.with_(repair_swaps=False, max_gap_frames=tcfg.max_gap_frames),
+                         anchor_depth=anchor_depth[tt, src])
     world = transform_points(take.camera.T_world_camera, res.joints_cam.reshape(T, 2 * 21, 3)).reshape(T, 2, 21, 3)
     written = write_table("aligned_keypoints", rows(
         take.take_id, name, T, detector=[detector] * (2 * T),
@@ -190,14 +226,46 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
         translation=res.translation, anchors_used=res.anchors_used.astype(np.int64),
         n_anchors_valid=res.n_anchors_valid.astype(np.int32), no_depth=res.no_depth,
         depth_outlier=res.depth_outlier, outlier_frozen=res.outlier_frozen,
-        swap_repaired=res.swap_repaired, filled_missing=res.filled_missing,
+        swap_repaired=tr.swapped[:, None] & tr.detected, filled_missing=res.filled_missing,
+        track_id=tr.track_id.astype(np.int32), rejected=list(np.asarray(REJECT_REASONS)[tr.rejected].reshape(-1)),
+        depth_ratio=tr.depth_ratio, depth_problem=[report.problem] * (2 * T),
     ), warehouse)
     return Manifest.from_written("aligned_keypoints", written)
 
 
+@stage_task(name="hand_presence", version=INGEST_VERSION)
+def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
+                  tracker: dict | None = None) -> Manifest:
+    """Per hand: frames detected / accepted / rejected / filled / tracked and the trust verdict."""
+    from lib.ingest import open_take
+    from lib.perception.tracking import TrackerConfig, hand_trust
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    al = read_table("aligned_keypoints", warehouse, task=name, take=take.take_id)
+    T, a = arrays(al, "present", "detected", "filled_missing", "track_id", "rejected")
+    detector = al.column("detector")[0].as_py()
+    problem = al.column("depth_problem")[0].as_py()
+    rej = a["rejected"].astype(str)
+    seen = a["detected"] | (rej != "")
+    trusted, reasons = hand_trust(a["present"], seen, a["detected"], TrackerConfig(**(tracker or {})))
+    out = [{
+        "take": take.take_id, "task": name, "detector": detector, "hand": hand, "frames": T,
+        "frames_detected": int(seen[:, h].sum()), "frames_accepted": int(a["detected"][:, h].sum()),
+        "frames_isolated": int((rej[:, h] == "isolated").sum()),
+        "frames_depth_inconsistent": int((rej[:, h] == "depth_inconsistent").sum()),
+        "frames_duplicate": int((rej[:, h] == "duplicate").sum()),
+        "frames_filled": int(a["filled_missing"][:, h].sum()), "frames_tracked": int(a["present"][:, h].sum()),
+        "tracks": int(a["track_id"][:, h].max() + 1) if T else 0,
+        "trusted": bool(trusted[h]), "reason": reasons[h], "depth_problem": problem,
+    } for h, hand in enumerate(HANDS)]
+    written = write_table("hand_presence", pa.Table.from_pylist(out), warehouse)
+    return Manifest.from_written("hand_presence", written)
+
+
 # --- 4. gripper poses ----------------------------------------------------------------------------
 
-@stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1")
+@stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1/depth-flag-1")
 def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
                  state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "pose",
                  table_clearance: float | None = 0.010) -> Manifest:
@@ -212,6 +280,7 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
     al = read_table("aligned_keypoints", warehouse, task=name, take=take.take_id)
     T, a = arrays(al, "joints_world", "present")
     detector = al.column("detector")[0].as_py()
+    depth_problem = al.column("depth_problem")[0].as_py()
     pose7, dist = hand_to_gripper(a["joints_world"])
     g_thr = gripper_state(dist, "threshold")
     g_auto = gripper_state(dist, "auto")
@@ -232,7 +301,7 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
         take.take_id, name, T, detector=[detector] * (2 * T), pose=pose, valid=valid,
         fingertip_distance=dist, g_threshold=g_thr.astype(np.int8), g_auto=g_auto.astype(np.int8),
         g_manual=None if g_man is None else g_man.astype(np.int8),
-        state_method=[chosen_method] * (2 * T),
+        state_method=[chosen_method] * (2 * T), depth_problem=[depth_problem] * (2 * T),
     ) | ({"g_manual": pa.nulls(2 * T, pa.int8())} if g_man is None else {}), warehouse)
     return Manifest.from_written("gripper_poses", written)
 

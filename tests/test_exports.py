@@ -105,12 +105,14 @@ def build_take(root: Path, warehouse: Path, demo, frames: int = 4, width: int = 
     write_table("gripper_poses", {**rows, "pose": np.concatenate([poses[:, 0], poses[:, 1]]), "valid": [True] * n2,
                                   "fingertip_distance": np.full(n2, 0.05), "g_threshold": np.ones(n2, np.int8),
                                   "g_auto": np.ones(n2, np.int8), "g_manual": [None] * n2,
-                                  "state_method": ["auto"] * n2}, warehouse)
+                                  "state_method": ["auto"] * n2, "depth_problem": [""] * n2}, warehouse)
     write_table("aligned_keypoints", {**rows, "present": ~flags, "detected": ~flags, "joints_cam": jw,
                                       "joints_world": jw, "translation": np.zeros((n2, 3)),
                                       "anchors_used": np.zeros(n2, np.int64), "n_anchors_valid": np.zeros(n2, np.int32),
                                       "no_depth": flags, "depth_outlier": flags, "outlier_frozen": flags,
-                                      "swap_repaired": flags, "filled_missing": flags}, warehouse)
+                                      "swap_repaired": flags, "filled_missing": flags,
+                                      "track_id": np.where(flags, -1, 0).astype(np.int32), "rejected": [""] * n2,
+                                      "depth_ratio": np.ones(n2), "depth_problem": [""] * n2}, warehouse)
     spec = get_task(TASK)
     kp = demo.keypoints()[0]
     write_table("object_keypoints", {
