@@ -154,15 +154,40 @@ def query(sql: str, root: str | os.PathLike | None = None) -> pa.Table:
     root = warehouse_root(root)
     if not catalog_is_current(root):
         build_catalog(root)
-    con = duckdb.connect(str(root / CATALOG_FILE), read_only=True)
+    con = confined_connection(root)
     try:
         result = con.sql(sql).arrow()
         # duckdb >= 2 returns a RecordBatchReader here, older versions a Table.
         return result.read_all() if hasattr(result, "read_all") else result
+    except duckdb.PermissionException as e:
+        raise QueryRefused(f"refused: queries read only the warehouse's tables ({_one_line(e)})") from None
     except duckdb.Error as e:
         raise QueryRefused(_one_line(e)) from None
     finally:
         con.close()
+
+
+def confined_connection(root: Path) -> duckdb.DuckDBPyConnection:
+    """A read-only connection to ``root``'s catalog that can read the tables' Parquet files and nothing else.
+
+    The SQL door takes user text (``demoforge sql``, ``--task`` values in report queries), so it must
+    not open onto the rest of the file system: with external access off, ``read_text('/etc/passwd')``,
+    ``read_csv``, ``glob``, ``ATTACH``, ``INSTALL``/``LOAD`` and http(s) reads are refused; only the
+    table folders (not ``_prefect/`` or anything else under the warehouse) stay readable. The
+    configuration is then locked, so a query cannot ``SET`` it back (nor change anything else).
+    These settings can only be set once the database is open, hence the SET statements here.
+    """
+    con = duckdb.connect(str(root / CATALOG_FILE), read_only=True,
+                         config={"autoinstall_known_extensions": False, "autoload_known_extensions": False})
+    try:
+        allowed = ", ".join(_sql_literal(str(root / name) + os.sep) for name in sorted(registry()))
+        con.execute(f"SET allowed_directories = [{allowed}]")
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except BaseException:
+        con.close()
+        raise
+    return con
 
 
 def _one_line(e: BaseException) -> str:
