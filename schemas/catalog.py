@@ -17,6 +17,8 @@ from pathlib import Path
 import duckdb
 import pyarrow as pa
 
+from lib.errors import UserError
+
 from schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
 from schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
@@ -28,7 +30,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 _READ_ONLY_TYPES = {duckdb.StatementType.SELECT}
 
 
-class QueryRefused(ValueError):
+class QueryRefused(UserError):
     """The query would write, or is not a single read-only statement."""
 
 
