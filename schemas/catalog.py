@@ -94,7 +94,11 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
         con = duckdb.connect(tmp)
         try:
             for schema in registry().values():
-                con.execute(_view_sql(root, schema))
+                try:
+                    con.execute(_view_sql(root, schema))
+                except duckdb.Error as e:
+                    _raise_if_damaged(root, schema.name, e)
+                    raise
             for name, sql in (*TABLE_VIEWS.items(), *REPORT_VIEWS.items()):
                 con.execute(f'CREATE VIEW "{name}" AS {sql}')
             built = datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -112,6 +116,24 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
             if os.path.exists(leftover):
                 os.unlink(leftover)
     return target
+
+
+class WarehouseDamaged(UserError):
+    """A table file in the warehouse cannot be read (truncated or overwritten on disk)."""
+
+
+def _raise_if_damaged(root: Path, table: str, error: BaseException) -> None:
+    """Name the first unreadable Parquet file of ``table`` and the fix, if one is the cause of ``error``."""
+    import pyarrow.parquet as pq
+
+    for f in sorted((root / table).glob("**/" + DATA_FILE)):
+        try:
+            pq.ParquetFile(f).metadata  # footer and schema: what the view needs
+        except Exception as e:  # noqa: BLE001 (pyarrow raises several types for a damaged file)
+            raise WarehouseDamaged(
+                f"{f}: damaged warehouse file ({_one_line(e)[:160]}); run the command that wrote table "
+                f"{table!r} again (a cached stage whose output file changed or is gone is recomputed), "
+                "or delete the file to drop its rows") from None
 
 
 def catalog_is_current(root: Path) -> bool:
