@@ -225,13 +225,23 @@ class UserErrorLogFilter(logging.Filter):
     """Drop the traceback of a user error from Prefect's run logs and put its message on one line."""
 
     show_tracebacks = False  # set by `demoforge --debug`
+    # The starts of recent user errors' messages: the task engine's "Finished in state Failed(...)"
+    # record that follows the exception's carries only the text, no exception to classify.
+    _recent: list[str] = []
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if self.show_tracebacks:
+            return True
         exc = record.exc_info[1] if record.exc_info else None
-        if exc is not None and not self.show_tracebacks and is_user_error(exc):
-            record.msg, record.args = f"{type(exc).__name__}: {one_line(exc)}", None
+        if exc is not None and is_user_error(exc):
+            text = one_line(exc)
+            record.msg, record.args = f"{type(exc).__name__}: {text}", None
             record.exc_info, record.exc_text = None, None
             setattr(record, USER_ERROR_MARK, True)
+            self._recent[:] = [text[:120], *self._recent[:7]]
+        elif exc is None and isinstance(record.msg, str) and record.msg.startswith("Finished in state Failed"):
+            if any(t in record.getMessage() for t in self._recent):
+                setattr(record, USER_ERROR_MARK, True)
         return True
 
 
