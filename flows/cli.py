@@ -131,7 +131,8 @@ def sql(
     """Run a read-only SQL query over the warehouse (DuckDB) and print or save the result.
 
     Every table is a view in warehouse/catalog.duckdb; `demoforge tables` lists them with their
-    columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2.
+    columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2, and
+    so are reads of anything but the warehouse's tables (read_text, read_csv, ATTACH, URLs, ...).
     """
     from schemas.catalog import QueryRefused, query as run_query
 
