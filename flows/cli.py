@@ -16,6 +16,12 @@ import lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from flows.runners import run_flow
 
 
+# Click's own exits and usage errors (typer vendors click: both its copy's classes and click's)
+_tclick = getattr(typer.core, "_click", click)
+_CLICK_OWN = (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort, click.ClickException,
+              _tclick.ClickException)
+
+
 class _ErrorsAtTheBoundary(TyperGroup):
     """Every command's errors end here: a user error (lib.errors) is one line on stderr and exit code 2,
     whichever command or flow raised it; a crash is a short summary with the hint to rerun with
@@ -26,7 +32,7 @@ class _ErrorsAtTheBoundary(TyperGroup):
 
         try:
             return super().invoke(ctx)
-        except (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
+        except _CLICK_OWN:
             raise
         except Exception as e:
             if State.debug:

@@ -30,7 +30,6 @@ N_FRAMES = 8
 runner = CliRunner()
 
 NEEDS_19 = pytest.mark.xfail(strict=True, reason="needs issue 19 depth checks (branch h19a)")
-NEEDS_19_HANDS = pytest.mark.xfail(strict=True, reason="needs issue 19 hand tracker (branch h19a)")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -270,18 +269,23 @@ def test_take_with_one_hand_has_no_trajectory_for_the_other(base, wh, tmp_path):
     assert by["right"]["valid"] == N_FRAMES
 
 
-@NEEDS_19_HANDS
 def test_take_with_no_hands_is_refused_with_one_line(base, wh, tmp_path):
-    """Issue 19: a hand seen in too few frames is reported, and `augment` refuses to build a database
-    from it with a one-line message (ingest may record the take, or stop it, with the same message)."""
+    """A hand never seen: `augment` refuses to build a database from it with a one-line message
+    (issue 19: ingest may record the take, or stop it, with such a message)."""
+    from flows.augment import augment_take_flow
+    from lib.errors import is_user_error
+
     take = take_copy(base, tmp_path, "no_hands")
-    args = ("-d", "precomputed", "--predictions", str(base["preds"]["none"]))
-    r = cli("ingest", str(take), *args)
+    r = cli("ingest", str(take), "-d", "precomputed", "--predictions", str(base["preds"]["none"]))
     if r.exit_code == 2:
         assert_one_line_error(r, "hand")
     else:
         assert r.exit_code == 0, r.output
-        assert_one_line_error(cli("augment", str(take), *args, "-n", "20", "--mirrored", "10"), "hand")
+        # `demoforge augment` cannot pass --predictions; the flow takes the detector's options
+        with pytest.raises(Exception, match="hand") as refused:
+            augment_take_flow(str(take), str(wh), detector="precomputed", n=20, n_mirrored=10, show_progress=False,
+                              ingest_options={"detector_options": {"path": str(base["preds"]["none"])}})
+        assert is_user_error(refused.value)
     assert query("SELECT count(*) AS n FROM episodes WHERE take = 'no_hands'", wh).column("n")[0].as_py() == 0
 
 

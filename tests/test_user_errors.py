@@ -115,3 +115,10 @@ def test_console_shows_one_line_for_a_bad_camera_json(prefect_api, tmp_path):
     assert p.stderr.splitlines() == [f"error: {take / 'camera.json'}: camera.json is not valid JSON (Expecting "
                                      "property name enclosed in double quotes: line 1 column 2 (char 1)); fix "
                                      "the syntax of the file"]
+
+
+def test_usage_errors_stay_clicks_own(warehouse):
+    r = runner.invoke(app, ["sql", "SELECT 1", "--no-such-option"])
+    assert r.exit_code == 2 and "No such option" in r.stderr and "crashed" not in r.stderr
+    r = runner.invoke(app, ["sql", "SELECT 1", "--max-rows", "many"])
+    assert r.exit_code == 2 and "crashed" not in r.stderr
