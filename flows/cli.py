@@ -102,11 +102,13 @@ def _main(
     ),
 ) -> None:
     from flows import runners
-    from tasks.common import quiet_user_errors
+    from lib.errors import Reporting
 
     State.warehouse = warehouse
     State.debug = debug
-    quiet_user_errors(console=True, show_tracebacks=debug)
+    Reporting.cli_reports, Reporting.show_tracebacks = True, debug
+    if "tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
+        sys.modules["tasks.common"].quiet_user_errors()
     runners.install_interrupt_handler()
     if task_runner:
         os.environ[runners.ENV_RUNNER] = task_runner

@@ -26,6 +26,16 @@ _ORCHESTRATION_DIRS = tuple(str(PROJECT_ROOT / d) + "/" for d in ("flows", "task
 _ENVIRONMENT_ERRORS = (("lib.llm", "LLMError"), ("lib.detectors", "DetectorError"), ("lib.arctic", "ArcticError"))
 
 
+class Reporting:
+    """How user errors are shown in this process, set by the CLI (`demoforge --debug`): whether the
+    console leaves them to the CLI's one line, and whether tracebacks are shown anyway. Read by the
+    Prefect log filter of tasks/common.py when it is installed (Prefect is imported only by commands
+    that run flows)."""
+
+    cli_reports = False
+    show_tracebacks = False
+
+
 class UserError(ValueError):
     """Bad input or options: the message says which file or option and how to fix it."""
 

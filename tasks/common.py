@@ -27,7 +27,7 @@ from prefect import task
 from prefect.cache_policies import CachePolicy
 from prefect.context import TaskRunContext
 
-from lib.errors import is_user_error, one_line
+from lib.errors import Reporting, is_user_error, one_line
 from schemas.core import WrittenFile, file_sha256
 
 PREFECT_DIR = "_prefect"
@@ -224,13 +224,12 @@ USER_ERROR_MARK = "demoforge_user_error"
 class UserErrorLogFilter(logging.Filter):
     """Drop the traceback of a user error from Prefect's run logs and put its message on one line."""
 
-    show_tracebacks = False  # set by `demoforge --debug`
     # The starts of recent user errors' messages: the task engine's "Finished in state Failed(...)"
     # record that follows the exception's carries only the text, no exception to classify.
     _recent: list[str] = []
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if self.show_tracebacks:
+        if Reporting.show_tracebacks:
             return True
         exc = record.exc_info[1] if record.exc_info else None
         if exc is not None and is_user_error(exc):
@@ -249,18 +248,17 @@ class DropUserErrorLines(logging.Filter):
     """For the console while the CLI runs: it prints the user error itself, as its one line."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not getattr(record, USER_ERROR_MARK, False)
+        return Reporting.show_tracebacks or not getattr(record, USER_ERROR_MARK, False)
 
 
-def quiet_user_errors(*, console: bool = False, show_tracebacks: bool = False) -> None:
-    """Install :class:`UserErrorLogFilter` on Prefect's run loggers (idempotent); with ``console``,
-    also keep those lines off the console handlers (the CLI reports the error itself)."""
-    UserErrorLogFilter.show_tracebacks = show_tracebacks
+def quiet_user_errors() -> None:
+    """Install :class:`UserErrorLogFilter` on Prefect's run loggers (idempotent); when the CLI reports
+    user errors itself (``lib.errors.Reporting.cli_reports``), also keep those lines off the console."""
     for name in _RUN_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(f, UserErrorLogFilter) for f in logger.filters):
             logger.addFilter(UserErrorLogFilter())
-    if console and not show_tracebacks:
+    if Reporting.cli_reports:
         from prefect.logging.handlers import PrefectConsoleHandler
 
         for handler in logging.getLogger().handlers + logging.getLogger("prefect").handlers:

@@ -56,10 +56,10 @@ def test_a_user_error_from_any_command_is_one_line_exit_2(warehouse, monkeypatch
 def test_a_crash_is_summarised_with_the_debug_hint_and_debug_shows_it(warehouse, monkeypatch):
     import schemas.catalog
     from flows.cli import State
-    from tasks.common import UserErrorLogFilter
+    from lib.errors import Reporting
 
     # --debug switches process-wide settings (one command per process); restore them for later tests
-    monkeypatch.setattr(UserErrorLogFilter, "show_tracebacks", False)
+    monkeypatch.setattr(Reporting, "show_tracebacks", False)
     monkeypatch.setattr(State, "debug", False)
 
     def broken(root=None):
