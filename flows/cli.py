@@ -8,12 +8,48 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
+import click
 import typer
+from typer.core import TyperGroup
 
 import lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from flows.runners import run_flow
 
+
+# Click's own exits and usage errors (typer vendors click: both its copy's classes and click's)
+_tclick = getattr(typer.core, "_click", click)
+_CLICK_OWN = (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort, click.ClickException,
+              _tclick.ClickException)
+
+
+class _ErrorsAtTheBoundary(TyperGroup):
+    """Every command's errors end here: a user error (lib.errors) is one line on stderr and exit code 2,
+    whichever command or flow raised it; a crash is a short summary with the hint to rerun with
+    --debug (exit code 1); with --debug both keep their full traceback."""
+
+    def invoke(self, ctx: click.Context):
+        from lib.errors import is_user_error, one_line
+
+        try:
+            return super().invoke(ctx)
+        except _CLICK_OWN:
+            raise
+        except Exception as e:
+            if State.debug:
+                raise
+            if is_user_error(e):
+                raise fail(one_line(e))
+            import traceback
+
+            where = traceback.extract_tb(e.__traceback__)[-1]
+            typer.echo(f"error: demoforge crashed: {type(e).__name__}: {one_line(e, 300)} "
+                       f"(at {where.filename}:{where.lineno}); this is a bug, not your input: rerun with "
+                       f"--debug (demoforge --debug COMMAND ...) for the full traceback and report it", err=True)
+            raise typer.Exit(1)
+
+
 app = typer.Typer(
+    cls=_ErrorsAtTheBoundary,
     name="demoforge",
     help=(
         "Turn one RGB-D video of a two-handed human demonstration into thousands of dual-arm robot "
@@ -36,6 +72,7 @@ def fail(message: str) -> "typer.Exit":
 
 class State:
     warehouse: Optional[Path] = None
+    debug: bool = False
 
 
 def current_warehouse() -> Path:
@@ -59,10 +96,19 @@ def _main(
         help="Scheduler of an existing Dask cluster (tcp://host:8786); without it, --task-runner dask starts "
              "a local cluster of $DEMOFORGE_DASK_WORKERS (default 2) worker processes.",
     ),
+    debug: bool = typer.Option(
+        False, "--debug", envvar="DEMOFORGE_DEBUG",
+        help="Show full tracebacks: of crashes, and of user errors too (normally one line, exit code 2).",
+    ),
 ) -> None:
     from flows import runners
+    from lib.errors import Reporting
 
     State.warehouse = warehouse
+    State.debug = debug
+    Reporting.cli_reports, Reporting.show_tracebacks = True, debug
+    if "tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
+        sys.modules["tasks.common"].quiet_user_errors()
     runners.install_interrupt_handler()
     _quiet_user_error_tracebacks()
     if task_runner:
@@ -114,7 +160,8 @@ def sql(
     """Run a read-only SQL query over the warehouse (DuckDB) and print or save the result.
 
     Every table is a view in warehouse/catalog.duckdb; `demoforge tables` lists them with their
-    columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2.
+    columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2, and
+    so are reads of anything but the warehouse's tables (read_text, read_csv, ATTACH, URLs, ...).
     """
     from schemas.catalog import QueryRefused, query as run_query
 

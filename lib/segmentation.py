@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lib import geometry as geo
+from lib.errors import UserError
 
 
 @dataclass
@@ -219,8 +220,9 @@ def fill_invalid_poses(trajectory: np.ndarray, valid: np.ndarray) -> np.ndarray:
         good = np.flatnonzero(ok[:, arm])
         if good.size == 0:
             side = ("left", "right")[arm]
-            raise ValueError(f"the {side} arm's gripper pose is never valid: the {side} hand was not "
-                             "detected in any frame")
+            raise UserError(f"the {side} arm's gripper pose is never valid: the {side} hand was not "
+                            "detected in any frame; a two-handed demonstration needs both hands in view "
+                            "(see `present` in the hand_keypoints table)")
         # index of the nearest valid frame: nearest by position in the sorted list of valid frames
         pos = np.clip(np.searchsorted(good, np.arange(T)), 1, max(good.size - 1, 1))
         left, right = good[pos - 1], good[np.minimum(pos, good.size - 1)]

@@ -17,6 +17,8 @@ from pathlib import Path
 import duckdb
 import pyarrow as pa
 
+from lib.errors import UserError
+
 from schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
 from schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
@@ -28,7 +30,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 _READ_ONLY_TYPES = {duckdb.StatementType.SELECT}
 
 
-class QueryRefused(ValueError):
+class QueryRefused(UserError):
     """The query would write, or is not a single read-only statement."""
 
 
@@ -92,7 +94,11 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
         con = duckdb.connect(tmp)
         try:
             for schema in registry().values():
-                con.execute(_view_sql(root, schema))
+                try:
+                    con.execute(_view_sql(root, schema))
+                except duckdb.Error as e:
+                    _raise_if_damaged(root, schema.name, e)
+                    raise
             for name, sql in (*TABLE_VIEWS.items(), *REPORT_VIEWS.items()):
                 con.execute(f'CREATE VIEW "{name}" AS {sql}')
             built = datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -110,6 +116,24 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
             if os.path.exists(leftover):
                 os.unlink(leftover)
     return target
+
+
+class WarehouseDamaged(UserError):
+    """A table file in the warehouse cannot be read (truncated or overwritten on disk)."""
+
+
+def _raise_if_damaged(root: Path, table: str, error: BaseException) -> None:
+    """Name the first unreadable Parquet file of ``table`` and the fix, if one is the cause of ``error``."""
+    import pyarrow.parquet as pq
+
+    for f in sorted((root / table).glob("**/" + DATA_FILE)):
+        try:
+            pq.ParquetFile(f).metadata  # footer and schema: what the view needs
+        except Exception as e:  # noqa: BLE001 (pyarrow raises several types for a damaged file)
+            raise WarehouseDamaged(
+                f"{f}: damaged warehouse file ({_one_line(e)[:160]}); run the command that wrote table "
+                f"{table!r} again (a cached stage whose output file changed or is gone is recomputed), "
+                "or delete the file to drop its rows") from None
 
 
 def catalog_is_current(root: Path) -> bool:
@@ -154,15 +178,40 @@ def query(sql: str, root: str | os.PathLike | None = None) -> pa.Table:
     root = warehouse_root(root)
     if not catalog_is_current(root):
         build_catalog(root)
-    con = duckdb.connect(str(root / CATALOG_FILE), read_only=True)
+    con = confined_connection(root)
     try:
         result = con.sql(sql).arrow()
         # duckdb >= 2 returns a RecordBatchReader here, older versions a Table.
         return result.read_all() if hasattr(result, "read_all") else result
+    except duckdb.PermissionException as e:
+        raise QueryRefused(f"refused: queries read only the warehouse's tables ({_one_line(e)})") from None
     except duckdb.Error as e:
         raise QueryRefused(_one_line(e)) from None
     finally:
         con.close()
+
+
+def confined_connection(root: Path) -> duckdb.DuckDBPyConnection:
+    """A read-only connection to ``root``'s catalog that can read the tables' Parquet files and nothing else.
+
+    The SQL door takes user text (``demoforge sql``, ``--task`` values in report queries), so it must
+    not open onto the rest of the file system: with external access off, ``read_text('/etc/passwd')``,
+    ``read_csv``, ``glob``, ``ATTACH``, ``INSTALL``/``LOAD`` and http(s) reads are refused; only the
+    table folders (not ``_prefect/`` or anything else under the warehouse) stay readable. The
+    configuration is then locked, so a query cannot ``SET`` it back (nor change anything else).
+    These settings can only be set once the database is open, hence the SET statements here.
+    """
+    con = duckdb.connect(str(root / CATALOG_FILE), read_only=True,
+                         config={"autoinstall_known_extensions": False, "autoload_known_extensions": False})
+    try:
+        allowed = ", ".join(_sql_literal(str(root / name) + os.sep) for name in sorted(registry()))
+        con.execute(f"SET allowed_directories = [{allowed}]")
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except BaseException:
+        con.close()
+        raise
+    return con
 
 
 def _one_line(e: BaseException) -> str:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 from dataclasses import asdict, dataclass, is_dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from prefect import task
 from prefect.cache_policies import CachePolicy
 from prefect.context import TaskRunContext
 
+from lib.errors import Reporting, is_user_error, one_line
 from schemas.core import WrittenFile, file_sha256
 
 PREFECT_DIR = "_prefect"
@@ -207,3 +209,62 @@ def _intact(result: Any) -> bool:
     if isinstance(result, dict):
         return all(_intact(r) for r in result.values())
     return True
+
+
+# --- user errors in Prefect's logs ---------------------------------------------------------------
+
+# Prefect logs every failed task and flow run with its traceback ("Task run failed with exception",
+# "Encountered exception during execution"), once per enclosing flow. For a user error (lib.errors)
+# the message is the whole story: these records keep one line, the run is still marked Failed with
+# the message as its state message. Crashes keep their tracebacks. `demoforge --debug` turns this off.
+_RUN_LOGGERS = ("prefect.flow_runs", "prefect.task_runs")
+USER_ERROR_MARK = "demoforge_user_error"
+
+
+class UserErrorLogFilter(logging.Filter):
+    """Drop the traceback of a user error from Prefect's run logs and put its message on one line."""
+
+    # The starts of recent user errors' messages: the task engine's "Finished in state Failed(...)"
+    # record that follows the exception's carries only the text, no exception to classify.
+    _recent: list[str] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if Reporting.show_tracebacks:
+            return True
+        exc = record.exc_info[1] if record.exc_info else None
+        if exc is not None and is_user_error(exc):
+            text = one_line(exc)
+            record.msg, record.args = f"{type(exc).__name__}: {text}", None
+            record.exc_info, record.exc_text = None, None
+            setattr(record, USER_ERROR_MARK, True)
+            self._recent[:] = [text[:120], *self._recent[:7]]
+        elif exc is None and isinstance(record.msg, str) and record.msg.startswith("Finished in state Failed"):
+            if any(t in record.getMessage() for t in self._recent):
+                setattr(record, USER_ERROR_MARK, True)
+        return True
+
+
+class DropUserErrorLines(logging.Filter):
+    """For the console while the CLI runs: it prints the user error itself, as its one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return Reporting.show_tracebacks or not getattr(record, USER_ERROR_MARK, False)
+
+
+def quiet_user_errors() -> None:
+    """Install :class:`UserErrorLogFilter` on Prefect's run loggers (idempotent); when the CLI reports
+    user errors itself (``lib.errors.Reporting.cli_reports``), also keep those lines off the console."""
+    for name in _RUN_LOGGERS:
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, UserErrorLogFilter) for f in logger.filters):
+            logger.addFilter(UserErrorLogFilter())
+    if Reporting.cli_reports:
+        from prefect.logging.handlers import PrefectConsoleHandler
+
+        for handler in logging.getLogger().handlers + logging.getLogger("prefect").handlers:
+            if isinstance(handler, PrefectConsoleHandler) and not any(
+                    isinstance(f, DropUserErrorLines) for f in handler.filters):
+                handler.addFilter(DropUserErrorLines())
+
+
+quiet_user_errors()

@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from flows.cli import app
-from schemas.catalog import CATALOG_FILE, QueryRefused, build_catalog, catalog_is_current, query
+from schemas.catalog import CATALOG_FILE, QueryRefused, build_catalog, catalog_is_current, check_read_only, query
 from schemas.core import write_table
 
 from tests.test_schemas import _rows  # registers the _test_poses table
@@ -49,8 +49,69 @@ def test_writes_are_refused_with_one_line_and_exit_2(warehouse, statement, tmp_p
     assert r.exit_code == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ")
+    # refused by demoforge's own guard, before any connection: DuckDB's read-only connection and
+    # the confinement would refuse most of these too, so their message must not be enough here
+    assert "`demoforge sql`" in lines[0], lines[0]
+    with pytest.raises(QueryRefused, match="`demoforge sql`"):
+        check_read_only(statement)
     assert not (tmp_path / "out.csv").exists() and not (tmp_path / "other.duckdb").exists()
     assert query("SELECT count(*) AS n FROM benchmarks").column("n")[0].as_py() == 0
+
+
+@pytest.mark.parametrize(
+    "statement",
+    [
+        "SELECT * FROM read_text('/etc/hostname')",
+        "SELECT * FROM read_csv('/etc/passwd')",
+        "SELECT * FROM read_blob('/etc/hostname')",
+        "SELECT * FROM glob('/etc/*')",
+        "SELECT * FROM read_text('{wh}/_prefect/secret.txt')",  # inside the warehouse, but not a table
+        "SELECT * FROM read_text('{wh}/benchmarks/../_prefect/secret.txt')",
+        "SELECT * FROM read_parquet('{outside}/t.parquet')",
+        "SELECT * FROM read_parquet('https://127.0.0.1:9/t.parquet')",
+    ],
+)
+def test_queries_cannot_read_outside_the_warehouse_tables(warehouse, statement, tmp_path):
+    import pyarrow as pa
+
+    (warehouse / "_prefect").mkdir()
+    (warehouse / "_prefect" / "secret.txt").write_text("s3cr3t")
+    (tmp_path / "outside").mkdir()
+    pq.write_table(pa.table({"s3cr3t": [1]}), tmp_path / "outside" / "t.parquet")
+    r = sql(statement.format(wh=warehouse, outside=tmp_path / "outside"))
+    assert r.exit_code == 2, r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "refused: queries read only the warehouse's tables" in lines[0], lines
+    assert "s3cr3t" not in r.output
+
+
+@pytest.mark.parametrize("statement", ["SET enable_external_access = true", "RESET lock_configuration",
+                                       "SET allowed_directories = ['/']"])
+def test_confinement_cannot_be_lifted_from_a_query(warehouse, statement):
+    from schemas.catalog import confined_connection
+
+    build_catalog(warehouse)
+    con = confined_connection(warehouse)  # below the guard: the lock itself must hold
+    try:
+        with pytest.raises(duckdb.Error, match="locked"):
+            con.execute(statement)
+        with pytest.raises(duckdb.PermissionException):
+            con.execute("SELECT * FROM read_text('/etc/hostname')")
+    finally:
+        con.close()
+
+
+def test_every_readme_query_runs(warehouse):
+    """Each `demoforge sql "..."` example in README.md binds and runs through the confined connection."""
+    import re
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    examples = [e for e in re.findall(r'demoforge sql "([^"]+)"', readme) if "..." not in e]  # not placeholders
+    assert len(examples) >= 10
+    write_table("_test_poses", _rows(2, "a"), warehouse)  # one table with files, so a view reads Parquet
+    for example in examples:
+        query(" ".join(example.split()), warehouse)
+    assert query("SELECT count(*) AS n FROM _test_poses", warehouse).column("n")[0].as_py() == 2
 
 
 def test_malformed_and_failing_queries_give_exit_2(warehouse):

@@ -20,6 +20,8 @@ from typing import Iterator
 
 import numpy as np
 
+from lib.errors import UserError
+
 ARMS = ("left", "right")
 POSE_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
 # The flat 16-vector of both arms' poses, arm-major (left first), in the DESIGN's pose order.
@@ -37,7 +39,7 @@ TASK_INSTRUCTIONS = {
 }
 
 
-class ExportError(ValueError):
+class ExportError(UserError):
     """The input cannot be exported; the message says what is wrong and how to fix it."""
 
 

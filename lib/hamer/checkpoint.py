@@ -25,6 +25,7 @@ from pathlib import Path
 
 import torch
 
+from lib.errors import UserError
 from lib.hamer.model import HamerConfig, HamerNet
 
 __all__ = ["CheckpointError", "KeyReport", "IGNORED_PREFIXES", "read_state_dict", "check_state_dict",
@@ -34,7 +35,7 @@ __all__ = ["CheckpointError", "KeyReport", "IGNORED_PREFIXES", "read_state_dict"
 IGNORED_PREFIXES = ("discriminator.", "mano.", "initialized")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """The checkpoint is missing, unreadable, or does not match the network."""
 
 

@@ -29,6 +29,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from lib.errors import UserError
+
 __all__ = ["MANO_TIP_VERTEX_IDS", "MANO_TO_OPENPOSE", "MANO_PARENTS", "ManoModelData", "MANOError",
            "load_mano_model", "ManoLayer", "axis_angle_to_rotmat"]
 
@@ -41,7 +43,7 @@ MANO_PARENTS = (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 0, 10, 11, 0, 13, 14)
 N_MANO_JOINTS = 16
 
 
-class MANOError(ValueError):
+class MANOError(UserError):
     """The MANO model file is missing or not a MANO model."""
 
 

@@ -47,6 +47,8 @@ from typing import Any, Iterator, NamedTuple, Sequence
 
 import numpy as np
 
+from lib.errors import UserError
+
 __all__ = [
     "FRAME_STATUSES",
     "TakeError",
@@ -79,7 +81,7 @@ DEFAULT_FPS = 30.0
 DEFAULT_DEPTH_SCALE = 0.001  # metres per unit of integer depth (millimetres)
 
 
-class TakeError(ValueError):
+class TakeError(UserError):
     """A problem with the take as a whole; the message names the file/key and how to fix it."""
 
 

@@ -1,0 +1,73 @@
+"""Which errors are the user's (bad input, a missing file, an unknown option) and which are crashes.
+
+A user error is reported as one line (``error: <message>``, exit code 2) with no traceback: its
+message names the file or option and the fix. Everything else is a crash of demoforge and keeps its
+traceback. The rule, in one place so the CLI and the Prefect log filter agree:
+
+- :class:`UserError` and its subclasses (``TakeError``, ``QueryRefused``, ``ExportError``, the
+  HaMeR checkpoint/MANO errors) are user errors (``SchemaError`` is not: a stage writing rows that
+  break its table's contract is a bug);
+- so are the failures of what the user pointed demoforge at: an LLM backend (``LLMError``: a dead,
+  slow or failing server, a missing model), a detector that cannot run (``DetectorError``) and a
+  missing ARCTIC download (``ArcticError``);
+- and a plain ``ValueError`` raised by a ``raise`` statement in ``flows/`` or ``tasks/``: that code
+  only orchestrates, its ValueErrors are its argument checks (an unknown task, no episode database
+  yet). A ValueError raised deeper (numpy, pyarrow, a lib/ invariant) is a crash.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+_ORCHESTRATION_DIRS = tuple(str(PROJECT_ROOT / d) + "/" for d in ("flows", "tasks"))
+# RuntimeError-based error classes of lib/ that are about the user's environment, by module and name
+# (imported lazily: lib.llm and lib.detectors pull in heavy modules).
+_ENVIRONMENT_ERRORS = (("lib.llm", "LLMError"), ("lib.detectors", "DetectorError"), ("lib.arctic", "ArcticError"))
+
+
+class Reporting:
+    """How user errors are shown in this process, set by the CLI (`demoforge --debug`): whether the
+    console leaves them to the CLI's one line, and whether tracebacks are shown anyway. Read by the
+    Prefect log filter of tasks/common.py when it is installed (Prefect is imported only by commands
+    that run flows)."""
+
+    cli_reports = False
+    show_tracebacks = False
+
+
+class UserError(ValueError):
+    """Bad input or options: the message says which file or option and how to fix it."""
+
+
+def _environment_error_types() -> tuple[type, ...]:
+    import sys
+
+    found = []
+    for module, name in _ENVIRONMENT_ERRORS:
+        mod = sys.modules.get(module)  # not imported yet: nothing can have raised it
+        if mod is not None and isinstance(getattr(mod, name, None), type):
+            found.append(getattr(mod, name))
+    return tuple(found)
+
+
+def is_user_error(exc: BaseException | None) -> bool:
+    """True when ``exc`` is the user's to fix (see the module docstring), False for a crash."""
+    if exc is None:
+        return False
+    if isinstance(exc, UserError) or isinstance(exc, _environment_error_types()):
+        return True
+    if type(exc) is ValueError:
+        tb = exc.__traceback__
+        if tb is None:
+            return False
+        while tb.tb_next is not None:
+            tb = tb.tb_next
+        return tb.tb_frame.f_code.co_filename.startswith(_ORCHESTRATION_DIRS)
+    return False
+
+
+def one_line(exc: BaseException, limit: int = 600) -> str:
+    """The exception's message on one line (long messages cut)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
