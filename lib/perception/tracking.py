@@ -266,7 +266,10 @@ def hand_trust(tracked: np.ndarray, detected: np.ndarray, accepted: np.ndarray,
     n_tr = np.asarray(tracked, bool).sum(0)
     n_det = np.asarray(detected, bool).sum(0)
     n_acc = np.asarray(accepted, bool).sum(0)
-    trusted = (n_tr >= cfg.min_trusted_frames) & (n_tr >= cfg.min_trusted_fraction * T)
+    # a take shorter than the frame minimum is judged by its fraction alone (an 8-frame clip tracked
+    # throughout is as trustworthy as it can be)
+    need = max(min(cfg.min_trusted_frames, T), cfg.min_trusted_fraction * T)
+    trusted = n_tr >= need
     reasons = []
     for h in range(2):
         if trusted[h]:
@@ -277,5 +280,6 @@ def hand_trust(tracked: np.ndarray, detected: np.ndarray, accepted: np.ndarray,
             reasons.append(f"only isolated detections ({int(n_det[h])} of {T} frames), no sustained track")
         else:
             reasons.append(f"tracked in {int(n_tr[h])} of {T} frames ({100 * n_tr[h] / T:.0f} %), under the "
-                           f"{100 * cfg.min_trusted_fraction:.0f} % needed")
+                           f"{int(np.ceil(need))} frames needed ({100 * cfg.min_trusted_fraction:.0f} % of the take, "
+                           f"at least {min(cfg.min_trusted_frames, T)})")
     return trusted, reasons
