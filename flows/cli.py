@@ -231,6 +231,7 @@ def synth(
     depth_noise: bool = typer.Option(True, help="Add realistic depth noise and holes (0 = invalid)."),
     video: bool = typer.Option(True, help="Also write rgb.mp4 per take."),
     max_frames: Optional[int] = typer.Option(None, help="Keep only the first N frames (previews)."),
+    hand_style: str = typer.Option("skin", "--hand-style", help="Look of the hands: skin (palm, forearm, sleeve; what a real detector can see) or capsule (the older capsule look). The ground truth is the same."),
 ) -> None:
     """Generate synthetic RGB-D demonstrations with exact ground truth (MuJoCo renders).
 
@@ -245,11 +246,14 @@ def synth(
     unknown = [t for t in tasks if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from: all, {', '.join(TASK_NAMES)}")
+    if hand_style not in ("skin", "capsule"):
+        raise fail(f"--hand-style must be skin or capsule, got {hand_style!r}")
     manifests = run_flow(
         synthesize_takes,
         str(current_warehouse()), tasks=tasks, takes=takes, seed=seed,
         mirror="both" if both else ("yes" if mirror else "no"),
         takes_dir=str(out) if out else None, depth_noise=depth_noise, video=video, max_frames=max_frames,
+        hand_style=hand_style,
     )
     for m in manifests:
         typer.echo(m.path)
