@@ -310,6 +310,13 @@ def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: b
     return rows
 
 
+@register("detection")
+def _detection_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_detection import cases
+
+    return cases(quick)
+
+
 @register("hamer")
 def _hamer_cases(quick: bool) -> list[BenchCase]:
     from lib.bench_cases_hamer import cases
