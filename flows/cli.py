@@ -456,6 +456,35 @@ def evaluate_keypoints_cmd(
     _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
 
 
+@app.command("evaluate-detection")
+def evaluate_detection_cmd(
+    detector: str = typer.Option("mediapipe", "--detector", "-d", help="A real detector: mediapipe."),
+    mode: Optional[List[str]] = typer.Option(None, "--mode", help="MediaPipe running mode(s), repeatable: auto (video mode for takes; default) or image."),
+    take: Optional[List[str]] = typer.Option(None, "--take", help="Only these synthetic takes (default: all in the warehouse)."),
+) -> None:
+    """Hand detection against the synthetic takes' ground truth, per task: detection rate over
+    hand-frames with >= 80 % of the joints in view, handedness accuracy, 2D MPJPE (px), PCK@0.05/0.15,
+    and the same where a held object hides part of the hand. Rows go to `detection_metrics`."""
+    from flows.detection_eval import evaluate_detection
+    from lib.detectors import DetectorError
+    from lib.evaluation.detection import per_task
+    from schemas.catalog import query
+
+    modes = mode or ["auto"]
+    try:
+        run_flow(evaluate_detection, str(current_warehouse()), detector=detector, running_modes=modes,
+                 takes=take or None)
+    except (DetectorError, ValueError, FileNotFoundError) as e:
+        raise fail(str(e))
+    rows = query("SELECT * FROM detection_metrics", current_warehouse()).to_pylist()
+    wanted = {"video" if m == "auto" else m for m in modes}
+    rows = [r for r in rows if r["detector"] == detector and r["running_mode"] in wanted
+            and (not take or r["take"] in take)]
+    from lib.evaluation.detection import format_markdown
+
+    typer.echo(format_markdown(per_task(rows)))
+
+
 @app.command("llm-eval")
 def llm_eval_cmd(
     task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples."),

@@ -204,13 +204,14 @@ def evaluate_detection(take_dir: str | os.PathLike, detector: str = "mediapipe",
 
 
 def per_task(rows: Iterable[dict]) -> list[dict]:
-    """Pool take rows per (task, detector, running_mode, subset): counts summed, rates re-derived,
-    px/PCK weighted by detected hand-frames."""
+    """Pool take rows per (task, hand_style, detector, running_mode, subset): counts summed, rates
+    re-derived, px/PCK weighted by detected hand-frames."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["task"], r["detector"], r.get("running_mode", ""), r["subset"]), []).append(r)
+        key = (r["task"], r.get("hand_style", ""), r["detector"], r.get("running_mode", ""), r["subset"])
+        groups.setdefault(key, []).append(r)
     out = []
-    for (task, det, mode, subset), rs in sorted(groups.items()):
+    for (task, style, det, mode, subset), rs in sorted(groups.items()):
         n = sum(r["hand_frames"] for r in rs)
         nd = sum(r["detected"] for r in rs)
 
@@ -219,7 +220,7 @@ def per_task(rows: Iterable[dict]) -> list[dict]:
             tot = sum(a for a, _ in w)
             return sum(a * v for a, v in w) / tot if tot else float("nan")
 
-        out.append({"task": task, "detector": det, "running_mode": mode, "subset": subset,
+        out.append({"task": task, "hand_style": style, "detector": det, "running_mode": mode, "subset": subset,
                     "takes": len(rs), "hand_frames": n, "detected": nd,
                     "detection_rate": nd / n if n else float("nan"),
                     "handedness_acc": wavg("handedness_acc"), "mpjpe_2d_px": wavg("mpjpe_2d_px"),
@@ -228,5 +229,17 @@ def per_task(rows: Iterable[dict]) -> list[dict]:
     return out
 
 
-__all__ = ["SIDES", "SUBSETS", "load_ground_truth", "box_size", "match_frame", "score_take",
+def format_markdown(rows: Sequence[dict]) -> str:
+    """A Markdown table of :func:`per_task` rows."""
+    head = ("| task | look | mode | subset | hand-frames | detection | handedness | 2D MPJPE (px) | PCK@0.05 | "
+            "PCK@0.15 | spurious / frame |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['hand_style']} | {r['running_mode']} | {r['subset']} | {r['hand_frames']} | "
+                     f"{r['detection_rate']:.3f} | {r['handedness_acc']:.3f} | {r['mpjpe_2d_px']:.1f} | "
+                     f"{r['pck05']:.3f} | {r['pck15']:.3f} | {r['spurious_per_frame']:.3f} |")
+    return "\n".join(lines)
+
+
+__all__ = ["format_markdown", "SIDES", "SUBSETS", "load_ground_truth", "box_size", "match_frame", "score_take",
            "detect_candidates", "evaluate_detection", "per_task"]
