@@ -328,6 +328,7 @@ def ingest(
     grasp_prior: str = typer.Option("pose", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'pose' takes the pinch pose (position and rotation) from the whole hand's motion (default), 'twist' only the twist about the approach axis, 'off' keeps the thesis's mapping."),
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
+    mediapipe_mode: str = typer.Option("auto", "--mediapipe-mode", help="For --detector mediapipe: auto (video mode: landmark tracking between palm detections; default) or image (every frame on its own)."),
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth alignment, gripper poses, object keypoints.
 
@@ -339,6 +340,10 @@ def ingest(
     from lib.ingest import TakeError
 
     options = {}
+    if detector == "mediapipe" and mediapipe_mode != "auto":
+        if mediapipe_mode not in ("image", "video"):
+            raise fail(f"--mediapipe-mode must be auto, image or video, got {mediapipe_mode!r}")
+        options["running_mode"] = mediapipe_mode
     if detector == "precomputed":
         if predictions is None:
             raise fail("--detector precomputed needs --predictions FILE")
