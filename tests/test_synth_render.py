@@ -258,13 +258,17 @@ def _check_take(out: Path, summary, n_check: int = 4):
         zc = np.array(hj["joints_camera"][i])[:, 2]
         radii = joint_radii(styles[h])
         skin = np.array(styles[h].skin_rgba[:3])
+        from lib.synth.hand_skin import nail_rgba
+
+        nail = np.array(nail_rgba(styles[h].skin_rgba)[:3])      # a fingertip joint may be seen on its nail
         n_all += 21
         for j in np.nonzero(vis)[0]:
             u, v = int(round(px[j, 0])), int(round(px[j, 1]))
             n_vis += 1
             c = rgb[v, u]
             # shaded skin keeps the skin's chromaticity
-            skin_hits += bool(np.abs(c / max(c.sum(), 1e-6) - skin / skin.sum()).max() < 0.05)
+            chroma = c / max(c.sum(), 1e-6)
+            skin_hits += bool(min(np.abs(chroma - skin / skin.sum()).max(), np.abs(chroma - nail / nail.sum()).max()) < 0.05)
             d = depth[v, u]
             depth_hits += bool(d == 0 or abs(d - zc[j]) <= radii[j] + 0.005 + 3 * (0.001 + 0.002 * d * d))
     print(f"{out.name}: visible {n_vis}/{n_all}; skin-coloured {skin_hits / n_vis:.3f}; "
@@ -323,7 +327,7 @@ def test_skinned_hand_is_bound_to_the_kinematic_joints():
     forearm starts at the wrist joint."""
     import mujoco
 
-    from lib.hand_model import PALM_JOINTS, capsule_segments, palm_local, sample_style
+    from lib.hand_model import PALM_JOINTS, capsule_segments, hand_capsules, palm_local, sample_style
 
     demo = StandInDemo(4)
     rng = np.random.default_rng(5)
@@ -347,6 +351,16 @@ def test_skinned_hand_is_bound_to_the_kinematic_joints():
                 half = m.geom_size[g, 1][:, None]
                 assert np.allclose(d.geom_xpos[g] - half * axis, seg[:, 0], atol=1e-9)
                 assert np.allclose(d.geom_xpos[g] + half * axis, seg[:, 1], atol=1e-9)
+                # each nail lies on the back of its distal phalanx, just outside the flesh
+                from lib.synth.hand_skin import NAIL_JOINTS
+
+                for k, (a, b) in enumerate(NAIL_JOINTS):
+                    nid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{R.HAND_PREFIX}_{side}_nail{k}")
+                    p, u = d.xpos[nid] - J[t, h, a], J[t, h, b] - J[t, h, a]
+                    along = p @ u / (u @ u)
+                    radial = np.linalg.norm(p - along * u)
+                    r_dist = [c.radius for c in hand_capsules(styles[h]) if (c.a, c.b) == (a, b)][0]
+                    assert 0.5 < along < 1.0 and r_dist - 0.001 < radial < r_dist
     finally:
         r.close()
 

@@ -12,6 +12,10 @@ moves a joint: the 21 ground-truth joints are the kinematic hand's, the surfaces
 * forearm: a tapered elliptical tube 25 cm long behind the wrist (5 x 3.4 cm at the wrist);
 * sleeve: a wider elliptical tube from 7 cm behind the wrist, in cloth colour (HandStyle.sleeve_rgba).
 
+Each finger has a nail (:func:`nail_poses`): a flat, lighter ellipsoid just proud of the back of
+its distal phalanx, one of the few cues that tell the back of a hand from the palm of the other
+hand in an image.
+
 The palm is rigid with the hand. The forearm and sleeve ride on a second body at the wrist that
 points towards the demonstrator's shoulder (:data:`SHOULDERS`, on the camera's side of the table)
 as far as a wrist can bend (:data:`MAX_WRIST_BEND`) -- a forearm rigidly behind the hand would
@@ -138,4 +142,45 @@ def mesh_asset_xml(name: str, mesh: tuple[np.ndarray, np.ndarray, np.ndarray]) -
             f'face="{f(F, "%d")}"/>')
 
 
-__all__ = ["PARTS", "SHOULDERS", "MAX_WRIST_BEND", "forearm_pose", "hull_mesh", "skin_meshes", "mesh_name", "mesh_asset_xml"]
+#: Nails on the fingertips (a back-of-hand cue); half-sizes (m, scale 1) along the phalanx, across,
+#: thickness, thumb first.
+NAILS = True
+NAIL_JOINTS = ((3, 4), (7, 8), (11, 12), (15, 16), (19, 20))
+NAIL_SIZE = np.array([[0.0070, 0.0065, 0.0012]] + [[0.0062, 0.0055, 0.0012]] * 3 + [[0.0052, 0.0046, 0.0011]])
+NAIL_COLOUR = np.array([0.97, 0.90, 0.88])
+
+
+def nail_rgba(skin) -> tuple[float, float, float, float]:
+    c = np.asarray(skin[:3], float)
+    return tuple(float(x) for x in np.clip(c + 0.6 * (NAIL_COLOUR - c), 0, 1)) + (1.0,)
+
+
+def nail_poses(joints: np.ndarray, wrist_T: np.ndarray, side, style: HandStyle | None = None) -> np.ndarray:
+    """(5, 4, 4) poses of the nails (x along the distal phalanx towards the tip, z out of the nail)
+    of one hand's joints (21, 3) with its wrist pose (4, 4): on the back of each distal phalanx,
+    centred a third of its length from the tip, at the phalanx's flesh radius."""
+    from lib.hand_model import _thumb_frame, hand_capsules
+
+    style = style or HandStyle()
+    J = np.asarray(joints, float)
+    R = np.asarray(wrist_T, float)[:3, :3]
+    mirror = np.array([1.0, -1.0, 1.0]) if side in (0, "left", "l") else np.ones(3)
+    _, n_thumb = _thumb_frame()
+    # a finger bends towards its palmar side; the nail faces the other way
+    back = np.stack([-(R @ (n_thumb * mirror))] + [R[:, 2]] * 4)
+    base, tip = J[[a for a, _ in NAIL_JOINTS]], J[[b for _, b in NAIL_JOINTS]]
+    u = tip - base
+    length = np.linalg.norm(u, axis=-1, keepdims=True)
+    u = u / np.maximum(length, 1e-12)
+    z = back - np.sum(back * u, -1, keepdims=True) * u
+    z = z / np.maximum(np.linalg.norm(z, axis=-1, keepdims=True), 1e-12)
+    caps = {c.name: c.radius for c in hand_capsules(style)}
+    r = np.array([caps[f"{f}_dist"] for f in ("thumb", "index", "middle", "ring", "pinky")])
+    T = np.zeros((5, 4, 4))
+    T[:, :3, 0], T[:, :3, 1], T[:, :3, 2] = u, np.cross(z, u), z
+    T[:, :3, 3] = tip - u * (0.35 * length) + z * (r - 0.0003 * style.scale)[:, None]   # just proud of the skin
+    T[:, 3, 3] = 1.0
+    return T
+
+
+__all__ = ["NAILS", "NAIL_JOINTS", "NAIL_SIZE", "nail_rgba", "nail_poses", "PARTS", "SHOULDERS", "MAX_WRIST_BEND", "forearm_pose", "hull_mesh", "skin_meshes", "mesh_name", "mesh_asset_xml"]

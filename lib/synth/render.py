@@ -120,7 +120,8 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
     """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody; with
     ``hand_style="skin"`` also one mocap body per hand carrying the palm, forearm and sleeve meshes
     (:func:`hands_assets_xml` defines them)."""
-    from lib.synth.hand_skin import PARTS, mesh_name
+    from lib.synth import hand_skin
+    from lib.synth.hand_skin import NAIL_SIZE, PARTS, mesh_name, nail_rgba
 
     _check_hand_style(hand_style)
     out = []
@@ -142,6 +143,11 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
                     f'rgba="{_rgba(style.skin_rgba if colour == "skin" else style.sleeve_rgba)}" '
                     f'material="{HAND_PREFIX}_{colour}"/>' for part, colour, b in PARTS if b == body)
                 out.append(f'<body name="{wb}" mocap="true" pos="0 0 -5">{geoms}</body>')
+            for k, size in enumerate(NAIL_SIZE * style.scale if hand_skin.NAILS else []):
+                nb = f"{HAND_PREFIX}_{side}_nail{k}"
+                out.append(f'<body name="{nb}" mocap="true" pos="0 0 -5"><geom name="{nb}_geom" type="ellipsoid" '
+                           f'size="{size[0]:.6g} {size[1]:.6g} {size[2]:.6g}" contype="0" conaffinity="0" group="1" '
+                           f'rgba="{_rgba(nail_rgba(style.skin_rgba))}" material="{HAND_PREFIX}_nail"/></body>')
     return "\n".join(out)
 
 
@@ -154,6 +160,7 @@ def hands_assets_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
     out = [f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" reflectance="0"/>']
     if hand_style == "skin":
         out.append(f'<material name="{HAND_PREFIX}_sleeve" specular="0.05" shininess="0.05" reflectance="0"/>')
+        out.append(f'<material name="{HAND_PREFIX}_nail" specular="0.5" shininess="0.7" reflectance="0"/>')
         seen = set()
         for side, style in zip(SIDES, styles):
             for part, mesh in skin_meshes(side, style).items():
@@ -206,11 +213,10 @@ def _quat_z_to(d: np.ndarray) -> np.ndarray:
 
 
 def _quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """Scalar-first quaternion (4,) of a rotation matrix."""
+    """Scalar-first quaternions (4,) / (n, 4) of rotation matrices (3, 3) / (n, 3, 3)."""
     from scipy.spatial.transform import Rotation
 
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
-    return np.array([w, x, y, z])
+    return np.roll(Rotation.from_matrix(R).as_quat(), 1, axis=-1)   # scalar-last -> scalar-first
 
 
 # --- depth sensor model --------------------------------------------------------------------------
@@ -308,7 +314,7 @@ class SceneRenderer:
             self._mocap.append(np.array([self.model.body_mocapid[b] for b in bids]))
             self._geoms.append(np.array([self.model.body_geomadr[b] for b in bids]))
         # skin look: one mocap body per hand with the palm/forearm/sleeve meshes
-        self._wrist_mocap, self._forearm_mocap = [], []
+        self._wrist_mocap, self._forearm_mocap, self._nail_mocap = [], [], []
         self._mask_geoms = list(self._geoms)
         for h, side in enumerate(SIDES):
             bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, _wrist_body_name(side))
@@ -321,7 +327,12 @@ class SceneRenderer:
                 # palm and forearm are hand pixels; the sleeve (the forearm body's last geom) is cloth
                 palm = self.model.body_geomadr[bid]
                 forearm = self.model.body_geomadr[fid]
-                self._mask_geoms[h] = np.concatenate([self._geoms[h], [palm, forearm]])
+                nails = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"{HAND_PREFIX}_{side}_nail{k}")
+                         for k in range(5)]
+                nails = [b for b in nails if b >= 0]
+                self._nail_mocap.append(np.array([self.model.body_mocapid[b] for b in nails], int))
+                self._mask_geoms[h] = np.concatenate([self._geoms[h], [palm, forearm],
+                                                      [self.model.body_geomadr[b] for b in nails]]).astype(int)
         self.hand_geom_ids = np.concatenate(self._mask_geoms)
         self.joint_radii = np.stack([joint_radii(s) for s in self.styles])  # (2, 21)
 
@@ -356,9 +367,10 @@ class SceneRenderer:
                     d.mocap_pos[self._mocap[h]] = [0.0, 0.0, -5.0]
                     if self._wrist_mocap:
                         d.mocap_pos[[self._wrist_mocap[h], self._forearm_mocap[h]]] = [0.0, 0.0, -5.0]
+                        d.mocap_pos[self._nail_mocap[h]] = [0.0, 0.0, -5.0]
                     continue
                 if self._wrist_mocap:
-                    from lib.synth.hand_skin import forearm_pose
+                    from lib.synth.hand_skin import forearm_pose, nail_poses
 
                     W = wrist_pose_from_joints(np.asarray(hand_joints[h], float), SIDES[h], self.styles[h])
                     F = forearm_pose(W, h)
@@ -366,6 +378,10 @@ class SceneRenderer:
                     d.mocap_quat[self._wrist_mocap[h]] = _quat_from_matrix(W[:3, :3])
                     d.mocap_pos[self._forearm_mocap[h]] = F[:3, 3]
                     d.mocap_quat[self._forearm_mocap[h]] = _quat_from_matrix(F[:3, :3])
+                    if len(self._nail_mocap[h]):
+                        N = nail_poses(hand_joints[h], W, h, self.styles[h])
+                        d.mocap_pos[self._nail_mocap[h]] = N[:, :3, 3]
+                        d.mocap_quat[self._nail_mocap[h]] = _quat_from_matrix(N[:, :3, :3])
                 seg = capsule_segments(np.asarray(hand_joints[h], float), self.styles[h])  # (n, 2, 3)
                 a, b = seg[:, 0], seg[:, 1]
                 v = b - a
