@@ -476,6 +476,15 @@ def evaluate_detection_cmd(
     from schemas.catalog import query
 
     modes = mode or ["auto"]
+    bad = [m for m in modes if m not in ("auto", "image", "video")]
+    if bad:
+        raise fail(f"--mode must be auto, image or video, got {bad[0]!r}")
+    try:
+        have = query("SELECT count(*) AS n FROM takes WHERE source = 'synthetic'", current_warehouse()).to_pylist()
+    except Exception:  # noqa: BLE001 - no takes table yet
+        have = [{"n": 0}]
+    if not have or not have[0]["n"]:
+        raise fail("no synthetic takes in the warehouse: run `demoforge synth` first")
     try:
         run_flow(evaluate_detection, str(current_warehouse()), detector=detector, running_modes=modes,
                  takes=take or None)

@@ -119,3 +119,14 @@ def test_end_to_end_on_a_rendered_take(tmp_path, oracle):
     assert a["mpjpe_2d_px"] == 0.0 and a["pck05"] == 1.0
     # the right hand holds the cup from frame 2 on (StandInDemo.closed)
     assert rows["occluded"]["hand_frames"] <= 3
+
+
+def test_cli_without_takes_says_what_to_do(tmp_path):
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    res = CliRunner().invoke(app, ["--warehouse", str(tmp_path / "wh"), "evaluate-detection"])
+    assert res.exit_code == 2 and "run `demoforge synth` first" in res.output
+    res = CliRunner().invoke(app, ["--warehouse", str(tmp_path / "wh"), "evaluate-detection", "--mode", "fast"])
+    assert res.exit_code == 2 and "--mode must be" in res.output
