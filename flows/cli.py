@@ -231,7 +231,7 @@ def synth(
     depth_noise: bool = typer.Option(True, help="Add realistic depth noise and holes (0 = invalid)."),
     video: bool = typer.Option(True, help="Also write rgb.mp4 per take."),
     max_frames: Optional[int] = typer.Option(None, help="Keep only the first N frames (previews)."),
-    hand_style: str = typer.Option("skin", "--hand-style", help="Look of the hands: skin (palm, forearm, sleeve; what a real detector can see) or capsule (the older capsule look). The ground truth is the same."),
+    hand_style: str = typer.Option("capsule", "--hand-style", help="Look of the hands: capsule (default) or skin (palm, forearm, sleeve, nails: what a real detector finds far more often; the depth at the wrist and thumb base differs from what the ingest's alignment assumes, see README). The ground truth is the same."),
 ) -> None:
     """Generate synthetic RGB-D demonstrations with exact ground truth (MuJoCo renders).
 

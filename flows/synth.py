@@ -28,12 +28,12 @@ def synthesize_takes(
     video: bool = True,
     max_frames: int | None = None,
     show_progress: bool = True,
-    hand_style: str = "skin",
+    hand_style: str = "capsule",
 ) -> list[Manifest]:
     """Render `takes` takes per task (seeds seed, seed+1, ...) into `takes_dir` and register them.
 
     mirror: "no" (original hands' roles), "yes" (mirrored variant only) or "both".
-    hand_style: "skin" (palm, forearm, sleeve) or "capsule" (older look); same ground truth.
+    hand_style: "capsule" (default) or "skin" (palm, forearm, sleeve, nails); same ground truth.
     Takes already generated with the same parameters and code version come from the cache.
     """
     from lib.task_library import TASK_NAMES

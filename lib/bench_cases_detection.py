@@ -23,13 +23,13 @@ def _frames(n: int) -> tuple[np.ndarray, np.ndarray]:
     task = get_task("pouring")
     demo = task.scripted_demo(0)
     styles = hand_styles_for(0)
-    xml = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles),
-                         extra_assets=hands_assets_xml(styles))
+    xml = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles, hand_style="skin"),
+                         extra_assets=hands_assets_xml(styles, "skin"))
     idx = np.arange(60, 60 + n) % demo.n_frames          # consecutive frames: what a tracker sees
     joints = np.stack([hand_from_pinch(demo.pinch_poses[idx, h], demo.aperture[idx, h],
                                        ("left", "right")[h], styles[h])[0] for h in range(2)], 1)
     out = np.empty((n, 480, 640, 3), np.uint8)
-    with SceneRenderer(xml, task.object_names, styles, blur_sigma=0.6) as r:
+    with SceneRenderer(xml, task.object_names, styles, blur_sigma=0.6, hand_style="skin") as r:
         for k, i in enumerate(idx):
             out[k] = r.render_state(demo.object_poses[i], joints[k]).rgb
     return out, camera_K()

@@ -35,7 +35,7 @@ from lib.task_library import TASK_LIBRARY_VERSION  # noqa: E402
 @stage_task(name="synthesize_take", version=f"1/gen{GENERATOR_VERSION}/tasks{TASK_LIBRARY_VERSION}")
 def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehouse: str,
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
-                    show_progress: bool = True, hand_style: str = "skin") -> Manifest:
+                    show_progress: bool = True, hand_style: str = "capsule") -> Manifest:
     """Script, render and write one synthetic take, replay it in physics, register it in `takes`."""
     from lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
     from lib.task_library import get_task

@@ -114,7 +114,7 @@ def test_end_to_end_on_a_rendered_take(tmp_path, oracle):
     Oracle.gt = load(out)
     rows = {r["subset"]: r for r in evaluate_detection(out, "oracle")}
     a = rows["all"]
-    assert a["take"] == "synth_standin_s0002" and a["hand_style"] == "skin" and a["frames"] == 5
+    assert a["take"] == "synth_standin_s0002" and a["hand_style"] == "capsule" and a["frames"] == 5
     assert a["hand_frames"] == 10 and a["detection_rate"] == 1.0 and a["handedness_acc"] == 1.0
     assert a["mpjpe_2d_px"] == 0.0 and a["pck05"] == 1.0
     # the right hand holds the cup from frame 2 on (StandInDemo.closed)

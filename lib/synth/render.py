@@ -14,10 +14,11 @@ Depth: MuJoCo's depth buffer (reversed-Z, ``mjDEPTH_ZEROFAR``) is converted exac
 ``mujoco.Renderer`` does, which yields the distance along the camera's optical axis (the OpenCV z),
 not the ray length; :func:`add_depth_noise` adds a realistic sensor model on top (0.0 = invalid).
 
-Hands: ``hand_style="skin"`` (default) draws each kinematic hand's capsules in skin colour plus a
-palm, a forearm and a sleeve (:mod:`lib.synth.hand_skin`) on one extra mocap body per hand placed at
-the exact rigid fit of the palm joints; ``"capsule"`` is the older look (capsules only). The joints,
-and so the ground truth, are the same in both.
+Hands: ``hand_style="capsule"`` (default) draws the kinematic hand's capsules; ``"skin"`` adds a
+palm, a forearm, a sleeve and nails (:mod:`lib.synth.hand_skin`) on extra mocap bodies, the palm's
+placed at the exact rigid fit of the palm joints. The joints, and so the ground truth, are the same
+in both. (Skin is not the default: under its palm and forearm the depth at the wrist and thumb-base
+anchors differs from what lib.alignment's surface offset assumes; docs/results/issue-19-detection.md.)
 
 Quaternions are scalar-first (MuJoCo's order) only inside this module, at the simulator boundary.
 """
@@ -43,9 +44,9 @@ CAMERA_TARGET = (0.0, 0.25, 0.0)
 CAMERA_NAME = "demoforge_head_cam"
 HAND_PREFIX = "demoforge_hand"
 SIDES = ("left", "right")
-#: Looks of the synthetic hands: "skin" (palm, forearm, sleeve; default) or "capsule" (older look).
+#: Looks of the synthetic hands: "skin" (palm, forearm, sleeve) or "capsule" (the default; see README).
 HAND_STYLES = ("skin", "capsule")
-DEFAULT_HAND_STYLE = "skin"
+DEFAULT_HAND_STYLE = "capsule"
 
 
 def _check_hand_style(hand_style: str) -> str:
