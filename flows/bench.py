@@ -170,7 +170,7 @@ def _synth_cases(quick: bool) -> list[BenchCase]:
         demo = task.scripted_demo(0)
         styles = hand_styles_for(0)
         xml = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles),
-                             extra_assets=hands_assets_xml())
+                             extra_assets=hands_assets_xml(styles))
         idx = np.linspace(0, demo.n_frames - 1, n).astype(int)
         joints = np.stack([hand_from_pinch(demo.pinch_poses[idx, h], demo.aperture[idx, h],
                                            ("left", "right")[h], styles[h])[0] for h in range(2)], 1)
@@ -308,6 +308,13 @@ def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: b
     if rows:
         write_table("benchmarks", pa.Table.from_pylist(rows), warehouse)
     return rows
+
+
+@register("detection")
+def _detection_cases(quick: bool) -> list[BenchCase]:
+    from lib.bench_cases_detection import cases
+
+    return cases(quick)
 
 
 @register("hamer")

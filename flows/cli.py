@@ -299,6 +299,7 @@ def synth(
     depth_noise: bool = typer.Option(True, help="Add realistic depth noise and holes (0 = invalid)."),
     video: bool = typer.Option(True, help="Also write rgb.mp4 per take."),
     max_frames: Optional[int] = typer.Option(None, help="Keep only the first N frames (previews)."),
+    hand_style: str = typer.Option("capsule", "--hand-style", help="Look of the hands: capsule (default) or skin (palm, forearm, sleeve, nails: what a real detector finds far more often; the depth at the wrist and thumb base differs from what the ingest's alignment assumes, see README). The ground truth is the same."),
 ) -> None:
     """Generate synthetic RGB-D demonstrations with exact ground truth (MuJoCo renders).
 
@@ -313,11 +314,14 @@ def synth(
     unknown = [t for t in tasks if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from: all, {', '.join(TASK_NAMES)}")
+    if hand_style not in ("skin", "capsule"):
+        raise fail(f"--hand-style must be skin or capsule, got {hand_style!r}")
     manifests = run_flow(
         synthesize_takes,
         str(current_warehouse()), tasks=tasks, takes=takes, seed=seed,
         mirror="both" if both else ("yes" if mirror else "no"),
         takes_dir=str(out) if out else None, depth_noise=depth_noise, video=video, max_frames=max_frames,
+        hand_style=hand_style,
     )
     for m in manifests:
         typer.echo(m.path)
@@ -453,6 +457,7 @@ def ingest(
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
     accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="Go on when the take's depth fails a check (empty, wrong unit, misaligned): every row is flagged in `depth_problem` instead of stopping."),
+    mediapipe_mode: str = typer.Option("auto", "--mediapipe-mode", help="For --detector mediapipe: auto (video mode: landmark tracking between palm detections; default) or image (every frame on its own)."),
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth checks, hand tracking, depth alignment, gripper
     poses, object keypoints.
@@ -467,6 +472,10 @@ def ingest(
     from lib.ingest import TakeError
 
     options = {}
+    if detector == "mediapipe" and mediapipe_mode != "auto":
+        if mediapipe_mode not in ("image", "video"):
+            raise fail(f"--mediapipe-mode must be auto, image or video, got {mediapipe_mode!r}")
+        options["running_mode"] = mediapipe_mode
     if detector == "precomputed":
         if predictions is None:
             raise fail("--detector precomputed needs --predictions FILE")
@@ -614,6 +623,44 @@ def evaluate_keypoints_cmd(
 
     view = "report_real_photos" if dataset == "real_photos" else "report_table1"
     _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
+
+
+@app.command("evaluate-detection")
+def evaluate_detection_cmd(
+    detector: str = typer.Option("mediapipe", "--detector", "-d", help="A real detector: mediapipe."),
+    mode: Optional[List[str]] = typer.Option(None, "--mode", help="MediaPipe running mode(s), repeatable: auto (video mode for takes; default) or image."),
+    take: Optional[List[str]] = typer.Option(None, "--take", help="Only these synthetic takes (default: all in the warehouse)."),
+) -> None:
+    """Hand detection against the synthetic takes' ground truth, per task: detection rate over
+    hand-frames with >= 80 % of the joints in view, handedness accuracy, 2D MPJPE (px), PCK@0.05/0.15,
+    and the same where a held object hides part of the hand. Rows go to `detection_metrics`."""
+    from flows.detection_eval import evaluate_detection
+    from lib.detectors import DetectorError
+    from lib.evaluation.detection import per_task
+    from schemas.catalog import query
+
+    modes = mode or ["auto"]
+    bad = [m for m in modes if m not in ("auto", "image", "video")]
+    if bad:
+        raise fail(f"--mode must be auto, image or video, got {bad[0]!r}")
+    try:
+        have = query("SELECT count(*) AS n FROM takes WHERE source = 'synthetic'", current_warehouse()).to_pylist()
+    except Exception:  # noqa: BLE001 - no takes table yet
+        have = [{"n": 0}]
+    if not have or not have[0]["n"]:
+        raise fail("no synthetic takes in the warehouse: run `demoforge synth` first")
+    try:
+        run_flow(evaluate_detection, str(current_warehouse()), detector=detector, running_modes=modes,
+                 takes=take or None)
+    except (DetectorError, ValueError, FileNotFoundError) as e:
+        raise fail(str(e))
+    rows = query("SELECT * FROM detection_metrics", current_warehouse()).to_pylist()
+    wanted = {"video" if m == "auto" else m for m in modes}
+    rows = [r for r in rows if r["detector"] == detector and r["running_mode"] in wanted
+            and (not take or r["take"] in take)]
+    from lib.evaluation.detection import format_markdown
+
+    typer.echo(format_markdown(per_task(rows)))
 
 
 @app.command("llm-eval")

@@ -28,10 +28,12 @@ def synthesize_takes(
     video: bool = True,
     max_frames: int | None = None,
     show_progress: bool = True,
+    hand_style: str = "capsule",
 ) -> list[Manifest]:
     """Render `takes` takes per task (seeds seed, seed+1, ...) into `takes_dir` and register them.
 
     mirror: "no" (original hands' roles), "yes" (mirrored variant only) or "both".
+    hand_style: "capsule" (default) or "skin" (palm, forearm, sleeve, nails); same ground truth.
     Takes already generated with the same parameters and code version come from the cache.
     """
     from lib.task_library import TASK_NAMES
@@ -54,7 +56,7 @@ def synthesize_takes(
                 manifest = run_stage(
                     synthesize_take, warehouse, task=task, seed=seed + k, mirror=m,
                     takes_dir=str(out.resolve()), warehouse=str(warehouse), depth_noise=depth_noise,
-                    video=video, max_frames=max_frames, show_progress=show_progress,
+                    video=video, max_frames=max_frames, show_progress=show_progress, hand_style=hand_style,
                 )
                 logger.info("take %s: %d rows", manifest.path, manifest.rows)
                 manifests.append(manifest)

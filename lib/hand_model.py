@@ -79,6 +79,11 @@ _SKIN_TONES = np.array([
     [0.96, 0.80, 0.69], [0.91, 0.72, 0.60], [0.84, 0.63, 0.50],
     [0.76, 0.55, 0.42], [0.63, 0.44, 0.32], [0.48, 0.33, 0.24],
 ])
+#: Sleeve colours (cloth): navy, grey, black, white, dark green, denim, maroon, beige.
+_SLEEVE_COLOURS = np.array([
+    [0.12, 0.16, 0.30], [0.45, 0.45, 0.47], [0.08, 0.08, 0.09], [0.88, 0.88, 0.86],
+    [0.16, 0.30, 0.20], [0.27, 0.38, 0.55], [0.42, 0.12, 0.15], [0.76, 0.70, 0.58],
+])
 
 
 @dataclass(frozen=True)
@@ -87,23 +92,29 @@ class HandStyle:
 
     scale: uniform size factor (1.0 = palm 9.5 cm wrist to middle MCP). spread: factor on the
     neutral finger spread. flexion_bias: added to the curl of middle/ring/pinky (and the thumb's rest
-    curl in :func:`hand_joints`). skin_rgba: colour of the capsule model.
+    curl in :func:`hand_joints`). skin_rgba: colour of the skin. sleeve_rgba: colour of the sleeve
+    (the "skin" look of lib.synth.render only).
     """
 
     scale: float = 1.0
     spread: float = 1.0
     flexion_bias: float = 0.0
     skin_rgba: tuple[float, float, float, float] = (0.91, 0.72, 0.60, 1.0)
+    sleeve_rgba: tuple[float, float, float, float] = (0.12, 0.16, 0.30, 1.0)
 
 
 def sample_style(rng: np.random.Generator) -> HandStyle:
-    """A random plausible adult hand: scale 0.9-1.1, spread 0.6-1.4, bias -0.1..0.15, a skin tone."""
+    """A random plausible adult hand: scale 0.9-1.1, spread 0.6-1.4, bias -0.1..0.15, one of six skin
+    tones, one of eight sleeve colours (drawn last, so the other fields are those of older versions)."""
     tone = _SKIN_TONES[rng.integers(len(_SKIN_TONES))] * rng.uniform(0.95, 1.03)
+    scale = float(rng.uniform(0.9, 1.1))
+    spread = float(rng.uniform(0.6, 1.4))
+    bias = float(rng.uniform(-0.1, 0.15))
+    sleeve = _SLEEVE_COLOURS[rng.integers(len(_SLEEVE_COLOURS))]
     return HandStyle(
-        scale=float(rng.uniform(0.9, 1.1)),
-        spread=float(rng.uniform(0.6, 1.4)),
-        flexion_bias=float(rng.uniform(-0.1, 0.15)),
+        scale=scale, spread=spread, flexion_bias=bias,
         skin_rgba=tuple(float(c) for c in np.clip(tone, 0, 1)) + (1.0,),
+        sleeve_rgba=tuple(float(c) for c in sleeve) + (1.0,),
     )
 
 
@@ -432,6 +443,40 @@ def capsule_segments(joints: np.ndarray, style: HandStyle | None = None):
     return np.stack([a, b], axis=-2)
 
 
+#: Joints that are rigid in the hand-local frame whatever the flexion: wrist, thumb CMC, the four MCPs.
+PALM_JOINTS: tuple[int, ...] = (0, 1, 5, 9, 13, 17)
+
+
+def palm_local(side, style: HandStyle | None = None) -> np.ndarray:
+    """(len(PALM_JOINTS), 3) hand-local positions of :data:`PALM_JOINTS` (flexion-independent)."""
+    local = _to_side(_local_joints_right(np.zeros(5), style or HandStyle()), _side_index(side))
+    return local[list(PALM_JOINTS)]
+
+
+def wrist_pose_from_joints(joints: np.ndarray, side, style: HandStyle | None = None) -> np.ndarray:
+    """(..., 4, 4) wrist pose (hand-local to world) of joints (..., 21, 3) posed by this model.
+
+    The palm joints are rigid in the hand-local frame, so the rotation is the Kabsch fit of
+    :func:`palm_local` onto them (exact, to float precision, for joints from :func:`hand_joints` or
+    :func:`hand_from_pinch` with the same style and side).
+    """
+    J = np.asarray(joints, dtype=float)[..., list(PALM_JOINTS), :]
+    L = palm_local(side, style)
+    jc, lc = J.mean(-2, keepdims=True), L.mean(0)
+    H = np.einsum("ki,...kj->...ij", L - lc, J - jc)             # cross-covariance local -> world
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = D[..., 1, 1] = 1.0
+    D[..., 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    T = np.zeros(J.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = jc[..., 0, :] - np.einsum("...ij,j->...i", R, lc)
+    T[..., 3, 3] = 1.0
+    return T
+
+
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
     """(..., len(HAND_BONES)) lengths of the skeleton edges."""
     p = np.array([b[0] for b in HAND_BONES])
@@ -442,6 +487,6 @@ def bone_lengths(joints: np.ndarray) -> np.ndarray:
 __all__ = [
     "HAND_BONES", "N_JOINTS", "FINGER_NAMES", "FINGER_JOINTS", "HandStyle", "sample_style",
     "hand_joints", "hand_from_pinch", "pinch_from_joints", "Capsule", "hand_capsules",
-    "joint_radii", "capsule_segments", "bone_lengths",
+    "joint_radii", "capsule_segments", "bone_lengths", "PALM_JOINTS", "palm_local", "wrist_pose_from_joints",
 ]
 

@@ -35,7 +35,7 @@ from lib.task_library import TASK_LIBRARY_VERSION  # noqa: E402
 @stage_task(name="synthesize_take", version=f"1/gen{GENERATOR_VERSION}/tasks{TASK_LIBRARY_VERSION}")
 def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehouse: str,
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
-                    show_progress: bool = True) -> Manifest:
+                    show_progress: bool = True, hand_style: str = "capsule") -> Manifest:
     """Script, render and write one synthetic take, replay it in physics, register it in `takes`."""
     from lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
     from lib.task_library import get_task
@@ -58,7 +58,7 @@ def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehous
 
     t0 = time.perf_counter()
     summary = generate_take(task, seed, mirror, tmp, depth_noise=depth_noise, video=video,
-                            progress=progress, max_frames=max_frames)
+                            progress=progress, max_frames=max_frames, hand_style=hand_style)
     generate_seconds = time.perf_counter() - t0
     if bar is not None:
         bar.close()

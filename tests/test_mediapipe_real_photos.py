@@ -135,3 +135,28 @@ def test_handedness_follows_chirality(detector):
                 matched += 1
                 flips += m[0].handedness != c.handedness
     assert matched >= 6 and flips / matched >= 0.8          # measured 12/14 over all photos
+
+
+def test_auto_mode_tracks_takes_and_leaves_single_images_alone(detector):
+    """The default ("auto") treats a single photo exactly as image mode does, and tracks between
+    start_take/end_take (video mode: the same photo repeated stays detected, with the same hand)."""
+    import cv2
+
+    from lib.detectors.mediapipe_backend import MediaPipeDetector
+
+    rgb = cv2.cvtColor(cv2.imread(str(REAL / "onehand10k" / "9.jpg")), cv2.COLOR_BGR2RGB)
+    assert detector.running_mode == "auto" and not detector.tracking
+    with MediaPipeDetector(running_mode="image") as img:
+        ref = img.detect_image(rgb)
+    got = detector.detect_image(rgb)
+    assert len(got) == len(ref) >= 1
+    assert np.allclose(got[0].joints_px, ref[0].joints_px) and got[0].handedness == ref[0].handedness
+    detector.start_take()
+    try:
+        assert detector.tracking
+        seq = detector.detect(np.stack([rgb] * 4), np.eye(3), [0, 1, 2, 3])
+    finally:
+        detector.end_take()
+    assert not detector.tracking
+    assert all(len(c) >= 1 for c in seq)
+    assert all(np.abs(c[0].joints_px - ref[0].joints_px).mean() < 0.05 * rgb.shape[1] for c in seq)

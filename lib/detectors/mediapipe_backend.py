@@ -25,9 +25,14 @@ Output per detected hand (:class:`HandCandidate`):
   the person's hand correctly for non-mirrored images, so ``mirrored=False`` (default) keeps them;
   pass ``mirrored=True`` for selfie-mirrored video. The raw label is kept in ``extra``.
 
-Image order: RGB (what lib.ingest gives). ``running_mode="image"`` (default) treats every frame
-independently, like HaMeR in the thesis; ``"video"`` tracks across frames (faster, frame indices
-must increase; timestamps = frame index / fps).
+Image order: RGB (what lib.ingest gives). Running modes: ``"image"`` treats every frame
+independently, like HaMeR in the thesis; ``"video"`` runs the palm detector only when it has lost
+a hand and otherwise tracks the landmarks from the previous frame (frame indices must increase;
+timestamps = frame index / fps). ``"auto"`` (default) uses video mode for takes
+(:meth:`MediaPipeDetector.detect_take`, or between :meth:`start_take` and :meth:`end_take`; a fresh
+tracker per take) and image mode for single images (:meth:`detect_image` outside a take, e.g. the
+labelled photos). On the default synthetic takes video mode finds far more hands than image mode
+(docs/results/issue-19-detection.md).
 """
 
 from __future__ import annotations
@@ -76,7 +81,8 @@ class MediaPipeDetector(HandDetector):
         min_detection_confidence, min_presence_confidence, min_tracking_confidence: MediaPipe's
             thresholds (palm detector score, hand presence score, tracking IoU in video mode).
         mirrored: the images are selfie-mirrored (swaps the handedness mapping).
-        running_mode: "image" (every frame independently) or "video" (tracking).
+        running_mode: "auto" (video for takes, image for single images), "image" (every frame
+            independently) or "video" (tracking, also for single images: indices must increase).
         fps: frame rate for video-mode timestamps.
     """
 
@@ -85,7 +91,7 @@ class MediaPipeDetector(HandDetector):
     def __init__(self, model_path: str | os.PathLike | None = None, num_hands: int = 2,
                  min_detection_confidence: float = 0.5, min_presence_confidence: float = 0.5,
                  min_tracking_confidence: float = 0.5, mirrored: bool = False,
-                 running_mode: str = "image", fps: float = 30.0):
+                 running_mode: str = "auto", fps: float = 30.0):
         try:
             import mediapipe as mp
             from mediapipe.tasks.python import BaseOptions, vision
@@ -99,24 +105,20 @@ class MediaPipeDetector(HandDetector):
             raise DetectorError(
                 f"MediaPipe hand landmarker model not found at {path}; build it with "
                 f"'{sys.executable} scripts/fetch_mediapipe_model.py' (or pass model_path= / set ${MODEL_ENV})")
-        if running_mode not in ("image", "video"):
-            raise ValueError(f"running_mode must be 'image' or 'video', got {running_mode!r}")
+        if running_mode not in ("auto", "image", "video"):
+            raise ValueError(f"running_mode must be 'auto', 'image' or 'video', got {running_mode!r}")
         self._mp = mp
         self.model_path = path
         self.mirrored = bool(mirrored)
         self.running_mode = running_mode
         self.fps = float(fps)
         self.version = f"mediapipe-{getattr(mp, '__version__', '?')}/{path.name}"
-        mode = vision.RunningMode.IMAGE if running_mode == "image" else vision.RunningMode.VIDEO
-        opts = vision.HandLandmarkerOptions(
-            base_options=BaseOptions(model_asset_path=str(path)), running_mode=mode, num_hands=int(num_hands),
-            min_hand_detection_confidence=float(min_detection_confidence),
-            min_hand_presence_confidence=float(min_presence_confidence),
-            min_tracking_confidence=float(min_tracking_confidence))
-        try:
-            self._landmarker = vision.HandLandmarker.create_from_options(opts)
-        except Exception as e:  # noqa: BLE001 - bad model file etc.
-            raise DetectorError(f"MediaPipe could not load {path}: {e}") from e
+        self._vision, self._base_options = vision, BaseOptions
+        self._opts = dict(num_hands=int(num_hands), min_hand_detection_confidence=float(min_detection_confidence),
+                          min_hand_presence_confidence=float(min_presence_confidence),
+                          min_tracking_confidence=float(min_tracking_confidence))
+        self._landmarker = self._create("video" if running_mode == "video" else "image")
+        self._take_landmarker = None      # "auto": the video-mode tracker of the current take
         self._last_ts = -1
         # Close before interpreter teardown: MediaPipe's close() needs its dispatcher thread pool,
         # which shuts down in threading's exit hooks (before atexit and module teardown).
@@ -127,7 +129,43 @@ class MediaPipeDetector(HandDetector):
         except (AttributeError, RuntimeError):
             self._finalizer.atexit = True
 
+    def _create(self, mode: str):
+        vision = self._vision
+        opts = vision.HandLandmarkerOptions(
+            base_options=self._base_options(model_asset_path=str(self.model_path)),
+            running_mode=vision.RunningMode.VIDEO if mode == "video" else vision.RunningMode.IMAGE, **self._opts)
+        try:
+            return vision.HandLandmarker.create_from_options(opts)
+        except Exception as e:  # noqa: BLE001 - bad model file etc.
+            raise DetectorError(f"MediaPipe could not load {self.model_path}: {e}") from e
+
+    def start_take(self) -> None:
+        """In "auto" mode: the following frames are one take (tracked in video mode by a fresh
+        tracker); in "video" mode: restart the timestamps. No effect in "image" mode."""
+        self.end_take()
+        if self.running_mode == "auto":
+            self._take_landmarker = self._create("video")
+        self._last_ts = -1
+
+    def end_take(self) -> None:
+        if self._take_landmarker is not None:
+            _close_quietly(self._take_landmarker)
+            self._take_landmarker = None
+
+    @property
+    def tracking(self) -> bool:
+        """Whether frames are being tracked (video mode) right now."""
+        return self.running_mode == "video" or self._take_landmarker is not None
+
+    def detect_take(self, take, batch_size: int = 16, progress=None):
+        self.start_take()
+        try:
+            return super().detect_take(take, batch_size=batch_size, progress=progress)
+        finally:
+            self.end_take()
+
     def close(self) -> None:
+        self.end_take()
         fin = getattr(self, "_finalizer", None)
         if fin is not None:
             fin()
@@ -154,11 +192,12 @@ class MediaPipeDetector(HandDetector):
             f = 0.5 * w / np.tan(np.deg2rad(30.0))
             K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
         mp_img = self._mp.Image(image_format=self._mp.ImageFormat.SRGB, data=img)
-        if self.running_mode == "video":
+        if self.tracking:
             ts = int(round(frame_index * 1000.0 / self.fps))
             ts = max(ts, self._last_ts + 1)
             self._last_ts = ts
-            res = self._landmarker.detect_for_video(mp_img, ts)
+            lm = self._take_landmarker if self._take_landmarker is not None else self._landmarker
+            res = lm.detect_for_video(mp_img, ts)
         else:
             res = self._landmarker.detect(mp_img)
         out = []

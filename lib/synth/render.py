@@ -14,6 +14,12 @@ Depth: MuJoCo's depth buffer (reversed-Z, ``mjDEPTH_ZEROFAR``) is converted exac
 ``mujoco.Renderer`` does, which yields the distance along the camera's optical axis (the OpenCV z),
 not the ray length; :func:`add_depth_noise` adds a realistic sensor model on top (0.0 = invalid).
 
+Hands: ``hand_style="capsule"`` (default) draws the kinematic hand's capsules; ``"skin"`` adds a
+palm, a forearm, a sleeve and nails (:mod:`lib.synth.hand_skin`) on extra mocap bodies, the palm's
+placed at the exact rigid fit of the palm joints. The joints, and so the ground truth, are the same
+in both. (Skin is not the default: under its palm and forearm the depth at the wrist and thumb-base
+anchors differs from what lib.alignment's surface offset assumes; docs/results/issue-19-detection.md.)
+
 Quaternions are scalar-first (MuJoCo's order) only inside this module, at the simulator boundary.
 """
 
@@ -28,7 +34,7 @@ import lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
 import mujoco
 
 from lib.geometry import project_points
-from lib.hand_model import HandStyle, capsule_segments, hand_capsules, joint_radii
+from lib.hand_model import HandStyle, capsule_segments, hand_capsules, joint_radii, wrist_pose_from_joints
 
 WIDTH, HEIGHT = 640, 480
 FX = FY = 570.3422
@@ -38,6 +44,15 @@ CAMERA_TARGET = (0.0, 0.25, 0.0)
 CAMERA_NAME = "demoforge_head_cam"
 HAND_PREFIX = "demoforge_hand"
 SIDES = ("left", "right")
+#: Looks of the synthetic hands: "skin" (palm, forearm, sleeve) or "capsule" (the default; see README).
+HAND_STYLES = ("skin", "capsule")
+DEFAULT_HAND_STYLE = "capsule"
+
+
+def _check_hand_style(hand_style: str) -> str:
+    if hand_style not in HAND_STYLES:
+        raise ValueError(f"hand_style must be one of {', '.join(HAND_STYLES)}, got {hand_style!r}")
+    return hand_style
 
 
 # --- camera --------------------------------------------------------------------------------------
@@ -94,30 +109,73 @@ def _hand_body_names(side: str, n: int) -> list[str]:
     return [f"{HAND_PREFIX}_{side}_{i:02d}" for i in range(n)]
 
 
-def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle())) -> str:
-    """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody."""
+def _wrist_body_name(side: str, body: str = "hand") -> str:
+    return f"{HAND_PREFIX}_{side}_wrist" if body == "hand" else f"{HAND_PREFIX}_{side}_forearm"
+
+
+def _rgba(c) -> str:
+    return " ".join(f"{x:.4g}" for x in c)
+
+
+def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_style: str = DEFAULT_HAND_STYLE) -> str:
+    """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody; with
+    ``hand_style="skin"`` also one mocap body per hand carrying the palm, forearm and sleeve meshes
+    (:func:`hands_assets_xml` defines them)."""
+    from lib.synth import hand_skin
+    from lib.synth.hand_skin import NAIL_SIZE, PARTS, mesh_name, nail_rgba
+
+    _check_hand_style(hand_style)
     out = []
     for side, style in zip(SIDES, styles):
         caps = hand_capsules(style)
-        rgba = " ".join(f"{c:.4g}" for c in style.skin_rgba)
+        rgba = _rgba(style.skin_rgba)
         for name, cap in zip(_hand_body_names(side, len(caps)), caps):
             out.append(
                 f'<body name="{name}" mocap="true" pos="0 0 -5">'
                 f'<geom name="{name}_geom" type="capsule" size="{cap.radius:.6g} 0.01" contype="0" '
                 f'conaffinity="0" group="1" rgba="{rgba}" material="{HAND_PREFIX}_skin"/></body>'
             )
+        if hand_style == "skin":
+            for body in ("hand", "forearm"):
+                wb = _wrist_body_name(side, body)
+                geoms = "".join(
+                    f'<geom name="{wb}_{part}" type="mesh" mesh="{mesh_name(HAND_PREFIX, side, part, style)}" '
+                    f'contype="0" conaffinity="0" group="1" mass="0" '
+                    f'rgba="{_rgba(style.skin_rgba if colour == "skin" else style.sleeve_rgba)}" '
+                    f'material="{HAND_PREFIX}_{colour}"/>' for part, colour, b in PARTS if b == body)
+                out.append(f'<body name="{wb}" mocap="true" pos="0 0 -5">{geoms}</body>')
+            for k, size in enumerate(NAIL_SIZE * style.scale if hand_skin.NAILS else []):
+                nb = f"{HAND_PREFIX}_{side}_nail{k}"
+                out.append(f'<body name="{nb}" mocap="true" pos="0 0 -5"><geom name="{nb}_geom" type="ellipsoid" '
+                           f'size="{size[0]:.6g} {size[1]:.6g} {size[2]:.6g}" contype="0" conaffinity="0" group="1" '
+                           f'rgba="{_rgba(nail_rgba(style.skin_rgba))}" material="{HAND_PREFIX}_nail"/></body>')
     return "\n".join(out)
 
 
-def hands_assets_xml() -> str:
-    return (f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" '
-            f'reflectance="0"/>')
+def hands_assets_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
+                     hand_style: str = DEFAULT_HAND_STYLE) -> str:
+    """The hands' materials and (skin look) meshes, for the scene's ``<asset>``."""
+    from lib.synth.hand_skin import mesh_asset_xml, mesh_name, skin_meshes
+
+    _check_hand_style(hand_style)
+    out = [f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" reflectance="0"/>']
+    if hand_style == "skin":
+        out.append(f'<material name="{HAND_PREFIX}_sleeve" specular="0.05" shininess="0.05" reflectance="0"/>')
+        out.append(f'<material name="{HAND_PREFIX}_nail" specular="0.5" shininess="0.7" reflectance="0"/>')
+        seen = set()
+        for side, style in zip(SIDES, styles):
+            for part, mesh in skin_meshes(side, style).items():
+                name = mesh_name(HAND_PREFIX, side, part, style)
+                if name not in seen:
+                    seen.add(name)
+                    out.append(mesh_asset_xml(name, mesh))
+    return "\n".join(out)
 
 
 def extra_worldbody_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
-                        T_world_camera: np.ndarray | None = None) -> str:
+                        T_world_camera: np.ndarray | None = None, hand_style: str = DEFAULT_HAND_STYLE) -> str:
     """Everything this module adds to a task scene's worldbody: the head camera and both hands."""
-    return camera_xml(T_world_camera) + "\n" + hands_xml(styles)
+    return camera_xml(T_world_camera) + "\n" + hands_xml(styles, hand_style)
 
 
 def _insert(xml: str, closing: str, text: str) -> str:
@@ -128,20 +186,21 @@ def _insert(xml: str, closing: str, text: str) -> str:
 
 
 def with_camera_and_hands(scene_xml: str, styles: Sequence[HandStyle],
-                          T_world_camera: np.ndarray | None = None) -> str:
-    """Add the head camera, the hands and their material to an MJCF scene unless already there."""
+                          T_world_camera: np.ndarray | None = None, hand_style: str = DEFAULT_HAND_STYLE) -> str:
+    """Add the head camera, the hands and their assets to an MJCF scene unless already there."""
     xml = scene_xml
     if f'name="{CAMERA_NAME}"' not in xml:
         xml = _insert(xml, "</worldbody>", camera_xml(T_world_camera))
     if f'{HAND_PREFIX}_left_00' not in xml:
-        xml = _insert(xml, "</worldbody>", hands_xml(styles))
+        xml = _insert(xml, "</worldbody>", hands_xml(styles, hand_style))
     if f'name="{HAND_PREFIX}_skin"' not in xml:
+        assets = hands_assets_xml(styles, hand_style)
         if "</asset>" in xml:
-            xml = _insert(xml, "</asset>", hands_assets_xml())
+            xml = _insert(xml, "</asset>", assets)
         else:
             xml = _insert(xml, "</worldbody>", "")  # validate it has a worldbody
             i = xml.find("<worldbody")
-            xml = xml[:i] + f"<asset>{hands_assets_xml()}</asset>\n" + xml[i:]
+            xml = xml[:i] + f"<asset>{assets}</asset>\n" + xml[i:]
     return xml
 
 
@@ -152,6 +211,13 @@ def _quat_z_to(d: np.ndarray) -> np.ndarray:
     flip = w < 1e-9
     q[flip] = [0.0, 1.0, 0.0, 0.0]
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _quat_from_matrix(R: np.ndarray) -> np.ndarray:
+    """Scalar-first quaternions (4,) / (n, 4) of rotation matrices (3, 3) / (n, 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    return np.roll(Rotation.from_matrix(R).as_quat(), 1, axis=-1)   # scalar-last -> scalar-first
 
 
 # --- depth sensor model --------------------------------------------------------------------------
@@ -199,25 +265,28 @@ class Frame:
 
 
 class SceneRenderer:
-    """Renders a MuJoCo scene with two capsule hands from the head camera.
+    """Renders a MuJoCo scene with two hands from the head camera.
 
     scene_xml: an MJCF string (e.g. ``task.scene_xml(placement)``); the head camera and the hand
     mocap bodies are appended to its worldbody unless already present (pass
     :func:`extra_worldbody_xml` as the task's ``extra_worldbody`` to put them there yourself).
     object_names: bodies with a free joint whose pose :meth:`render` sets, in this order.
     Shadows, reflections and the skybox are off (speed; a head camera over a table sees no sky).
+    hand_style: "skin" (palm, forearm, sleeve) or "capsule"; it must match the scene's hands when
+    ``scene_xml`` already has them.
     """
 
     def __init__(self, scene_xml: str, object_names: Sequence[str] = (),
                  styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
                  width: int = WIDTH, height: int = HEIGHT,
                  T_world_camera: np.ndarray | None = None, multisamples: int = 0,
-                 blur_sigma: float = 0.0):
+                 blur_sigma: float = 0.0, hand_style: str = DEFAULT_HAND_STYLE):
         self.blur_sigma = float(blur_sigma)
         self.styles = tuple(styles)
+        self.hand_style = _check_hand_style(hand_style)
         self.width, self.height = width, height
         self.T_world_camera = camera_T_world_camera() if T_world_camera is None else np.asarray(T_world_camera)
-        xml = with_camera_and_hands(scene_xml, self.styles, self.T_world_camera)
+        xml = with_camera_and_hands(scene_xml, self.styles, self.T_world_camera, self.hand_style)
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, width)
         self.model.vis.global_.offheight = max(self.model.vis.global_.offheight, height)
@@ -245,7 +314,27 @@ class SceneRenderer:
             bids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
             self._mocap.append(np.array([self.model.body_mocapid[b] for b in bids]))
             self._geoms.append(np.array([self.model.body_geomadr[b] for b in bids]))
-        self.hand_geom_ids = np.concatenate(self._geoms)
+        # skin look: one mocap body per hand with the palm/forearm/sleeve meshes
+        self._wrist_mocap, self._forearm_mocap, self._nail_mocap = [], [], []
+        self._mask_geoms = list(self._geoms)
+        for h, side in enumerate(SIDES):
+            bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, _wrist_body_name(side))
+            fid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, _wrist_body_name(side, "forearm"))
+            if (bid >= 0 and fid >= 0) != (self.hand_style == "skin"):
+                raise ValueError(f"scene's hands do not have the {self.hand_style!r} look (hand_style)")
+            if bid >= 0:
+                self._wrist_mocap.append(int(self.model.body_mocapid[bid]))
+                self._forearm_mocap.append(int(self.model.body_mocapid[fid]))
+                # palm and forearm are hand pixels; the sleeve (the forearm body's last geom) is cloth
+                palm = self.model.body_geomadr[bid]
+                forearm = self.model.body_geomadr[fid]
+                nails = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"{HAND_PREFIX}_{side}_nail{k}")
+                         for k in range(5)]
+                nails = [b for b in nails if b >= 0]
+                self._nail_mocap.append(np.array([self.model.body_mocapid[b] for b in nails], int))
+                self._mask_geoms[h] = np.concatenate([self._geoms[h], [palm, forearm],
+                                                      [self.model.body_geomadr[b] for b in nails]]).astype(int)
+        self.hand_geom_ids = np.concatenate(self._mask_geoms)
         self.joint_radii = np.stack([joint_radii(s) for s in self.styles])  # (2, 21)
 
         self._renderer = mujoco.Renderer(self.model, height=height, width=width)
@@ -277,7 +366,23 @@ class SceneRenderer:
             for h in range(2):
                 if not hand_present[h]:
                     d.mocap_pos[self._mocap[h]] = [0.0, 0.0, -5.0]
+                    if self._wrist_mocap:
+                        d.mocap_pos[[self._wrist_mocap[h], self._forearm_mocap[h]]] = [0.0, 0.0, -5.0]
+                        d.mocap_pos[self._nail_mocap[h]] = [0.0, 0.0, -5.0]
                     continue
+                if self._wrist_mocap:
+                    from lib.synth.hand_skin import forearm_pose, nail_poses
+
+                    W = wrist_pose_from_joints(np.asarray(hand_joints[h], float), SIDES[h], self.styles[h])
+                    F = forearm_pose(W, h)
+                    d.mocap_pos[self._wrist_mocap[h]] = W[:3, 3]
+                    d.mocap_quat[self._wrist_mocap[h]] = _quat_from_matrix(W[:3, :3])
+                    d.mocap_pos[self._forearm_mocap[h]] = F[:3, 3]
+                    d.mocap_quat[self._forearm_mocap[h]] = _quat_from_matrix(F[:3, :3])
+                    if len(self._nail_mocap[h]):
+                        N = nail_poses(hand_joints[h], W, h, self.styles[h])
+                        d.mocap_pos[self._nail_mocap[h]] = N[:, :3, 3]
+                        d.mocap_quat[self._nail_mocap[h]] = _quat_from_matrix(N[:, :3, :3])
                 seg = capsule_segments(np.asarray(hand_joints[h], float), self.styles[h])  # (n, 2, 3)
                 a, b = seg[:, 0], seg[:, 1]
                 v = b - a
@@ -322,8 +427,9 @@ class SceneRenderer:
         return self.render(segmentation=segmentation)
 
     def hand_mask(self, seg: np.ndarray, side: int | None = None) -> np.ndarray:
-        """Pixels showing a hand capsule (of one side, or either) from a segmentation image."""
-        ids = self.hand_geom_ids if side is None else self._geoms[side]
+        """Pixels showing a hand (capsules, and the palm and forearm of the skin look; of one side, or
+        either) from a segmentation image."""
+        ids = self.hand_geom_ids if side is None else self._mask_geoms[side]
         return np.isin(seg, ids)
 
     def close(self) -> None:
@@ -363,7 +469,7 @@ def joint_visibility(joints_world: np.ndarray, depth: np.ndarray, K: np.ndarray,
 __all__ = [
     "WIDTH", "HEIGHT", "FX", "FY", "CX", "CY", "CAMERA_POS", "CAMERA_TARGET", "CAMERA_NAME",
     "camera_K", "camera_T_world_camera", "camera_fovy_deg", "camera_xml", "world_to_camera", "project",
-    "hands_xml", "extra_worldbody_xml", "with_camera_and_hands", "add_depth_noise", "Frame",
+    "HAND_STYLES", "DEFAULT_HAND_STYLE", "hands_xml", "hands_assets_xml", "extra_worldbody_xml", "with_camera_and_hands", "add_depth_noise", "Frame",
     "SceneRenderer", "joint_visibility",
 ]
 

@@ -55,13 +55,13 @@ import schemas.synthetic  # noqa: F401  (registers the gt_* tables)
 from lib.geometry import transform_to_pose8
 from lib.hand_model import HandStyle, hand_from_pinch, sample_style
 from lib.synth.render import (
-    HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K, camera_T_world_camera,
+    DEFAULT_HAND_STYLE, HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K, camera_T_world_camera,
     extra_worldbody_xml, hands_assets_xml, joint_visibility, project, world_to_camera,
 )
 from schemas.core import write_table_file
 
 GENERATOR = "demoforge.synth"
-GENERATOR_VERSION = "1.1.0"
+GENERATOR_VERSION = "1.2.0"  # 1.2: skinned hands with forearm and sleeve (hand_style)
 PROVENANCE = "ground truth (synthetic)"
 SIDES = ("left", "right")
 PNG_COMPRESSION = 1
@@ -151,6 +151,7 @@ def write_take(
     progress: Callable[[int, int], None] | None = None,
     extra_meta: dict | None = None,
     write_queue: int = 4,
+    hand_style: str = DEFAULT_HAND_STYLE,
 ) -> TakeSummary:
     """Render ``demo`` in ``scene_xml`` and write the take layout (see the module docstring).
 
@@ -160,6 +161,7 @@ def write_take(
     are added unless present. ``progress(done, total)`` is called after every frame written.
     ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
     (0: each frame is written before the next renders, the serial baseline of ``make bench``).
+    ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (lib.synth.render.HAND_STYLES).
     """
     import cv2
 
@@ -191,7 +193,8 @@ def write_take(
         "K": K, "width": WIDTH, "height": HEIGHT, "T_world_camera": T_wc, "fps": fps, "depth_unit": "m",
     })
 
-    renderer = SceneRenderer(scene_xml, object_names, styles, T_world_camera=T_wc, blur_sigma=blur_sigma)
+    renderer = SceneRenderer(scene_xml, object_names, styles, T_world_camera=T_wc, blur_sigma=blur_sigma,
+                             hand_style=hand_style)
     noise_rng = np.random.default_rng([int(seed), 11])
     writer = None
     if video:
@@ -312,7 +315,7 @@ def write_take(
         "fps": fps, "generator": GENERATOR, "generator_version": GENERATOR_VERSION,
         "detector_provenance": PROVENANCE, "depth_noise": bool(depth_noise),
         "object_names": list(object_names), "keypoint_names": list(keypoint_names),
-        "hand_styles": {SIDES[h]: styles[h] for h in range(2)},
+        "hand_styles": {SIDES[h]: styles[h] for h in range(2)}, "hand_style": hand_style,
         "camera": {"pos": T_wc[:3, 3], "T_world_camera": T_wc},
         "generation_seconds": seconds, **(extra_meta or {}),
     })
@@ -329,7 +332,8 @@ def write_take(
 def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.PathLike,
                   depth_noise: bool = True, video: bool = True,
                   progress: Callable[[int, int], None] | None = None,
-                  max_frames: int | None = None, write_queue: int = 4) -> TakeSummary:
+                  max_frames: int | None = None, write_queue: int = 4,
+                  hand_style: str = DEFAULT_HAND_STYLE) -> TakeSummary:
     """Script ``task_name``'s demo for ``seed`` (mirrored: hands' roles swapped), render and write it.
 
     ``max_frames`` keeps only the first frames (tests, previews). See :func:`write_take`.
@@ -341,13 +345,13 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
     if max_frames is not None:
         demo = _TruncatedDemo(demo, int(max_frames))
     styles = hand_styles_for(seed)
-    scene = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles),
-                           extra_assets=hands_assets_xml())
+    scene = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles, hand_style=hand_style),
+                           extra_assets=hands_assets_xml(styles, hand_style))
     return write_take(
         out_dir, task_name=task_name, seed=seed, mirror=mirror, scene_xml=scene,
         object_names=list(task.object_names), keypoint_names=list(task.keypoint_names), demo=demo,
         styles=styles, depth_noise=depth_noise, video=video, progress=progress,
-        extra_meta={"placement": demo.placement}, write_queue=write_queue,
+        extra_meta={"placement": demo.placement}, write_queue=write_queue, hand_style=hand_style,
     )
 
 
