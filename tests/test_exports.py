@@ -160,11 +160,11 @@ def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_pat
             order = np.argsort(rb.column("frame_index").to_numpy())
             got[chunk.entity_path] = np.array(rb.column("Scalars:scalars").to_pylist(), float)[order]
         if "TextDocument:text" in rb.schema.names:
-            got["task"] = rb.column("TextDocument:text").to_pylist()
+            got.setdefault(chunk.entity_path, []).extend(rb.column("TextDocument:text").to_pylist())
     np.testing.assert_allclose(got["/observation.state"], src.reshape(len(src), 16), atol=1e-6)
     np.testing.assert_allclose(got["/action"][:-1], src[1:].reshape(-1, 16), atol=1e-6)
     np.testing.assert_allclose(got["/action"][-1], src[-1].reshape(16), atol=1e-6)  # the last step holds
-    assert set(np.ravel(got["task"])) == {"Pour from the bottle into the cup."}
+    assert set(np.ravel(got["/task"])) == {"Pour from the bottle into the cup."}
 
     # our own reader and the global statistics agree with the source actions
     back = read_lerobot_episode(out, 0)
@@ -173,8 +173,46 @@ def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_pat
     stats = json.loads((out / "meta/stats.json").read_text())
     every = np.concatenate([info["actions"][i].reshape(-1, 16) for i in valid_ids]).astype(np.float64)
     np.testing.assert_allclose(stats["observation.state"]["mean"], every.mean(0), atol=1e-5)
-    np.testing.assert_allclose(stats["observation.state"]["q50"], np.quantile(every, 0.5, axis=0), atol=1e-5)
+    np.testing.assert_allclose(stats["observation.state"]["std"], every.std(0), atol=1e-5)
     assert stats["index"]["count"] == [len(every)] and stats["index"]["max"] == [len(every) - 1]
+    # quantiles as LeRobot aggregates them: the count-weighted mean of the episodes' histogram quantiles
+    per_ep = [_reference_episode_quantiles(info["actions"][i].reshape(-1, 16)) for i in valid_ids]
+    w = np.array([len(info["actions"][i]) for i in valid_ids], float)
+    for k in ("q01", "q10", "q50", "q90", "q99"):
+        want = sum(wi * p[k] for wi, p in zip(w, per_ep)) / w.sum()
+        width = (every.max(0) - every.min(0)) / 5000  # one histogram bin of the widest episode at most
+        assert (np.abs(np.array(stats["observation.state"][k]) - want) <= width + 1e-7).all(), k
+
+    # the provenance in every data row, and the object keypoints as the environment state
+    assert meta["features"]["observation.environment_state"]["shape"] == [33]
+    assert meta["features"]["observation.environment_state"]["names"][:3] == ["bottle_base_x", "bottle_base_y",
+                                                                              "bottle_base_z"]
+    k_last = read_lerobot_episode(out, len(valid_ids) - 1)
+    assert set(k_last["demoforge.take"]) == {TAKE} and set(k_last["demoforge.episode_id"]) == {valid_ids[-1]}
+    assert set(k_last["demoforge.kind"]) == {info["kind"][valid_ids[-1]]}
+    env = k_last["observation.environment_state"].reshape(-1, 11, 3)
+    np.testing.assert_allclose(env[0], info["keypoints"][valid_ids[-1]], atol=1e-6)  # the scene at the start
+    assert "observation.environment_state" in stats and stats["observation.environment_state"]["count"] == [len(every)]
+
+
+def _reference_episode_quantiles(x: np.ndarray) -> dict:
+    """LeRobot's RunningQuantileStats quantiles of one episode, written out per dimension as in
+    lerobot/datasets/compute_stats.py (np.histogram, cumsum, searchsorted, linear in the bin)."""
+    out = {}
+    for q, key in zip((0.01, 0.10, 0.50, 0.90, 0.99), ("q01", "q10", "q50", "q90", "q99")):
+        vals = []
+        for d in range(x.shape[1]):
+            edges = np.linspace(x[:, d].min() - 1e-10, x[:, d].max() + 1e-10, 5001)
+            cs = np.cumsum(np.histogram(x[:, d], bins=edges)[0])
+            target = q * len(x)
+            i = int(np.searchsorted(cs, target))
+            if i == 0:
+                vals.append(edges[0])
+                continue
+            before, inside = cs[i - 1], cs[i] - cs[i - 1]
+            vals.append(edges[i] if inside == 0 else edges[i] + (target - before) / inside * (edges[i + 1] - edges[i]))
+        out[key] = np.array(vals)
+    return out
 
 
 def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode_wh, tmp_path):
@@ -387,3 +425,29 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
     assert (tmp_path / "other.hdf5").read_bytes() == b"not ours"
     r = runner.invoke(app, ["export", "--help"])
     assert r.exit_code == 0 and "lerobot" in r.output and "robomimic" in r.output
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
+    """The environment state's keypoints, rebuilt from an episode's gripper poses and its first
+    scene only, equal the task library's own per-frame object keypoints for every task's scripted
+    demonstration (plain and mirrored: the arms' roles swap)."""
+    from lib.exports.object_state import episode_object_keypoints
+    from lib.task_library import TASK_NAMES, get_task
+
+    demos, moved = [], 0
+    for name in TASK_NAMES:
+        spec = get_task(name)
+        d = spec.scripted_demo(0, mirror=mirror)
+        demos.append((spec, d.gripper_actions(), d.keypoints()))
+    poses = np.concatenate([a for _, a, _ in demos])
+    lengths = np.array([len(a) for _, a, _ in demos])
+    # all six in one call: concatenated episodes of different lengths (every task has 11 keypoints)
+    got = episode_object_keypoints(poses, lengths, np.stack([k[0] for _, _, k in demos]), demos[0][0].keypoint_object)
+    for (spec, a, kp), part in zip(demos, np.split(got, np.cumsum(lengths)[:-1])):
+        assert (spec.keypoint_object == demos[0][0].keypoint_object).all()
+        np.testing.assert_allclose(part, kp, atol=1e-9, err_msg=spec.name)
+        moved += np.abs(kp - kp[0]).max() > 0.1  # the manipulated object travels
+    assert moved == len(TASK_NAMES)
+    with pytest.raises(ExportError, match="object keypoints must be"):
+        episode_object_keypoints(poses, lengths, np.zeros((len(lengths), 10, 3)), demos[0][0].keypoint_object)
