@@ -451,3 +451,130 @@ def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
     assert moved == len(TASK_NAMES)
     with pytest.raises(ExportError, match="object keypoints must be"):
         episode_object_keypoints(poses, lengths, np.zeros((len(lengths), 10, 3)), demos[0][0].keypoint_object)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 4), st.integers(1, 300), st.integers(1, 5))
+def test_lerobot_stats_equal_lerobots_histogram_algorithm(seed, n_eps, length, dims):
+    """The vectorised statistics equal a per-dimension transcription of LeRobot's RunningQuantileStats
+    (to one histogram bin), and the aggregate is LeRobot's count-weighted one."""
+    from lib.exports.lerobot import aggregate_stats, lerobot_stats
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, rng.uniform(0.01, 5), (n_eps, length, dims)).astype(np.float32)
+    x[:, :, 0] = np.round(x[:, :, 0])  # ties and repeated values
+    s = lerobot_stats(x)
+    for e in range(n_eps):
+        np.testing.assert_allclose(s["mean"][e], x[e].mean(0), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(s["std"][e], x[e].std(0), rtol=1e-3, atol=1e-4)
+        if length < 2:
+            continue
+        ref = _reference_episode_quantiles(x[e].astype(np.float64))
+        width = (x[e].max(0) - x[e].min(0)) / 5000 + 1e-9
+        for k, v in ref.items():
+            assert (np.abs(s[k][e] - v) <= width * 1.01).all(), (k, s[k][e], v)
+    agg = aggregate_stats(s)
+    flat = x.reshape(-1, dims).astype(np.float64)
+    np.testing.assert_allclose(agg["mean"], flat.mean(0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(agg["std"], flat.std(0), rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(agg["q50"], s["q50"].astype(np.float64).mean(0), rtol=1e-6)  # equal counts: the plain mean
+    assert agg["count"].tolist() == [n_eps * length]
+
+
+def test_pinhole_camera_draws_points_where_k_projects_them():
+    """A MuJoCo scene camera set from K and T_world_camera draws small spheres at the pixels the
+    pinhole model predicts (off-centre principal point, different fx and fy)."""
+    import mujoco
+
+    from lib.robot_sim.render import pinhole_gl_camera
+
+    pts = np.array([[0.1, 0.2, 0.05], [-0.15, 0.35, 0.0], [0.05, 0.05, 0.1]])
+    colors = ["1 0 0 1", "0 1 0 1", "0 0 1 1"]
+    geoms = "".join(f'<geom type="sphere" size="0.008" pos="{" ".join(map(str, p))}" rgba="{c}"/>'
+                    for p, c in zip(pts, colors))
+    m = mujoco.MjModel.from_xml_string(f'<mujoco><worldbody><light pos="0 0 3"/>{geoms}</worldbody></mujoco>')
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    W, H = 320, 200
+    K = np.array([[250.0, 0, 140], [0, 270, 115], [0, 0, 1]])
+    T = _look_at(np.array([0.05, -0.6, 0.7]), np.array([0.0, 0.3, 0.0]))
+    with mujoco.Renderer(m, H, W) as r:
+        r.update_scene(d)
+        for c in r.scene.camera:
+            pinhole_gl_camera(c, K, T, W, H)
+        img = r.render().astype(int)
+    for ch, p in enumerate(pts):
+        pc_ = (p - T[:3, 3]) @ T[:3, :3]
+        uv = pc_[:2] / pc_[2] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        others = [c for c in range(3) if c != ch]
+        v, u = np.nonzero((img[..., ch] > 100) & (img[..., others[0]] < 60) & (img[..., others[1]] < 60))
+        assert len(u) >= 4
+        np.testing.assert_allclose([u.mean() + 0.5, v.mean() + 0.5], uv, atol=1.0)
+
+
+def _register_take_camera(wh: Path, takes_dir: Path) -> dict:
+    """A take folder with the synthetic head camera's camera.json, registered in the `takes` table."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("check_exports_sample",
+                                                  Path(__file__).resolve().parents[1] / "scripts/check_exports_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    from schemas.core import write_table
+
+    from lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
+
+    take = takes_dir / TAKE
+    take.mkdir(parents=True, exist_ok=True)
+    cam = {"K": camera_K().tolist(), "width": WIDTH, "height": HEIGHT, "T_world_camera": camera_T_world_camera().tolist()}
+    (take / "camera.json").write_text(json.dumps(cam))
+    write_table("takes", mod.takes_row(take), wh)
+    return cam
+
+
+def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_path):
+    """--with-images: each episode executed in MuJoCo and drawn from the take's camera (K scaled to
+    the chosen size) is in the mp4 at the episode's from/to timestamps, frame for frame, and the
+    image statistics are LeRobot's per-channel ones."""
+    import cv2
+
+    from flows.export import export_lerobot, load_episodes
+    from lib.robot_sim.render import episode_frames
+
+    wh, info = episode_wh
+    out = tmp_path / "lr_img"
+    with pytest.raises(ExportError, match="demoforge ingest"):
+        export_lerobot(str(wh), TASK, str(out), limit=2, with_images=True, image_size=(48, 36))
+    cam = _register_take_camera(wh, tmp_path / "takes")
+    s = export_lerobot(str(wh), TASK, str(out), limit=2, with_images=True, image_size=(48, 36))
+    assert s["videos"] == ["observation.images.camera"] and s["episodes"] == 2
+    meta = json.loads((out / "meta/info.json").read_text())
+    ft = meta["features"]["observation.images.camera"]
+    assert ft["dtype"] == "video" and ft["shape"] == [36, 48, 3] and ft["info"]["video.codec"] == "mpeg4"
+    assert meta["video_path"] == "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+    import pyarrow.parquet as pq
+
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    frm = eps["videos/observation.images.camera/from_timestamp"]
+    assert frm[0] == 0 and abs(frm[1] - eps["length"][0] / 30) < 1e-9
+
+    cap = cv2.VideoCapture(str(out / "videos/observation.images.camera/chunk-000/file-000.mp4"))
+    decoded = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        decoded.append(cv2.cvtColor(f, cv2.COLOR_BGR2RGB))
+    assert len(decoded) == s["frames"]
+    sel = load_episodes(str(wh), TASK, limit=2)
+    K = np.diag([48 / cam["width"], 36 / cam["height"], 1.0]) @ np.array(cam["K"])
+    L0 = int(sel.lengths[0])
+    second = list(episode_frames(TASK, sel.keypoints[1], sel.poses[L0:L0 + int(sel.lengths[1])].astype(float), K,
+                                 np.array(cam["T_world_camera"]), 48, 36))
+    got = np.stack(decoded[L0:]).astype(float)
+    psnr = 10 * np.log10(255 ** 2 / np.mean((got - np.stack(second)) ** 2))
+    assert psnr > 25, psnr  # the second episode's frames, through a lossy codec
+    assert np.abs(got[-1] - got[0]).mean() > 1  # the grippers moved between its first and last frame
+    stats = json.loads((out / "meta/stats.json").read_text())["observation.images.camera"]
+    assert np.shape(stats["mean"]) == (3, 1, 1) and stats["count"] == [2 * 100]  # LeRobot samples 100 a episode
+    np.testing.assert_allclose(np.ravel(stats["mean"]), np.stack(decoded).mean((0, 1, 2)) / 255, atol=0.03)
