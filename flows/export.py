@@ -269,8 +269,10 @@ def _refuse_foreign(out: Path, marker: str | None) -> None:
     raise ExportError(f"{out} exists and is not a demoforge export of this kind; choose another --out")
 
 
-def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None) -> None:
-    """The checks that need no Prefect run: known task, episodes present, --out not someone else's."""
+def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None,
+                     with_images: bool = False) -> None:
+    """The checks that need no Prefect run: known task, episodes present, --out not someone else's,
+    and with images every source take's camera."""
     from lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
@@ -278,7 +280,10 @@ def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | 
     if fmt == "robomimic" and Path(out).suffix not in (".hdf5", ".h5"):
         raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
     _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
-    episode_files(warehouse, task, take)
+    files = episode_files(warehouse, task, take)
+    if with_images:
+        take_cameras(warehouse, [take] if take else sorted({f.parent.name.split("=", 1)[1] for f in files
+                                                            if f.parent.name.startswith("take=")}))
 
 
 def preflight_view(warehouse: str, target: str, take: str | None = None) -> dict:

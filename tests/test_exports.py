@@ -418,7 +418,15 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
                       (["view", "no_such_take", "--rrd", str(tmp_path / "v.rrd")], "neither a take folder"),
                       (["view", "pouring/0", "--rrd", str(tmp_path / "old.rrd")], "--overwrite"),
                       (["view", str(tmp_path), "--rrd", str(tmp_path / "v.rrd")], "demoforge ingest"),
-                      (["view", "pouring/0", "--rrd", str(tmp_path / "v.txt")], ".rrd")):
+                      (["view", "pouring/0", "--rrd", str(tmp_path / "v.txt")], ".rrd"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images"],
+                       "demoforge ingest"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "r.hdf5"), "--with-images"],
+                       "lerobot` only"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images",
+                        "--image-size", "33x20"], "--image-size"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--image-size", "64x48"],
+                       "needs --with-images")):
         r = runner.invoke(app, args)
         assert r.exit_code == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.output)
     assert (foreign / "notes.txt").read_text() == "keep me" and not (tmp_path / "j").exists()
@@ -541,7 +549,10 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
     from flows.export import export_lerobot, load_episodes
     from lib.robot_sim.render import episode_frames
 
-    wh, info = episode_wh
+    import shutil
+
+    wh = tmp_path / "warehouse"  # a copy: the takes table written below stays out of the shared one
+    shutil.copytree(episode_wh[0], wh)
     out = tmp_path / "lr_img"
     with pytest.raises(ExportError, match="demoforge ingest"):
         export_lerobot(str(wh), TASK, str(out), limit=2, with_images=True, image_size=(48, 36))
