@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # `make check-exports`: demoforge's exports checked with the real libraries, each in its own venv.
-#   .venv-lerobot    Python 3.12 + lerobot[dataset,training] (pulls torch 2.11 with CUDA wheels, several GB)
+#   .venv-lerobot    Python 3.12 + lerobot[dataset,training,diffusion] (pulls torch 2.11 with CUDA wheels, several GB)
 #   .venv-robomimic  Python 3.11 + robomimic 0.3.0 + six (robomimic imports six without declaring it)
 # A small sample (the pouring demo, 12 augmented episodes) is exported with the project's .venv, then
 # loaded offline and trained for a few steps on CPU. Prints a pass/fail table; exit 1 if a check failed.
@@ -24,11 +24,11 @@ step() {  # step NAME CMD...: run CMD, log to $WORK/NAME.log, record pass/fail
     printf '{"check": "%s", "ok": %s, "detail": "%ss, log %s"}\n' "$name" "$ok" $((SECONDS - t0)) "$log" >> "$RESULTS"
 }
 
-if [ ! -x .venv-lerobot/bin/lerobot-train ]; then
+if [ ! -x .venv-lerobot/bin/lerobot-train ] || ! .venv-lerobot/bin/python -c "import diffusers" 2>/dev/null; then
     [ -n "$PY312" ] || { echo "check-exports: needs Python 3.12 (set PY312=/path/to/python3.12)" >&2; exit 2; }
     echo "creating .venv-lerobot (several GB of wheels) ..."
     "$PY312" -m venv .venv-lerobot && .venv-lerobot/bin/pip install -q --upgrade pip \
-        && .venv-lerobot/bin/pip install -q 'lerobot[dataset,training]' || exit 2
+        && .venv-lerobot/bin/pip install -q 'lerobot[dataset,training,diffusion]' || exit 2
 fi
 if [ ! -x .venv-robomimic/bin/python ] || ! .venv-robomimic/bin/python -c "import robomimic, six" 2>/dev/null; then
     [ -n "$PY311" ] || { echo "check-exports: needs Python 3.11 (set PY311=/path/to/python3.11)" >&2; exit 2; }
@@ -48,7 +48,8 @@ step "demoforge export robomimic --valid-fraction 0.25" \
     $DF export robomimic --task pouring --out "$WORK/pouring.hdf5" --valid-fraction 0.25
 
 .venv-lerobot/bin/python scripts/check_exports_lerobot.py "$WORK/lerobot" "$WORK/lerobot_images" "$WORK/lr" \
-    >> "$RESULTS" 2> "$WORK/lerobot_checks.log"
+    > "$WORK/lerobot_checks.log" 2>&1
+grep '^CHECK ' "$WORK/lerobot_checks.log" | cut -c7- >> "$RESULTS"
 TRAIN=(.venv-lerobot/bin/lerobot-train --dataset.repo_id=demoforge/pouring --dataset.video_backend=pyav
        --policy.device=cpu --policy.push_to_hub=false --steps=2 --batch_size=2 --num_workers=0 --log_freq=1
        --save_checkpoint=false --wandb.enable=false)
@@ -59,11 +60,12 @@ step "lerobot-train Diffusion Policy, 2 steps (state + environment_state)" "${TR
 step "lerobot-train ACT, 2 steps (camera images)" "${TRAIN[@]}" --dataset.root="$WORK/lerobot_images" \
     --policy.type=act --policy.pretrained_backbone_weights=null --output_dir="$WORK/train_act_images"
 .venv-robomimic/bin/python scripts/check_exports_robomimic.py "$WORK/pouring.hdf5" "$WORK/rm" \
-    >> "$RESULTS" 2> "$WORK/robomimic_checks.log"
+    > "$WORK/robomimic_checks.log" 2>&1
+grep '^CHECK ' "$WORK/robomimic_checks.log" | cut -c7- >> "$RESULTS"
 
 .venv/bin/python - "$RESULTS" <<'PY'
 import json, sys
-rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip().startswith("{")]
+rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
 w = max(len(r["check"]) for r in rows)
 print(f"\n| {'check':<{w}} | result | detail |\n|{'-' * (w + 2)}|--------|--------|")
 for r in rows:

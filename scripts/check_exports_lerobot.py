@@ -2,7 +2,7 @@
 
     .venv-lerobot/bin/python scripts/check_exports_lerobot.py EXPORT [IMAGE_EXPORT] WORKDIR
 
-Prints one JSON line per check: {"check", "ok", "detail"}.
+Prints one line per check: CHECK {"check", "ok", "detail"} (JSON).
 """
 
 import json
@@ -16,10 +16,10 @@ import numpy as np
 def report(name, fn):
     try:
         detail = fn()
-        print(json.dumps({"check": name, "ok": True, "detail": detail}), flush=True)
+        print("CHECK " + json.dumps({"check": name, "ok": True, "detail": detail}), flush=True)
     except Exception as e:  # a check that fails reports why and the others still run
         traceback.print_exc(file=sys.stderr)
-        print(json.dumps({"check": name, "ok": False, "detail": f"{type(e).__name__}: {e}"[:300]}), flush=True)
+        print("CHECK " + json.dumps({"check": name, "ok": False, "detail": f"{type(e).__name__}: {e}"[:300]}), flush=True)
 
 
 def load(root):

@@ -2,7 +2,7 @@
 
     .venv-robomimic/bin/python scripts/check_exports_robomimic.py EXPORT.hdf5 WORKDIR
 
-Prints one JSON line per check: {"check", "ok", "detail"}.
+Prints one line per check: CHECK {"check", "ok", "detail"} (JSON).
 """
 
 import json
@@ -15,10 +15,10 @@ LOW_DIM = ["robot0_eef_pos", "robot0_eef_quat", "robot0_gripper", "robot1_eef_po
 
 def report(name, fn):
     try:
-        print(json.dumps({"check": name, "ok": True, "detail": fn()}), flush=True)
+        print("CHECK " + json.dumps({"check": name, "ok": True, "detail": fn()}), flush=True)
     except Exception as e:
         traceback.print_exc(file=sys.stderr)
-        print(json.dumps({"check": name, "ok": False, "detail": f"{type(e).__name__}: {e}"[:300]}), flush=True)
+        print("CHECK " + json.dumps({"check": name, "ok": False, "detail": f"{type(e).__name__}: {e}"[:300]}), flush=True)
 
 
 def config(path, work):
