@@ -226,10 +226,13 @@ def export_robomimic(warehouse: str, task: str, out: str, take: str | None = Non
     from lib.exports.robomimic import write_robomimic_hdf5
     from lib.task_library import get_task
 
+    from lib.exports.object_state import episode_object_keypoints
+
     sel = load_episodes(warehouse, task, take, include_invalid, limit)
     spec = get_task(task)
     summary = write_robomimic_hdf5(
         out, sel.poses, sel.lengths, keypoints=sel.keypoints, provenance=sel.provenance,
+        object_state=episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, spec.keypoint_object),
         env_name=f"demoforge/{task}",
         env_kwargs={"task": task, "instruction": task_instruction(task), "objects": list(spec.object_names),
                     "keypoint_names": list(spec.keypoint_names), "control_freq": 30},

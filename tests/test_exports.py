@@ -315,6 +315,10 @@ def test_robomimic_export_layout_and_provenance(episode_wh, tmp_path):
         np.testing.assert_allclose(d["next_obs"]["robot1_eef_pos"][:-1], src[1:, 1, :3], atol=1e-6)
         np.testing.assert_allclose(d["obs"]["object"][0], info["keypoints"][d["attrs"]["src_episode_id"]].reshape(-1),
                                    atol=1e-6)
+        # the keypoints follow the carried objects: the bottle (manipulated) is lifted off its start
+        # (and put back), the next observation is the next step's
+        assert np.abs(d["obs"]["object"] - d["obs"]["object"][0]).max() > 0.05
+        np.testing.assert_allclose(d["next_obs"]["object"][:-1], d["obs"]["object"][1:])
         assert d["dones"].sum() == 1 and d["dones"][-1] == 1
 
 
