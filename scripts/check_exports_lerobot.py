@@ -90,11 +90,28 @@ def check_split(root, work):
     return f"after split_dataset the val split's rows still name take {sorted(takes)} and episode ids {ids}"
 
 
+def check_delete(root, work):
+    from lerobot.datasets.dataset_tools import delete_episodes
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset("demoforge/pouring", root=root, video_backend="pyav")
+    src = [int(x) for x in ds.hf_dataset["demoforge.episode_id"]]
+    src_ep = [int(x) for x in ds.hf_dataset["episode_index"]]
+    kept = sorted({e: i for e, i in zip(src_ep, src) if e != 0}.values())
+    out = delete_episodes(ds, episode_indices=[0], output_dir=Path(work) / "deleted",
+                          repo_id="demoforge/pouring_deleted")
+    ids = sorted(set(int(x) for x in out.hf_dataset["demoforge.episode_id"]))
+    assert ids == kept, (ids, kept)
+    return (f"after delete_episodes([0]) the rows still name episode ids {ids} "
+            f"(meta/demoforge.json kept: {(Path(work) / 'deleted' / 'meta/demoforge.json').exists()})")
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     root, work = args[0], args[-1]
     report("lerobot: LeRobotDataset loads the export offline", lambda: check_load(root))
     report("lerobot: stats.json equals LeRobot's compute_episode_stats + aggregate_stats", lambda: check_stats(root))
     report("lerobot: provenance survives split_dataset", lambda: check_split(root, work))
+    report("lerobot: provenance survives delete_episodes", lambda: check_delete(root, work))
     if len(args) == 3:
         report("lerobot: video frames decode (observation.images.camera)", lambda: check_images(args[1]))
