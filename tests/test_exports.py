@@ -593,3 +593,29 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
     stats = json.loads((out / "meta/stats.json").read_text())["observation.images.camera"]
     assert np.shape(stats["mean"]) == (3, 1, 1) and stats["count"] == [2 * 100]  # LeRobot samples 100 a episode
     np.testing.assert_allclose(np.ravel(stats["mean"]), np.stack(decoded).mean((0, 1, 2)) / 255, atol=0.03)
+
+
+def test_carried_keypoints_vectorised_equal_the_per_episode_segmentation_rule(episode_wh):
+    """Over a real augmented database (translated and mirrored episodes, one call), the vectorised
+    carry equals lib.segmentation's per-episode functions (infer_object_arm + object_keypoints_over_time)."""
+    from flows.export import load_episodes
+    from lib.exports.object_state import episode_object_keypoints, object_arms
+    from lib.segmentation import infer_object_arm, object_keypoints_over_time
+    from lib.task_library import get_task
+
+    wh, _ = episode_wh
+    sel = load_episodes(str(wh), TASK, include_invalid=True)
+    ko = get_task(TASK).keypoint_object
+    got = episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, ko)
+    arms = object_arms(sel.poses.astype(float), sel.lengths, sel.keypoints, ko)
+    start = 0
+    for i, L in enumerate(sel.lengths.tolist()):
+        traj = sel.poses[start:start + L].astype(float)
+        arm_of = infer_object_arm(traj, sel.keypoints[i], ko)
+        assert arms[i].tolist() == arm_of.tolist()
+        held = np.stack([np.where(traj[:, a, 7] < 0.5, np.flatnonzero(arm_of == a)[0], -1) for a in (0, 1)], axis=1)
+        want = object_keypoints_over_time(traj, sel.keypoints[i], ko, held)
+        np.testing.assert_allclose(got[start:start + L], want, atol=1e-9)
+        start += L
+    mirrored = sel.kind == "mirrored"
+    assert mirrored.any() and (arms[mirrored] == 1 - arms[~mirrored][0]).all()  # the roles swap
