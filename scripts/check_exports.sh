@@ -21,7 +21,13 @@ step() {  # step NAME CMD...: run CMD, log to $WORK/NAME.log, record pass/fail
     local name=$1; shift
     local t0=$SECONDS log="$WORK/$(echo "$name" | tr -c 'A-Za-z0-9\n' '_' | cut -c1-80).log"
     if "$@" > "$log" 2>&1; then ok=true; else ok=false; fi
-    printf '{"check": "%s", "ok": %s, "detail": "%ss, log %s"}\n' "$name" "$ok" $((SECONDS - t0)) "$log" >> "$RESULTS"
+    # lerobot-train: the loss at the last step and the model size (an image backbone adds ~11M)
+    local extra
+    extra=$(grep -o 'step:2 .* loss:[0-9.]*' "$log" | grep -o 'loss:[0-9.]*' | head -1)
+    extra="$extra $(grep -o 'num_learnable_params=[0-9]* ([0-9]*M)' "$log" | head -1)"
+    extra=$(echo $extra)  # trimmed
+    printf '{"check": "%s", "ok": %s, "detail": "%ss%s, log %s"}\n' "$name" "$ok" $((SECONDS - t0)) \
+        "${extra:+, $extra}" "$log" >> "$RESULTS"
 }
 
 if [ ! -x .venv-lerobot/bin/lerobot-train ] || ! .venv-lerobot/bin/python -c "import diffusers" 2>/dev/null; then
