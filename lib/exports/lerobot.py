@@ -141,13 +141,19 @@ def lerobot_stats(x: np.ndarray) -> dict[str, np.ndarray]:
     out["std"] = np.sqrt(np.maximum(0, (x * x).mean(axis=1) - mean * mean))
     lo = out["min"].astype(np.float64) - 1e-10
     width = (out["max"].astype(np.float64) + 1e-10 - lo) / HISTOGRAM_BINS
-    xs = np.sort(x, axis=1)
-    b = np.clip(np.floor((xs - lo[:, None]) / width[:, None]), 0, HISTOGRAM_BINS - 1).astype(np.int32)
+    xs = np.sort(np.moveaxis(x, 1, 2), axis=2)                              # (E, D, L) sorted
+    b = np.clip(np.floor((xs - lo[..., None]) / width[..., None]), 0, HISTOGRAM_BINS - 1).astype(np.int64)
+    # every (episode, dimension) row's bins are sorted: offset row r by r * BINS and the whole array
+    # is sorted, so a bin's first and last position in its row are two searchsorted calls
+    row = np.arange(E * D, dtype=np.int64).reshape(E, D) * HISTOGRAM_BINS
+    keys = (b + row[..., None]).reshape(-1)
     for q, key in zip(QUANTILES, QUANTILE_KEYS):
         target = q * L
-        idx = b[:, max(int(np.ceil(target)), 1) - 1]                      # (E, D): bin of the rank
-        before = (b < idx[:, None]).sum(axis=1)
-        inside = (b == idx[:, None]).sum(axis=1)
+        idx = b[:, :, max(int(np.ceil(target)), 1) - 1]                   # (E, D): bin of the rank
+        first = np.searchsorted(keys, (row + idx).reshape(-1), "left").reshape(E, D)
+        end = np.searchsorted(keys, (row + idx).reshape(-1), "right").reshape(E, D)
+        base = np.arange(E * D, dtype=np.int64).reshape(E, D) * L
+        before, inside = first - base, end - first
         val = lo + (idx + (target - before) / inside) * width
         out[key] = np.where(idx == 0, lo, val)
     return out
