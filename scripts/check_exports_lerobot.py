@@ -71,7 +71,7 @@ def check_stats(root):
             worst[s] = max(worst.get(s, 0.0), float(d.max()))
     bad = {s: v for s, v in worst.items() if v > 1e-3}
     assert not bad, f"differences / range above 1e-3: {bad}"
-    return "largest |ours - lerobot| / range: " + ", ".join(f"{s} {v:.1e}" for s, v in worst.items())
+    return "largest abs(ours - lerobot) / range: " + ", ".join(f"{s} {v:.1e}" for s, v in worst.items())
 
 
 def check_split(root, work):
