@@ -6,7 +6,7 @@ STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
 
-.PHONY: setup test evaluate bench catalog help
+.PHONY: setup test evaluate bench catalog help check-exports
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -29,3 +29,6 @@ bench: setup  ## run the benchmarks, write warehouse/benchmarks and print a tabl
 
 catalog: setup  ## rebuild warehouse/catalog.duckdb (views over the Parquet tables)
 	$(VENV)/bin/demoforge catalog
+
+check-exports: setup  ## optional: load and train on sample exports with the real lerobot and robomimic (own venvs, GBs)
+	bash scripts/check_exports.sh

@@ -35,6 +35,13 @@ def export_cmd(
     limit: Optional[int] = typer.Option(None, "--limit", "-n", min=1,
                                         help="Export only the first N episodes (by take, then episode id; "
                                              "episode 0 is the demonstration)."),
+    with_images: bool = typer.Option(
+        False, "--with-images",
+        help="lerobot only: also render every episode in MuJoCo (the grippers executing it, seen from its "
+             "take's camera) and write it as the video feature observation.images.camera (mpeg4 mp4). Slow: "
+             "a physics run and one rendered frame per step (see the README for the cost)."),
+    image_size: Optional[str] = typer.Option(None, help="lerobot --with-images: WIDTHxHEIGHT of the images "
+                                                        "(default: the take camera's resolution), e.g. 320x240."),
     valid_fraction: float = typer.Option(0.1, help="robomimic only: share of demos in the mask/valid split."),
     seed: int = typer.Option(0, help="robomimic only: seed of the train/valid split."),
 ) -> None:
@@ -42,20 +49,32 @@ def export_cmd(
 
     Each frame holds both grippers' current poses (observation) and the poses one step later
     (action): 16 float values, left arm first, each (x, y, z, qx, qy, qz, qw, g) in the world
-    (table) frame, metres, g = 1 open / 0 closed, 30 steps per second. Every exported episode
-    records its source take and episode id.
+    (table) frame, metres, g = 1 open / 0 closed, 30 steps per second, and the 11 object
+    keypoints of the step (33 values: LeRobot's observation.environment_state, robomimic's
+    obs/object). Every exported frame records its source take, episode id and kind.
     """
     from flows.export import export_lerobot_flow, export_robomimic_flow, preflight_export
     from lib.exports import ExportError
 
     if not 0 <= valid_fraction < 1:
         raise fail(f"--valid-fraction must be in [0, 1), got {valid_fraction}")
+    if (with_images or image_size) and fmt is not ExportFormat.lerobot:
+        raise fail("--with-images and --image-size are for `export lerobot` only")
+    size = None
+    if image_size is not None:
+        try:
+            size = tuple(int(v) for v in image_size.lower().split("x"))
+            assert len(size) == 2 and min(size) >= 16 and size[0] % 2 == 0 and size[1] % 2 == 0
+        except (ValueError, AssertionError):
+            raise fail(f"--image-size must be WIDTHxHEIGHT, both even and at least 16, e.g. 320x240; got {image_size!r}")
+        if not with_images:
+            raise fail("--image-size needs --with-images")
     wh = str(current_warehouse())
     try:
-        preflight_export(wh, task, str(out), fmt.value, take)  # user errors before a Prefect run starts
+        preflight_export(wh, task, str(out), fmt.value, take, with_images)  # user errors before a Prefect run starts
         if fmt is ExportFormat.lerobot:
             m = export_lerobot_flow(wh, task=task, out=str(out), take=take, include_invalid=include_invalid,
-                                    limit=limit)
+                                    limit=limit, with_images=with_images, image_size=size)
         else:
             m = export_robomimic_flow(wh, task=task, out=str(out), take=take, include_invalid=include_invalid,
                                       limit=limit, valid_fraction=valid_fraction, seed=seed)

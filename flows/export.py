@@ -7,6 +7,7 @@ changed returns the manifest of the existing export, and a deleted or edited exp
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import lib  # noqa: F401
 from lib.exports import ExportError, task_instruction
 from tasks.common import Manifest, run_stage, stage_task
 
-EXPORT_VERSION = "1"
+EXPORT_VERSION = "2"  # 2: environment state, per-row provenance, LeRobot-style stats, images
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -140,20 +141,83 @@ def _export_manifest(kind: str, out: Path, rows: int) -> Manifest:
 
 
 def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
-                   limit: int | None = None, overwrite: bool = False) -> dict:
-    """Write the export (no Prefect): returns the validator's summary plus the output path."""
-    from lib.exports.lerobot import validate_lerobot_dataset, write_lerobot_dataset
+                   limit: int | None = None, overwrite: bool = False, with_images: bool = False,
+                   image_size: tuple[int, int] | None = None, progress: bool = False) -> dict:
+    """Write the export (no Prefect): returns the validator's summary plus the output path.
+
+    with_images: render every episode in MuJoCo (lib/robot_sim/render.py) from its take's camera, at
+    the camera's resolution or ``image_size`` (width, height), as ``observation.images.<camera>``.
+    """
+    from lib.exports.lerobot import keypoint_feature_names, validate_lerobot_dataset, write_lerobot_dataset
+    from lib.exports.object_state import episode_object_keypoints
+    from lib.task_library import get_task
 
     sel = load_episodes(warehouse, task, take, include_invalid, limit)
+    spec = get_task(task)
+    env = episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, spec.keypoint_object)
+    videos = [episode_video_source(warehouse, sel, image_size)] if with_images else None
     write_lerobot_dataset(
         out, sel.poses, sel.lengths, tasks=[task_instruction(task)],
         provenance={"take": sel.take, "episode_id": sel.episode_id, "kind": sel.kind, "valid": sel.valid},
+        environment_state=env.reshape(len(env), -1), environment_names=keypoint_feature_names(spec.keypoint_names),
+        videos=videos, progress=progress,
         source={"generator": "demoforge", "task": task, "takes": sorted(set(sel.take.tolist())),
-                "include_invalid": include_invalid, "limit": limit,
+                "include_invalid": include_invalid, "limit": limit, "with_images": with_images,
                 "pose": "[x, y, z, qx, qy, qz, qw, g] per arm, world (table) frame, m; g 1 = open",
-                "episode_index_to_source": "meta/episodes columns demoforge/take, demoforge/episode_id"},
+                "environment_state": "the 11 object keypoints per step, world m, carried rigidly by the gripper "
+                                     "of the arm that handles the object while it is closed "
+                                     "(lib/exports/object_state.py)",
+                "episode_index_to_source": "data columns demoforge.take, demoforge.episode_id, demoforge.kind; "
+                                           "meta/episodes columns demoforge/take, demoforge/episode_id"},
         overwrite=overwrite)
     return {**validate_lerobot_dataset(out), "path": str(out)}
+
+
+def take_cameras(warehouse: str, takes: list[str]) -> dict:
+    """{take: CameraInfo} from each take's camera.json (folder from the warehouse's `takes` table)."""
+    from lib.ingest.take_reader import TakeError, parse_camera
+    from schemas.core import read_table, table_files
+
+    rows = {r["take"]: r["path"] for r in read_table("takes", warehouse, columns=["take", "path"]).to_pylist()} \
+        if table_files("takes", warehouse) else {}
+    out = {}
+    for tk in takes:
+        cam = Path(rows.get(tk, "")) / "camera.json"
+        if tk not in rows or not cam.is_file():
+            raise ExportError(f"--with-images needs take {tk}'s camera: {'its folder ' + rows[tk] if tk in rows else 'the take'}"
+                              f" is not {'there' if tk in rows else 'registered in ' + warehouse}; run "
+                              "`demoforge ingest TAKE_FOLDER` (or export without --with-images)")
+        try:
+            out[tk] = parse_camera(json.loads(cam.read_text()), cam)
+        except (TakeError, ValueError) as e:
+            raise ExportError(f"--with-images: {e}")
+    return out
+
+
+def episode_video_source(warehouse: str, sel: EpisodeSelection, image_size: tuple[int, int] | None = None):
+    """The `camera` video of an export: each episode executed by the grippers in MuJoCo and drawn
+    from its take's camera (K scaled to ``image_size`` (width, height) when given; default the
+    first take's resolution)."""
+    from lib.exports.lerobot import VideoSource
+    from lib.robot_sim.render import episode_frames
+
+    cams = take_cameras(warehouse, list(dict.fromkeys(sel.take.tolist())))
+    first = next(iter(cams.values()))
+    width, height = image_size or (first.width, first.height)
+    if width < 16 or height < 16 or width % 2 or height % 2:
+        raise ExportError(f"--image-size must be even and at least 16 x 16 (mpeg4 video), got {width}x{height}")
+    starts = np.concatenate([[0], np.cumsum(sel.lengths)[:-1]])
+
+    def frames(i: int):
+        cam = cams[sel.take[i]]
+        K = np.diag([width / cam.width, height / cam.height, 1.0]) @ cam.K
+        acts = sel.poses[starts[i]:starts[i] + sel.lengths[i]].astype(np.float64)
+        try:
+            yield from episode_frames(sel.task, sel.keypoints[i], acts, K, cam.T_world_camera, width, height)
+        except ValueError as e:
+            raise ExportError(f"episode {sel.episode_id[i]} of take {sel.take[i]}: {e}")
+
+    return VideoSource("camera", width, height, frames)
 
 
 def export_robomimic(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
@@ -162,10 +226,13 @@ def export_robomimic(warehouse: str, task: str, out: str, take: str | None = Non
     from lib.exports.robomimic import write_robomimic_hdf5
     from lib.task_library import get_task
 
+    from lib.exports.object_state import episode_object_keypoints
+
     sel = load_episodes(warehouse, task, take, include_invalid, limit)
     spec = get_task(task)
     summary = write_robomimic_hdf5(
         out, sel.poses, sel.lengths, keypoints=sel.keypoints, provenance=sel.provenance,
+        object_state=episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, spec.keypoint_object),
         env_name=f"demoforge/{task}",
         env_kwargs={"task": task, "instruction": task_instruction(task), "objects": list(spec.object_names),
                     "keypoint_names": list(spec.keypoint_names), "control_freq": 30},
@@ -175,9 +242,11 @@ def export_robomimic(warehouse: str, task: str, out: str, take: str | None = Non
 
 @stage_task(name="export_lerobot", version=EXPORT_VERSION)
 def export_lerobot_stage(sources: list[Path], warehouse: str, task: str, out: str, take: str | None,
-                         include_invalid: bool, limit: int | None) -> Manifest:
+                         include_invalid: bool, limit: int | None, with_images: bool = False,
+                         image_size: tuple[int, int] | None = None) -> Manifest:
     """Cached on the content of `sources` (the task's episode tables) and the options."""
-    summary = export_lerobot(warehouse, task, out, take, include_invalid, limit, overwrite=True)
+    summary = export_lerobot(warehouse, task, out, take, include_invalid, limit, overwrite=True,
+                             with_images=with_images, image_size=image_size, progress=with_images)
     return _export_manifest("export_lerobot", Path(out), summary["frames"])
 
 
@@ -203,8 +272,10 @@ def _refuse_foreign(out: Path, marker: str | None) -> None:
     raise ExportError(f"{out} exists and is not a demoforge export of this kind; choose another --out")
 
 
-def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None) -> None:
-    """The checks that need no Prefect run: known task, episodes present, --out not someone else's."""
+def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None,
+                     with_images: bool = False) -> None:
+    """The checks that need no Prefect run: known task, episodes present, --out not someone else's,
+    and with images every source take's camera."""
     from lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
@@ -212,7 +283,10 @@ def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | 
     if fmt == "robomimic" and Path(out).suffix not in (".hdf5", ".h5"):
         raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
     _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
-    episode_files(warehouse, task, take)
+    files = episode_files(warehouse, task, take)
+    if with_images:
+        take_cameras(warehouse, [take] if take else sorted({f.parent.name.split("=", 1)[1] for f in files
+                                                            if f.parent.name.startswith("take=")}))
 
 
 def preflight_view(warehouse: str, target: str, take: str | None = None) -> dict:
@@ -234,13 +308,14 @@ def preflight_view(warehouse: str, target: str, take: str | None = None) -> dict
 
 @flow(name="export-lerobot")
 def export_lerobot_flow(warehouse: str, task: str, out: str, take: str | None = None,
-                        include_invalid: bool = False, limit: int | None = None) -> Manifest:
+                        include_invalid: bool = False, limit: int | None = None, with_images: bool = False,
+                        image_size: tuple[int, int] | None = None) -> Manifest:
     """A task's episodes as a LeRobotDataset v3.0 folder at ``out`` (replaces an earlier export there)."""
     out_p = Path(out).resolve()
     _refuse_foreign(out_p, "meta/info.json")
     return run_stage(export_lerobot_stage, warehouse, sources=episode_files(warehouse, task, take),
                      warehouse=warehouse, task=task, out=str(out_p), take=take, include_invalid=include_invalid,
-                     limit=limit)
+                     limit=limit, with_images=with_images, image_size=image_size)
 
 
 @flow(name="export-robomimic")

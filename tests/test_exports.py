@@ -162,11 +162,11 @@ def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_pat
             order = np.argsort(rb.column("frame_index").to_numpy())
             got[chunk.entity_path] = np.array(rb.column("Scalars:scalars").to_pylist(), float)[order]
         if "TextDocument:text" in rb.schema.names:
-            got["task"] = rb.column("TextDocument:text").to_pylist()
+            got.setdefault(chunk.entity_path, []).extend(rb.column("TextDocument:text").to_pylist())
     np.testing.assert_allclose(got["/observation.state"], src.reshape(len(src), 16), atol=1e-6)
     np.testing.assert_allclose(got["/action"][:-1], src[1:].reshape(-1, 16), atol=1e-6)
     np.testing.assert_allclose(got["/action"][-1], src[-1].reshape(16), atol=1e-6)  # the last step holds
-    assert set(np.ravel(got["task"])) == {"Pour from the bottle into the cup."}
+    assert set(np.ravel(got["/task"])) == {"Pour from the bottle into the cup."}
 
     # our own reader and the global statistics agree with the source actions
     back = read_lerobot_episode(out, 0)
@@ -175,8 +175,46 @@ def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_pat
     stats = json.loads((out / "meta/stats.json").read_text())
     every = np.concatenate([info["actions"][i].reshape(-1, 16) for i in valid_ids]).astype(np.float64)
     np.testing.assert_allclose(stats["observation.state"]["mean"], every.mean(0), atol=1e-5)
-    np.testing.assert_allclose(stats["observation.state"]["q50"], np.quantile(every, 0.5, axis=0), atol=1e-5)
+    np.testing.assert_allclose(stats["observation.state"]["std"], every.std(0), atol=1e-5)
     assert stats["index"]["count"] == [len(every)] and stats["index"]["max"] == [len(every) - 1]
+    # quantiles as LeRobot aggregates them: the count-weighted mean of the episodes' histogram quantiles
+    per_ep = [_reference_episode_quantiles(info["actions"][i].reshape(-1, 16)) for i in valid_ids]
+    w = np.array([len(info["actions"][i]) for i in valid_ids], float)
+    for k in ("q01", "q10", "q50", "q90", "q99"):
+        want = sum(wi * p[k] for wi, p in zip(w, per_ep)) / w.sum()
+        width = (every.max(0) - every.min(0)) / 5000  # one histogram bin of the widest episode at most
+        assert (np.abs(np.array(stats["observation.state"][k]) - want) <= width + 1e-7).all(), k
+
+    # the provenance in every data row, and the object keypoints as the environment state
+    assert meta["features"]["observation.environment_state"]["shape"] == [33]
+    assert meta["features"]["observation.environment_state"]["names"][:3] == ["bottle_base_x", "bottle_base_y",
+                                                                              "bottle_base_z"]
+    k_last = read_lerobot_episode(out, len(valid_ids) - 1)
+    assert set(k_last["demoforge.take"]) == {TAKE} and set(k_last["demoforge.episode_id"]) == {valid_ids[-1]}
+    assert set(k_last["demoforge.kind"]) == {info["kind"][valid_ids[-1]]}
+    env = k_last["observation.environment_state"].reshape(-1, 11, 3)
+    np.testing.assert_allclose(env[0], info["keypoints"][valid_ids[-1]], atol=1e-6)  # the scene at the start
+    assert "observation.environment_state" in stats and stats["observation.environment_state"]["count"] == [len(every)]
+
+
+def _reference_episode_quantiles(x: np.ndarray) -> dict:
+    """LeRobot's RunningQuantileStats quantiles of one episode, written out per dimension as in
+    lerobot/datasets/compute_stats.py (np.histogram, cumsum, searchsorted, linear in the bin)."""
+    out = {}
+    for q, key in zip((0.01, 0.10, 0.50, 0.90, 0.99), ("q01", "q10", "q50", "q90", "q99")):
+        vals = []
+        for d in range(x.shape[1]):
+            edges = np.linspace(x[:, d].min() - 1e-10, x[:, d].max() + 1e-10, 5001)
+            cs = np.cumsum(np.histogram(x[:, d], bins=edges)[0])
+            target = q * len(x)
+            i = int(np.searchsorted(cs, target))
+            if i == 0:
+                vals.append(edges[0])
+                continue
+            before, inside = cs[i - 1], cs[i] - cs[i - 1]
+            vals.append(edges[i] if inside == 0 else edges[i] + (target - before) / inside * (edges[i + 1] - edges[i]))
+        out[key] = np.array(vals)
+    return out
 
 
 def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode_wh, tmp_path):
@@ -279,6 +317,10 @@ def test_robomimic_export_layout_and_provenance(episode_wh, tmp_path):
         np.testing.assert_allclose(d["next_obs"]["robot1_eef_pos"][:-1], src[1:, 1, :3], atol=1e-6)
         np.testing.assert_allclose(d["obs"]["object"][0], info["keypoints"][d["attrs"]["src_episode_id"]].reshape(-1),
                                    atol=1e-6)
+        # the keypoints follow the carried objects: the bottle (manipulated) is lifted off its start
+        # (and put back), the next observation is the next step's
+        assert np.abs(d["obs"]["object"] - d["obs"]["object"][0]).max() > 0.05
+        np.testing.assert_allclose(d["next_obs"]["object"][:-1], d["obs"]["object"][1:])
         assert d["dones"].sum() == 1 and d["dones"][-1] == 1
 
 
@@ -382,10 +424,200 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
                       (["view", "no_such_take", "--rrd", str(tmp_path / "v.rrd")], "neither a take folder"),
                       (["view", "pouring/0", "--rrd", str(tmp_path / "old.rrd")], "--overwrite"),
                       (["view", str(tmp_path), "--rrd", str(tmp_path / "v.rrd")], "demoforge ingest"),
-                      (["view", "pouring/0", "--rrd", str(tmp_path / "v.txt")], ".rrd")):
+                      (["view", "pouring/0", "--rrd", str(tmp_path / "v.txt")], ".rrd"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images"],
+                       "demoforge ingest"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "r.hdf5"), "--with-images"],
+                       "lerobot` only"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images",
+                        "--image-size", "33x20"], "--image-size"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--image-size", "64x48"],
+                       "needs --with-images")):
         r = runner.invoke(app, args)
         assert r.exit_code == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.output)
     assert (foreign / "notes.txt").read_text() == "keep me" and not (tmp_path / "j").exists()
     assert (tmp_path / "other.hdf5").read_bytes() == b"not ours"
     r = runner.invoke(app, ["export", "--help"])
     assert r.exit_code == 0 and "lerobot" in r.output and "robomimic" in r.output
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
+    """The environment state's keypoints, rebuilt from an episode's gripper poses and its first
+    scene only, equal the task library's own per-frame object keypoints for every task's scripted
+    demonstration (plain and mirrored: the arms' roles swap)."""
+    from lib.exports.object_state import episode_object_keypoints
+    from lib.task_library import TASK_NAMES, get_task
+
+    demos, moved = [], 0
+    for name in TASK_NAMES:
+        spec = get_task(name)
+        d = spec.scripted_demo(0, mirror=mirror)
+        demos.append((spec, d.gripper_actions(), d.keypoints()))
+    poses = np.concatenate([a for _, a, _ in demos])
+    lengths = np.array([len(a) for _, a, _ in demos])
+    # all six in one call: concatenated episodes of different lengths (every task has 11 keypoints)
+    got = episode_object_keypoints(poses, lengths, np.stack([k[0] for _, _, k in demos]), demos[0][0].keypoint_object)
+    for (spec, a, kp), part in zip(demos, np.split(got, np.cumsum(lengths)[:-1])):
+        assert (spec.keypoint_object == demos[0][0].keypoint_object).all()
+        np.testing.assert_allclose(part, kp, atol=1e-9, err_msg=spec.name)
+        moved += np.abs(kp - kp[0]).max() > 0.1  # the manipulated object travels
+    assert moved == len(TASK_NAMES)
+    with pytest.raises(ExportError, match="object keypoints must be"):
+        episode_object_keypoints(poses, lengths, np.zeros((len(lengths), 10, 3)), demos[0][0].keypoint_object)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 4), st.integers(1, 300), st.integers(1, 5))
+def test_lerobot_stats_equal_lerobots_histogram_algorithm(seed, n_eps, length, dims):
+    """The vectorised statistics equal a per-dimension transcription of LeRobot's RunningQuantileStats
+    (to one histogram bin), and the aggregate is LeRobot's count-weighted one."""
+    from lib.exports.lerobot import aggregate_stats, lerobot_stats
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0, rng.uniform(0.01, 5), (n_eps, length, dims)).astype(np.float32)
+    x[:, :, 0] = np.round(x[:, :, 0])  # ties and repeated values
+    s = lerobot_stats(x)
+    for e in range(n_eps):
+        np.testing.assert_allclose(s["mean"][e], x[e].mean(0), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(s["std"][e], x[e].std(0), rtol=1e-3, atol=1e-4)
+        if length < 2:
+            continue
+        ref = _reference_episode_quantiles(x[e].astype(np.float64))
+        width = (x[e].max(0) - x[e].min(0)) / 5000 + 1e-9
+        for k, v in ref.items():
+            assert (np.abs(s[k][e] - v) <= width * 1.01).all(), (k, s[k][e], v)
+    agg = aggregate_stats(s)
+    flat = x.reshape(-1, dims).astype(np.float64)
+    np.testing.assert_allclose(agg["mean"], flat.mean(0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(agg["std"], flat.std(0), rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(agg["q50"], s["q50"].astype(np.float64).mean(0), rtol=1e-6)  # equal counts: the plain mean
+    assert agg["count"].tolist() == [n_eps * length]
+
+
+def test_pinhole_camera_draws_points_where_k_projects_them():
+    """A MuJoCo scene camera set from K and T_world_camera draws small spheres at the pixels the
+    pinhole model predicts (off-centre principal point, different fx and fy)."""
+    import mujoco
+
+    from lib.robot_sim.render import pinhole_gl_camera
+
+    pts = np.array([[0.1, 0.2, 0.05], [-0.15, 0.35, 0.0], [0.05, 0.05, 0.1]])
+    colors = ["1 0 0 1", "0 1 0 1", "0 0 1 1"]
+    geoms = "".join(f'<geom type="sphere" size="0.008" pos="{" ".join(map(str, p))}" rgba="{c}"/>'
+                    for p, c in zip(pts, colors))
+    m = mujoco.MjModel.from_xml_string(f'<mujoco><worldbody><light pos="0 0 3"/>{geoms}</worldbody></mujoco>')
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    W, H = 320, 200
+    K = np.array([[250.0, 0, 140], [0, 270, 115], [0, 0, 1]])
+    T = _look_at(np.array([0.05, -0.6, 0.7]), np.array([0.0, 0.3, 0.0]))
+    with mujoco.Renderer(m, H, W) as r:
+        r.update_scene(d)
+        for c in r.scene.camera:
+            pinhole_gl_camera(c, K, T, W, H)
+        img = r.render().astype(int)
+    for ch, p in enumerate(pts):
+        pc_ = (p - T[:3, 3]) @ T[:3, :3]
+        uv = pc_[:2] / pc_[2] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        others = [c for c in range(3) if c != ch]
+        v, u = np.nonzero((img[..., ch] > 100) & (img[..., others[0]] < 60) & (img[..., others[1]] < 60))
+        assert len(u) >= 4
+        np.testing.assert_allclose([u.mean() + 0.5, v.mean() + 0.5], uv, atol=1.0)
+
+
+def _register_take_camera(wh: Path, takes_dir: Path) -> dict:
+    """A take folder with the synthetic head camera's camera.json, registered in the `takes` table."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("check_exports_sample",
+                                                  Path(__file__).resolve().parents[1] / "scripts/check_exports_sample.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    from schemas.core import write_table
+
+    from lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
+
+    take = takes_dir / TAKE
+    take.mkdir(parents=True, exist_ok=True)
+    cam = {"K": camera_K().tolist(), "width": WIDTH, "height": HEIGHT, "T_world_camera": camera_T_world_camera().tolist()}
+    (take / "camera.json").write_text(json.dumps(cam))
+    write_table("takes", mod.takes_row(take), wh)
+    return cam
+
+
+def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_path):
+    """--with-images: each episode executed in MuJoCo and drawn from the take's camera (K scaled to
+    the chosen size) is in the mp4 at the episode's from/to timestamps, frame for frame, and the
+    image statistics are LeRobot's per-channel ones."""
+    import cv2
+
+    from flows.export import export_lerobot, load_episodes
+    from lib.robot_sim.render import episode_frames
+
+    import shutil
+
+    wh = tmp_path / "warehouse"  # a copy: the takes table written below stays out of the shared one
+    shutil.copytree(episode_wh[0], wh)
+    out = tmp_path / "lr_img"
+    with pytest.raises(ExportError, match="demoforge ingest"):
+        export_lerobot(str(wh), TASK, str(out), limit=2, with_images=True, image_size=(48, 36))
+    cam = _register_take_camera(wh, tmp_path / "takes")
+    s = export_lerobot(str(wh), TASK, str(out), limit=2, with_images=True, image_size=(48, 36))
+    assert s["videos"] == ["observation.images.camera"] and s["episodes"] == 2
+    meta = json.loads((out / "meta/info.json").read_text())
+    ft = meta["features"]["observation.images.camera"]
+    assert ft["dtype"] == "video" and ft["shape"] == [36, 48, 3] and ft["info"]["video.codec"] == "mpeg4"
+    assert meta["video_path"] == "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+    import pyarrow.parquet as pq
+
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    frm = eps["videos/observation.images.camera/from_timestamp"]
+    assert frm[0] == 0 and abs(frm[1] - eps["length"][0] / 30) < 1e-9
+
+    cap = cv2.VideoCapture(str(out / "videos/observation.images.camera/chunk-000/file-000.mp4"))
+    decoded = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        decoded.append(cv2.cvtColor(f, cv2.COLOR_BGR2RGB))
+    assert len(decoded) == s["frames"]
+    sel = load_episodes(str(wh), TASK, limit=2)
+    K = np.diag([48 / cam["width"], 36 / cam["height"], 1.0]) @ np.array(cam["K"])
+    L0 = int(sel.lengths[0])
+    second = list(episode_frames(TASK, sel.keypoints[1], sel.poses[L0:L0 + int(sel.lengths[1])].astype(float), K,
+                                 np.array(cam["T_world_camera"]), 48, 36))
+    got = np.stack(decoded[L0:]).astype(float)
+    psnr = 10 * np.log10(255 ** 2 / np.mean((got - np.stack(second)) ** 2))
+    assert psnr > 25, psnr  # the second episode's frames, through a lossy codec
+    assert np.abs(got[-1] - got[0]).mean() > 1  # the grippers moved between its first and last frame
+    stats = json.loads((out / "meta/stats.json").read_text())["observation.images.camera"]
+    assert np.shape(stats["mean"]) == (3, 1, 1) and stats["count"] == [2 * 100]  # LeRobot samples 100 a episode
+    np.testing.assert_allclose(np.ravel(stats["mean"]), np.stack(decoded).mean((0, 1, 2)) / 255, atol=0.03)
+
+
+def test_carried_keypoints_vectorised_equal_the_per_episode_segmentation_rule(episode_wh):
+    """Over a real augmented database (translated and mirrored episodes, one call), the vectorised
+    carry equals lib.segmentation's per-episode functions (infer_object_arm + object_keypoints_over_time)."""
+    from flows.export import load_episodes
+    from lib.exports.object_state import episode_object_keypoints, object_arms
+    from lib.segmentation import infer_object_arm, object_keypoints_over_time
+    from lib.task_library import get_task
+
+    wh, _ = episode_wh
+    sel = load_episodes(str(wh), TASK, include_invalid=True)
+    ko = get_task(TASK).keypoint_object
+    got = episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, ko)
+    arms = object_arms(sel.poses.astype(float), sel.lengths, sel.keypoints, ko)
+    start = 0
+    for i, L in enumerate(sel.lengths.tolist()):
+        traj = sel.poses[start:start + L].astype(float)
+        arm_of = infer_object_arm(traj, sel.keypoints[i], ko)
+        assert arms[i].tolist() == arm_of.tolist()
+        held = np.stack([np.where(traj[:, a, 7] < 0.5, np.flatnonzero(arm_of == a)[0], -1) for a in (0, 1)], axis=1)
+        want = object_keypoints_over_time(traj, sel.keypoints[i], ko, held)
+        np.testing.assert_allclose(got[start:start + L], want, atol=1e-9)
+        start += L
+    mirrored = sel.kind == "mirrored"
+    assert mirrored.any() and (arms[mirrored] == 1 - arms[~mirrored][0]).all()  # the roles swap

@@ -1,28 +1,45 @@
 """Episodes as a LeRobotDataset v3.0 folder, and a validator of that layout.
 
-The layout is LeRobot's (huggingface/lerobot, src/lerobot/datasets/utils.py of lerobot 0.4.4, the
-release that reads and writes codebase v3.0)::
+The layout is LeRobot's (huggingface/lerobot, src/lerobot/datasets/utils.py; checked against the
+lerobot 0.6.1 package, which reads and writes codebase v3.0)::
 
     meta/info.json                                codebase_version "v3.0", fps, features, totals, paths
     meta/stats.json                               {feature: {min, max, mean, std, count, q01 .. q99}}
     meta/tasks.parquet                            index = task text, column task_index
     meta/episodes/chunk-000/file-000.parquet      one row per episode: tasks, length, data/chunk_index,
                                                   data/file_index, dataset_from_index, dataset_to_index,
-                                                  meta/episodes/*, stats/<feature>/<stat>
+                                                  videos/<key>/{chunk_index, file_index, from_timestamp,
+                                                  to_timestamp}, meta/episodes/*, stats/<feature>/<stat>
     data/chunk-000/file-000.parquet ...           one row per frame, many episodes per file
+    videos/<key>/chunk-000/file-000.mp4 ...       with images: many episodes per file, back to back
 
 Features per frame: ``observation.state`` = both grippers' current poses and ``action`` = the poses
 one step later (the last step of an episode holds its pose), each a flat float32 16-vector: the
 (2, 8) pose array of DESIGN.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
 right_gripper`` (policies read a 1-D state; the names keep the 2 x 8 structure recoverable).
 Quaternions are scalar-last ``qx, qy, qz, qw``; gripper 1 = open, 0 = closed; world (table) frame, m.
+``observation.environment_state`` (when given) = the 11 object keypoints of the step, flattened to
+33 float32 named ``<keypoint>_x, _y, _z`` (lib/exports/object_state.py says how they move).
+``observation.images.<camera>`` (when given) = a video feature: RGB frames in mp4 files.
+``demoforge.take``, ``demoforge.episode_id``, ``demoforge.kind`` (when given) = where the frame's
+episode came from, in every data row, so the provenance survives LeRobot's edit tools (which
+rewrite meta/episodes and drop unknown files such as meta/demoforge.json).
+
+Statistics are computed as LeRobot computes them for a dataset it records
+(lerobot/datasets/compute_stats.py): per episode, min / max / mean / std and quantiles read off a
+5,000-bin histogram spanning the episode's range (linear inside the bin), then aggregated over the
+episodes: min of mins, max of maxes, count-weighted mean, pooled std, and quantiles as the
+count-weighted mean of the episodes' quantiles (not the quantiles of all frames). Images: per
+channel over LeRobot's sample of each episode's frames (downsampled past 300 px), scaled to [0, 1].
 """
 
 from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterable
 
 import numpy as np
 import pyarrow as pa
@@ -47,76 +64,189 @@ DEFAULT_VIDEO_FILE_SIZE_IN_MB = 200
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 QUANTILE_KEYS = tuple(f"q{int(round(q * 100)):02d}" for q in QUANTILES)
 STAT_KEYS = ("min", "max", "mean", "std", "count") + QUANTILE_KEYS
+HISTOGRAM_BINS = 5000  # RunningQuantileStats' num_quantile_bins
 ROBOT_TYPE = "demoforge_dual_parallel_gripper"
 PROVENANCE_FILE = "meta/demoforge.json"  # demoforge's own file: where the episodes came from
+ENV_STATE = "observation.environment_state"
+IMAGE_PREFIX = "observation.images."
+# The video codec: OpenCV's MPEG-4 Part 2 encoder ('mp4v', FFmpeg's `mpeg4`) runs at ~1,000 fps at
+# 640 x 480 here; its VP9 encoder ran at 15 fps and it has no AV1 or H.264 encoder. LeRobot decodes
+# mpeg4 with PyAV (video_backend="pyav"), and with torchcodec where FFmpeg's libraries are installed.
+VIDEO_FOURCC, VIDEO_CODEC = "mp4v", "mpeg4"
 
 _SCALAR = {"timestamp": "float32", "frame_index": "int64", "episode_index": "int64", "index": "int64",
            "task_index": "int64"}
-_VECTOR = ("observation.state", "action")
+_ARROW = {"float32": pa.float32(), "float64": pa.float64(), "int64": pa.int64(), "int32": pa.int32(),
+          "bool": pa.bool_(), "string": pa.string()}
+# per-frame provenance: data column -> (key of the `provenance` argument, dtype)
+PROVENANCE_FEATURES = {"demoforge.take": ("take", "string"), "demoforge.episode_id": ("episode_id", "int64"),
+                       "demoforge.kind": ("kind", "string")}
 _PROVENANCE_COLUMNS = {"take": pa.string(), "episode_id": pa.int64(), "kind": pa.string(), "valid": pa.bool_()}
 
 
-def features() -> dict:
-    """The `features` of info.json: dtype, shape and names of every column of the data files."""
+@dataclass
+class VideoSource:
+    """One camera's frames for every exported episode (``frames(i)``: episode i's RGB uint8
+    (height, width, 3) frames, one per step), written as ``observation.images.<key>``."""
+
+    key: str
+    width: int
+    height: int
+    frames: Callable[[int], Iterable[np.ndarray]]
+
+
+def features(environment_names: list[str] | None = None, provenance: bool = False,
+             videos: dict[str, dict] | None = None) -> dict:
+    """The `features` of info.json: dtype, shape and names of every column of the data files (and
+    of every video, whose ``info`` holds the stream's codec, size and rate)."""
     vec = {"dtype": "float32", "shape": [len(POSE16_NAMES)], "names": list(POSE16_NAMES)}
     out = {"observation.state": dict(vec), "action": dict(vec)}
+    if environment_names is not None:
+        out[ENV_STATE] = {"dtype": "float32", "shape": [len(environment_names)], "names": list(environment_names)}
+    for key, info in (videos or {}).items():
+        out[key] = {"dtype": "video", "shape": [info["video.height"], info["video.width"], 3],
+                    "names": ["height", "width", "channels"], "info": info}
     out.update({k: {"dtype": d, "shape": [1], "names": None} for k, d in _SCALAR.items()})
+    if provenance:
+        out.update({k: {"dtype": d, "shape": [1], "names": None} for k, (_, d) in PROVENANCE_FEATURES.items()})
     return out
 
 
-def _stats(x: np.ndarray, axis: int) -> dict[str, np.ndarray]:
-    """LeRobot's per-feature statistics of ``x`` reduced over ``axis`` (quantiles exact, not binned)."""
-    # Reduce over the last, contiguous axis: numpy's partition is several times faster there.
-    x = np.ascontiguousarray(np.moveaxis(x, axis, -1), dtype=np.float64)
-    q = np.quantile(x, QUANTILES, axis=-1)
-    out = {"min": x.min(axis=-1), "max": x.max(axis=-1), "mean": x.mean(axis=-1), "std": x.std(axis=-1),
-           "count": np.full(x.shape[:-2] + (1,), x.shape[-1], np.int64)}
-    out.update({k: q[i] for i, k in enumerate(QUANTILE_KEYS)})
+def keypoint_feature_names(keypoint_names: Iterable[str]) -> list[str]:
+    """``<keypoint>_x, _y, _z`` per keypoint: the names of the flattened environment state."""
+    return [f"{k}_{a}" for k in keypoint_names for a in "xyz"]
+
+
+# ------------------------------------------------------------------------------------------ statistics
+
+def lerobot_stats(x: np.ndarray) -> dict[str, np.ndarray]:
+    """LeRobot's statistics of each of E episodes: ``x`` (E, L, D) -> {stat: (E, D)}, count (E, 1).
+
+    A vectorised port of compute_stats.RunningQuantileStats fed one episode in one update: a
+    5,000-bin histogram over [min - 1e-10, max + 1e-10] per dimension, the quantile q at rank q * L
+    linearly inside its bin (the low edge when it falls in the first bin). Equal to LeRobot's up to
+    the bin an element on a bin edge is counted in (one bin width, range / 5,000). Episodes of one
+    step get their mean as every quantile, as in LeRobot.
+    """
+    x = np.asarray(x)
+    x = x.astype(np.result_type(x.dtype, np.float32), copy=False)  # as LeRobot: float32 stays float32
+    E, L, D = x.shape
+    mean = x.mean(axis=1)
+    out = {"min": x.min(axis=1), "max": x.max(axis=1), "mean": mean,
+           "count": np.full((E, 1), L, np.int64)}
+    if L < 2:
+        out["std"] = np.zeros_like(mean)
+        out.update({k: mean.copy() for k in QUANTILE_KEYS})
+        return out
+    out["std"] = np.sqrt(np.maximum(0, (x * x).mean(axis=1) - mean * mean))
+    lo = out["min"].astype(np.float64) - 1e-10
+    width = (out["max"].astype(np.float64) + 1e-10 - lo) / HISTOGRAM_BINS
+    xs = np.sort(np.moveaxis(x, 1, 2), axis=2)                              # (E, D, L) sorted
+    b = np.clip(np.floor((xs - lo[..., None]) / width[..., None]), 0, HISTOGRAM_BINS - 1).astype(np.int64)
+    # every (episode, dimension) row's bins are sorted: offset row r by r * BINS and the whole array
+    # is sorted, so a bin's first and last position in its row are two searchsorted calls
+    row = np.arange(E * D, dtype=np.int64).reshape(E, D) * HISTOGRAM_BINS
+    keys = (b + row[..., None]).reshape(-1)
+    for q, key in zip(QUANTILES, QUANTILE_KEYS):
+        target = q * L
+        idx = b[:, :, max(int(np.ceil(target)), 1) - 1]                   # (E, D): bin of the rank
+        first = np.searchsorted(keys, (row + idx).reshape(-1), "left").reshape(E, D)
+        end = np.searchsorted(keys, (row + idx).reshape(-1), "right").reshape(E, D)
+        base = np.arange(E * D, dtype=np.int64).reshape(E, D) * L
+        before, inside = first - base, end - first
+        val = lo + (idx + (target - before) / inside) * width
+        out[key] = np.where(idx == 0, lo, val)
     return out
 
 
-def _frame_columns(poses: np.ndarray, lengths: np.ndarray, task_of_episode: np.ndarray, fps: float) -> dict:
-    """Every frame's columns as numpy arrays: the (F, 16) state and action and the five index columns."""
+def aggregate_stats(ep: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """LeRobot's aggregate_feature_stats over the episodes' stats {stat: (E, ...)} -> {stat: (...)}."""
+    counts = ep["count"].reshape(-1).astype(np.float64)
+    total = counts.sum()
+    w = counts.reshape((-1,) + (1,) * (ep["mean"].ndim - 1)) / total
+    mean = (ep["mean"] * w).sum(axis=0)
+    var = ((ep["std"].astype(np.float64) ** 2 + (ep["mean"] - mean) ** 2) * w).sum(axis=0)
+    out = {"min": ep["min"].min(axis=0), "max": ep["max"].max(axis=0), "mean": mean, "std": np.sqrt(var),
+           "count": np.array([int(total)])}
+    out.update({k: (ep[k] * w).sum(axis=0) for k in QUANTILE_KEYS})
+    return out
+
+
+def sample_indices(length: int) -> np.ndarray:
+    """The frames of an episode LeRobot samples for image statistics (compute_stats.sample_indices)."""
+    n = length if length < 100 else max(100, min(int(length ** 0.75), 10_000))
+    return np.round(np.linspace(0, length - 1, n)).astype(int)
+
+
+def image_stats(frames: np.ndarray) -> dict[str, np.ndarray]:
+    """LeRobot's statistics of one episode's sampled RGB frames (n, H, W, 3) uint8: per channel,
+    scaled to [0, 1], shape (3, 1, 1); count = the number of frames."""
+    h, w = frames.shape[1:3]
+    if max(w, h) >= 300:  # compute_stats.auto_downsample_height_width
+        f = int(w / 150) if w > h else int(h / 150)
+        frames = frames[:, ::f, ::f]
+    s = lerobot_stats(frames.reshape(1, -1, 3))
+    out = {k: (v[0] / 255.0).reshape(3, 1, 1) for k, v in s.items() if k != "count"}
+    out["count"] = np.array([len(frames)], np.int64)
+    return out
+
+
+def _frame_columns(poses: np.ndarray, lengths: np.ndarray, task_of_episode: np.ndarray, fps: float,
+                   environment_state: np.ndarray | None, provenance: dict | None) -> dict:
+    """Every frame's columns as numpy arrays: state, action, (environment state,) index columns and
+    (the per-frame provenance)."""
     frame_index = frame_in_episode(lengths)
     episode_index = np.repeat(np.arange(len(lengths), dtype=np.int64), lengths)
-    return {
+    cols = {
         "observation.state": poses.reshape(len(poses), 16).astype(np.float32),
         "action": next_poses(poses, lengths).reshape(len(poses), 16).astype(np.float32),
+    }
+    if environment_state is not None:
+        cols[ENV_STATE] = environment_state.reshape(len(poses), -1).astype(np.float32)
+    cols.update({
         "timestamp": (frame_index / fps).astype(np.float32),
         "frame_index": frame_index,
         "episode_index": episode_index,
         "index": np.arange(len(poses), dtype=np.int64),
         "task_index": np.repeat(task_of_episode.astype(np.int64), lengths),
-    }
+    })
+    if provenance is not None:
+        for col, (key, dtype) in PROVENANCE_FEATURES.items():
+            vals = np.asarray(provenance[key])
+            cols[col] = np.repeat(vals.astype(str) if dtype == "string" else vals.astype(np.int64), lengths)
+    return cols
 
 
-def _as_2d(name: str, v: np.ndarray) -> np.ndarray:
-    return v if name in _VECTOR else v[:, None]
-
-
-def _episode_stats(cols: dict, lengths: np.ndarray) -> dict[str, dict[str, np.ndarray]]:
-    """Per-episode statistics, vectorised over the episodes of each distinct length (usually one)."""
+def _episode_stats(cols: dict, feats: dict, lengths: np.ndarray, max_elements: int = 4_000_000
+                   ) -> dict[str, dict[str, np.ndarray]]:
+    """Per-episode statistics of every numeric column, vectorised over batches of episodes of
+    one length (usually all of them), ``max_elements`` values at a time."""
     n = len(lengths)
     starts = episode_starts(lengths)
     out: dict[str, dict[str, np.ndarray]] = {}
     for name, values in cols.items():
-        v = _as_2d(name, values)
+        if feats[name]["dtype"] == "string":
+            continue  # LeRobot computes no statistics of strings
+        v = values if values.ndim == 2 else values[:, None]
         d = v.shape[1]
-        res = {k: np.empty((n, 1 if k == "count" else d)) for k in STAT_KEYS}
+        res = {k: np.empty((n, 1 if k == "count" else d), np.int64 if k == "count" else np.float64)
+               for k in STAT_KEYS}
         for L in np.unique(lengths):
             eps = np.flatnonzero(lengths == L)
-            rows = (starts[eps][:, None] + np.arange(L)[None, :]).reshape(-1)
-            s = _stats(v[rows].reshape(len(eps), L, d), axis=1)
-            for k in STAT_KEYS:
-                res[k][eps] = s[k]
+            step = max(1, max_elements // (int(L) * d))
+            for j in range(0, len(eps), step):
+                e = eps[j:j + step]
+                rows = (starts[e][:, None] + np.arange(L)[None, :]).reshape(-1)
+                s = lerobot_stats(v[rows].reshape(len(e), int(L), d))
+                for k in STAT_KEYS:
+                    res[k][e] = s[k]
         out[name] = res
     return out
 
 
-def _file_plan(lengths: np.ndarray, file_size_mb: float, chunks_size: int) -> np.ndarray:
+def _file_plan(lengths: np.ndarray, file_size_mb: float, chunks_size: int, bytes_per_frame: int) -> np.ndarray:
     """Data file number of each episode: whole episodes packed into files of at most ``file_size_mb``
     (LeRobot's uncompressed-size cap), a new file when the next episode would not fit."""
-    bytes_per_frame = 2 * 16 * 4 + 4 + 5 * 8
     cap = max(1, int(file_size_mb * 2**20 // bytes_per_frame))
     file_of = np.empty(len(lengths), np.int64)
     f, used = 0, 0
@@ -147,6 +277,59 @@ def _write_json(obj: dict, path: Path) -> None:
     path.write_text(json.dumps(obj, indent=4, ensure_ascii=False, default=_json_default))
 
 
+def _write_videos(root: Path, src: VideoSource, lengths: np.ndarray, fps: int, file_size_mb: float,
+                  chunks_size: int, progress: bool) -> tuple[dict, dict[str, np.ndarray], dict]:
+    """Encode every episode's frames back to back into videos/<key>/chunk-*/file-*.mp4 (a new file
+    once one passes ``file_size_mb``). Returns the episodes-table columns, the per-episode image
+    statistics and the feature's ``info``."""
+    import cv2
+    from tqdm import tqdm
+
+    key = IMAGE_PREFIX + src.key
+    n = len(lengths)
+    cols = {f"videos/{key}/{c}": np.zeros(n, np.float64 if "timestamp" in c else np.int64)
+            for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")}
+    stats: dict[str, list] = {k: [] for k in STAT_KEYS}
+    file_no, offset, writer, path = 0, 0, None, None
+    for i in tqdm(range(n), desc=f"render {src.key}", unit="episode", disable=not progress):
+        if writer is None:
+            path = root / VIDEO_PATH.format(video_key=key, chunk_index=file_no // chunks_size,
+                                            file_index=file_no % chunks_size)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*VIDEO_FOURCC), float(fps),
+                                     (src.width, src.height))
+            if not writer.isOpened():
+                raise ExportError(f"OpenCV cannot write {VIDEO_FOURCC} video to {path}")
+        want = sample_indices(int(lengths[i]))
+        sampled, count = [], 0
+        for frame in src.frames(i):
+            if frame.shape != (src.height, src.width, 3) or frame.dtype != np.uint8:
+                raise ExportError(f"camera {src.key}: episode {i} gave a frame of {frame.shape} {frame.dtype}, "
+                                  f"expected ({src.height}, {src.width}, 3) uint8")
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            if count in want:
+                sampled.append(frame)
+            count += 1
+        if count != lengths[i]:
+            raise ExportError(f"camera {src.key}: episode {i} gave {count} frames for {lengths[i]} steps")
+        for k, v in image_stats(np.stack(sampled)).items():
+            stats[k].append(v)
+        cols[f"videos/{key}/chunk_index"][i] = file_no // chunks_size
+        cols[f"videos/{key}/file_index"][i] = file_no % chunks_size
+        cols[f"videos/{key}/from_timestamp"][i] = offset / fps
+        offset += count
+        cols[f"videos/{key}/to_timestamp"][i] = offset / fps
+        if path.stat().st_size > file_size_mb * 2**20:
+            writer.release()
+            writer, file_no, offset = None, file_no + 1, 0
+    if writer is not None:
+        writer.release()
+    info = {"video.height": src.height, "video.width": src.width, "video.codec": VIDEO_CODEC,
+            "video.pix_fmt": "yuv420p", "video.fps": int(fps), "video.channels": 3, "has_audio": False,
+            "is_depth_map": False}
+    return cols, {k: np.stack(v) for k, v in stats.items()}, info
+
+
 def write_lerobot_dataset(
     out: str | os.PathLike,
     poses: np.ndarray,
@@ -158,16 +341,24 @@ def write_lerobot_dataset(
     robot_type: str = ROBOT_TYPE,
     provenance: dict | None = None,
     source: dict | None = None,
+    environment_state: np.ndarray | None = None,
+    environment_names: list[str] | None = None,
+    videos: list[VideoSource] | None = None,
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
+    video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
     chunks_size: int = DEFAULT_CHUNK_SIZE,
+    progress: bool = False,
     overwrite: bool = False,
 ) -> dict:
     """Write episodes as a LeRobotDataset v3.0 folder at ``out`` (atomically) and return its info.json.
 
     poses: (F, 2, 8) concatenated episodes; lengths: (N,) steps per episode; tasks: the task texts;
     task_of_episode: (N,) index into ``tasks`` (default all 0). provenance: per-episode arrays
-    ``take``, ``episode_id``, ``kind``, ``valid`` stored as ``demoforge/*`` columns of the episodes
-    table; source: JSON-able description of the export, written to meta/demoforge.json.
+    ``take``, ``episode_id``, ``kind`` (and ``valid``): ``demoforge/*`` columns of the episodes
+    table, and ``demoforge.take / .episode_id / .kind`` in every data row when all three are given.
+    environment_state: (F, E) per frame, named by ``environment_names`` (E); videos: cameras whose
+    frames become ``observation.images.<key>``. source: JSON-able description of the export,
+    written to meta/demoforge.json.
     """
     poses, lengths = check_episodes(poses, lengths)
     n = len(lengths)
@@ -178,20 +369,38 @@ def write_lerobot_dataset(
         raise ExportError(f"task_of_episode must give one index into the {len(tasks)} tasks per episode")
     if fps <= 0:
         raise ExportError(f"fps must be positive, got {fps}")
+    for k, vals in (provenance or {}).items():
+        if k in _PROVENANCE_COLUMNS and len(vals) != n:
+            raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
+    row_provenance = provenance if provenance and all(k in provenance for k in ("take", "episode_id", "kind")) \
+        else None
+    if environment_state is not None:
+        environment_state = np.asarray(environment_state)
+        if environment_state.shape[0] != len(poses) or environment_names is None or \
+                environment_state.reshape(len(poses), -1).shape[1] != len(environment_names):
+            raise ExportError(f"environment_state must have one row of len(environment_names) values per frame "
+                              f"({len(poses)}), got {environment_state.shape}")
+        if not np.isfinite(environment_state).all():
+            raise ExportError("environment_state contains NaN or inf")
+    videos = list(videos or [])
+    if len({v.key for v in videos}) != len(videos):
+        raise ExportError("video keys must be distinct")
 
-    cols = _frame_columns(poses, lengths, task_of_episode, fps)
-    file_of = _file_plan(lengths, data_files_size_in_mb, chunks_size)
+    cols = _frame_columns(poses, lengths, task_of_episode, fps, environment_state, row_provenance)
+    feats = features(environment_names if environment_state is not None else None, row_provenance is not None)
+    bytes_per_frame = sum(np.asarray(v[:1]).nbytes if v.dtype != object and v.dtype.kind != "U" else 32
+                          for v in cols.values())
+    file_of = _file_plan(lengths, data_files_size_in_mb, chunks_size, bytes_per_frame)
     chunk_idx, file_idx = file_of // chunks_size, file_of % chunks_size
     starts = episode_starts(lengths)
     ends = starts + lengths
-    feats = features()
 
     with atomic_dir(out, overwrite=overwrite) as root:
         for f in np.unique(file_of):
             eps = np.flatnonzero(file_of == f)
             lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
             tbl = pa.table({
-                name: (_fixed_list(v[lo:hi]) if name in _VECTOR else pa.array(v[lo:hi], type=_SCALAR[name]))
+                name: (_fixed_list(v[lo:hi]) if v.ndim == 2 else pa.array(v[lo:hi], type=_ARROW[feats[name]["dtype"]]))
                 for name, v in cols.items()
             })
             path = root / DATA_PATH.format(chunk_index=int(chunk_idx[eps[0]]), file_index=int(file_idx[eps[0]]))
@@ -205,19 +414,26 @@ def write_lerobot_dataset(
             "data/chunk_index": pa.array(chunk_idx), "data/file_index": pa.array(file_idx),
             "dataset_from_index": pa.array(starts), "dataset_to_index": pa.array(ends),
         }
-        for name, st in _episode_stats(cols, lengths).items():
+        ep_stats = _episode_stats(cols, feats, lengths)
+        video_feats = {}
+        for src in videos:
+            vcols, vstats, vinfo = _write_videos(root, src, lengths, fps, video_files_size_in_mb, chunks_size,
+                                                 progress)
+            ep_cols.update({k: pa.array(v) for k, v in vcols.items()})
+            ep_stats[IMAGE_PREFIX + src.key] = vstats
+            video_feats[IMAGE_PREFIX + src.key] = vinfo
+        if video_feats:  # video features go before the index columns, as LeRobot lists them
+            feats = features(environment_names if environment_state is not None else None,
+                             row_provenance is not None, video_feats)
+        for name, st in ep_stats.items():
             for k in STAT_KEYS:
                 v = st[k].astype(np.int64) if k == "count" else st[k]
-                ep_cols[f"stats/{name}/{k}"] = pa.array(list(v), type=pa.list_(pa.int64() if k == "count"
-                                                                                  else pa.float64()))
+                ep_cols[f"stats/{name}/{k}"] = pa.array([x.tolist() for x in v])
         ep_cols["meta/episodes/chunk_index"] = pa.array(np.zeros(n, np.int64))
         ep_cols["meta/episodes/file_index"] = pa.array(np.zeros(n, np.int64))
         for k, typ in _PROVENANCE_COLUMNS.items():
             if provenance is not None and k in provenance:
-                vals = np.asarray(provenance[k])
-                if len(vals) != n:
-                    raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
-                ep_cols[f"demoforge/{k}"] = pa.array(vals.tolist(), type=typ)
+                ep_cols[f"demoforge/{k}"] = pa.array(np.asarray(provenance[k]).tolist(), type=typ)
         ep_path = root / EPISODES_PATH.format(chunk_index=0, file_index=0)
         ep_path.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.table(ep_cols), ep_path)
@@ -229,7 +445,7 @@ def write_lerobot_dataset(
         pd.DataFrame({"task_index": np.arange(len(tasks), dtype=np.int64)}, index=list(tasks)).to_parquet(
             root / TASKS_PATH)
 
-        stats = {name: _stats(_as_2d(name, v), axis=0) for name, v in cols.items()}
+        stats = {name: aggregate_stats(st) for name, st in ep_stats.items()}
         _write_json(stats, root / STATS_PATH)
         info = {
             "codebase_version": CODEBASE_VERSION,
@@ -239,11 +455,11 @@ def write_lerobot_dataset(
             "total_tasks": len(tasks),
             "chunks_size": chunks_size,
             "data_files_size_in_mb": data_files_size_in_mb,
-            "video_files_size_in_mb": DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+            "video_files_size_in_mb": video_files_size_in_mb,
             "fps": fps,
             "splits": {"train": f"0:{n}"},
             "data_path": DATA_PATH,
-            "video_path": None,
+            "video_path": VIDEO_PATH if videos else None,
             "features": feats,
         }
         _write_json(info, root / INFO_PATH)
@@ -303,8 +519,7 @@ def validate_lerobot_dataset(root: str | os.PathLike) -> dict:
     _need(frm[0] == 0 and bool((frm[1:] == to[:-1]).all()) and to[-1] == info["total_frames"],
           "meta/episodes: episodes must tile the frames 0..total_frames without gaps")
 
-    dtypes = {"float32": pa.float32(), "float64": pa.float64(), "int64": pa.int64(), "int32": pa.int32(),
-              "bool": pa.bool_()}
+    dtypes = _ARROW
     frames = 0
     files = sorted({(c, f) for c, f in zip(eps["data/chunk_index"], eps["data/file_index"])})
     for c, f in files:
@@ -312,7 +527,7 @@ def validate_lerobot_dataset(root: str | os.PathLike) -> dict:
         _need(path.is_file(), f"{path}: data file named by meta/episodes is missing")
         t = pq.read_table(path)
         for key, ft in feats.items():
-            if ft["dtype"] in ("video", "image", "string"):
+            if ft["dtype"] in ("video", "image"):
                 continue
             _need(key in t.column_names, f"{path}: no column {key!r}")
             typ = t.schema.field(key).type
@@ -340,19 +555,31 @@ def validate_lerobot_dataset(root: str | os.PathLike) -> dict:
         frames += t.num_rows
     _need(frames == info["total_frames"], f"data: {frames} frames, info.json says {info['total_frames']}")
 
+    videos = [k for k, ft in feats.items() if ft["dtype"] == "video"]
+    for key in videos:
+        _need(info.get("video_path") is not None, f"{INFO_PATH}: video feature {key!r} but no video_path")
+        for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp"):
+            _need(f"videos/{key}/{c}" in eps, f"meta/episodes: missing column 'videos/{key}/{c}'")
+        frm_t, to_t = (np.asarray(eps[f"videos/{key}/{c}"], np.float64) for c in ("from_timestamp", "to_timestamp"))
+        _need(bool(np.allclose(to_t - frm_t, length / info["fps"], atol=1e-6)),
+              f"meta/episodes: videos/{key} timestamps do not span each episode's length / fps")
+        for c, f in sorted(set(zip(eps[f"videos/{key}/chunk_index"], eps[f"videos/{key}/file_index"]))):
+            path = root / info["video_path"].format(video_key=key, chunk_index=c, file_index=f)
+            _need(path.is_file() and path.stat().st_size > 0, f"{path}: video file named by meta/episodes is missing")
+
     if (root / STATS_PATH).is_file():
         stats = json.loads((root / STATS_PATH).read_text())
         for key, ft in feats.items():
-            if ft["dtype"] in ("video", "image", "string"):
+            if ft["dtype"] in ("image", "string"):
                 continue
             _need(key in stats, f"{STATS_PATH}: no statistics for {key!r}")
             for s in STAT_KEYS:
                 _need(s in stats[key], f"{STATS_PATH}: {key!r} lacks {s!r}")
-                want = [1] if s == "count" else list(ft["shape"])
+                want = [1] if s == "count" else [3, 1, 1] if ft["dtype"] == "video" else list(ft["shape"])
                 _need(list(np.shape(stats[key][s])) == want,
                       f"{STATS_PATH}: {key}/{s} has shape {list(np.shape(stats[key][s]))}, expected {want}")
     return {"episodes": n, "frames": frames, "tasks": tasks.index.tolist(), "data_files": len(files),
-            "fps": info["fps"]}
+            "fps": info["fps"], "videos": videos}
 
 
 def read_lerobot_episode(root: str | os.PathLike, episode_index: int) -> dict[str, np.ndarray]:
@@ -369,5 +596,6 @@ def read_lerobot_episode(root: str | os.PathLike, episode_index: int) -> dict[st
     for name in t.column_names:
         col = t.column(name).combine_chunks()
         out[name] = (np.asarray(col.flatten().to_numpy()).reshape(len(col), -1)
-                     if pa.types.is_fixed_size_list(col.type) or pa.types.is_list(col.type) else col.to_numpy())
+                     if pa.types.is_fixed_size_list(col.type) or pa.types.is_list(col.type)
+                     else col.to_numpy(zero_copy_only=False))
     return out

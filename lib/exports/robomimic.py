@@ -14,8 +14,9 @@ robomimic's layout (robomimic.github.io, "Datasets > Overview > Dataset Structur
 
 Observation keys, per arm ``robot0`` = left, ``robot1`` = right: ``robotK_eef_pos`` (T, 3) world m,
 ``robotK_eef_quat`` (T, 4) scalar-last ``qx, qy, qz, qw`` (robosuite's order too), ``robotK_gripper``
-(T, 1) 1 = open, 0 = closed; ``object`` (T, 33): the episode's 11 object keypoints at its start,
-flattened, world m. Actions are the flat 16-vector ``left [x y z qx qy qz qw g], right [...]``.
+(T, 1) 1 = open, 0 = closed; ``object`` (T, 33): the 11 object keypoints of the step, flattened,
+world m (carried by the grippers: lib/exports/object_state.py; the keypoints at the episode's start
+held constant when no per-step keypoints are given). Actions are the flat 16-vector ``left [x y z qx qy qz qw g], right [...]``.
 Arrays are float32: the warehouse stores the actions as float32 (0.1 µm at 1 m), so float64 would
 only double the file.
 ``mask/valid`` is robomimic's validation split, not demoforge's `valid` flag (that is ``src_valid``).
@@ -33,13 +34,13 @@ from lib.exports import ExportError, atomic_file, check_episodes, episode_starts
 FORMAT_VERSION = "demoforge-robomimic-1"
 
 
-def _obs(poses: np.ndarray, keypoints: np.ndarray) -> dict[str, np.ndarray]:
+def _obs(poses: np.ndarray, objects: np.ndarray) -> dict[str, np.ndarray]:
     out = {}
     for arm in (0, 1):
         out[f"robot{arm}_eef_pos"] = poses[:, arm, :3]
         out[f"robot{arm}_eef_quat"] = poses[:, arm, 3:7]
         out[f"robot{arm}_gripper"] = poses[:, arm, 7:8]
-    out["object"] = np.broadcast_to(keypoints.reshape(1, -1), (len(poses), keypoints.size))
+    out["object"] = objects.reshape(len(poses), -1)
     return out
 
 
@@ -52,6 +53,7 @@ def write_robomimic_hdf5(
     provenance: dict,
     env_name: str,
     env_kwargs: dict | None = None,
+    object_state: np.ndarray | None = None,
     valid_fraction: float = 0.1,
     seed: int = 0,
     overwrite: bool = False,
@@ -59,7 +61,8 @@ def write_robomimic_hdf5(
     """Write episodes to a robomimic hdf5 file at ``out`` (atomically); return a summary.
 
     poses: (F, 2, 8) concatenated episodes; lengths: (N,); keypoints: (N, k, 3) object keypoints per
-    episode; provenance: per-episode ``task``, ``take``, ``episode_id``, ``kind``, ``valid`` and
+    episode at its start; object_state: (F, k, 3) the keypoints at every step (default: the start's
+    held constant); provenance: per-episode ``task``, ``take``, ``episode_id``, ``kind``, ``valid`` and
     optionally ``transform`` (N, objects, 3). ``valid_fraction`` of the demos (seeded) go to the
     ``mask/valid`` split, the rest to ``mask/train``; ``mask/<kind>`` lists each episode kind.
     """
@@ -75,7 +78,13 @@ def write_robomimic_hdf5(
             raise ExportError(f"provenance needs {k!r} with one value per episode ({n})")
     if not 0 <= valid_fraction < 1:
         raise ExportError(f"valid_fraction must be in [0, 1), got {valid_fraction}")
+    if object_state is None:
+        object_state = np.repeat(keypoints, lengths, axis=0)
+    object_state = np.asarray(object_state, np.float32).reshape(len(poses), -1)
+    if object_state.shape[1] != keypoints.shape[1] * 3:
+        raise ExportError(f"object_state must hold {keypoints.shape[1]} x 3 values per step, got {object_state.shape}")
     nxt = next_poses(poses, lengths)
+    nxt_objects = next_poses(object_state[:, None, :], lengths)[:, 0]
     starts = episode_starts(lengths)
     names = np.array([f"demo_{i}" for i in range(n)])
     rng = np.random.default_rng(seed)
@@ -108,10 +117,11 @@ def write_robomimic_hdf5(
                 dones = np.zeros(hi - lo, np.int64)
                 dones[-1] = 1
                 g.create_dataset("dones", data=dones)
-                for grp, src in (("obs", poses[lo:hi]), ("next_obs", nxt[lo:hi])):
+                for grp, src, objs in (("obs", poses[lo:hi], object_state[lo:hi]),
+                                       ("next_obs", nxt[lo:hi], nxt_objects[lo:hi])):
                     og = g.create_group(grp)
-                    for key, val in _obs(src.astype(np.float32), keypoints[i].astype(np.float32)).items():
-                        # `object` repeats one row per step: gzip shrinks it ~100x at little cost
+                    for key, val in _obs(src.astype(np.float32), objs).items():
+                        # `object` is constant while no gripper carries an object: gzip shrinks it cheaply
                         extra = {"compression": "gzip", "compression_opts": 1} if key == "object" else {}
                         og.create_dataset(key, data=np.ascontiguousarray(val), **extra)
             mask = f.create_group("mask")

@@ -61,3 +61,54 @@ def _resimulate_states(task_name, obj0, actions, fps, opt):
     finally:
         executor._FRAME_HOOK = None
     return states, res
+
+
+def pinhole_gl_camera(glcam, K: np.ndarray, T_world_camera: np.ndarray, width: int, height: int,
+                      near: float = 0.01, far: float = 50.0) -> None:
+    """Set a MuJoCo scene camera (mjvGLCamera) to an OpenCV pinhole camera: K (3, 3) for an image
+    of ``width`` x ``height`` px, T_world_camera (4, 4) camera-to-world (x right, y down, z forward).
+
+    MuJoCo draws with glFrustum(center - width, center + width, bottom, top, near, far) on the
+    near plane, looking along ``forward`` with ``up`` up; the principal point shifts the frustum.
+    """
+    K = np.asarray(K, float)
+    R, t = np.asarray(T_world_camera, float)[:3, :3], np.asarray(T_world_camera, float)[:3, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    left, right = -cx / fx * near, (width - cx) / fx * near
+    top, bottom = cy / fy * near, -(height - cy) / fy * near  # image rows grow downwards, GL's y upwards
+    glcam.pos[:] = t
+    glcam.forward[:] = R[:, 2]
+    glcam.up[:] = -R[:, 1]
+    glcam.frustum_center = 0.5 * (left + right)
+    glcam.frustum_width = 0.5 * (right - left)
+    glcam.frustum_bottom, glcam.frustum_top = bottom, top
+    glcam.frustum_near, glcam.frustum_far = near, far
+    glcam.orthographic = 0
+
+
+def episode_frames(task_name: str, object_keypoints, actions, K: np.ndarray, T_world_camera: np.ndarray,
+                   width: int, height: int, fps: float = 30.0, options: SimOptions | None = None):
+    """Yield one RGB uint8 (height, width, 3) image per action frame of the episode: the grippers
+    execute it in MuJoCo (past any failure, as render_episode) and each recorded frame's state is
+    drawn from the given pinhole camera (shadows off). An episode the executor refuses
+    (invalid actions) raises ValueError with its reason."""
+    import mujoco
+
+    opt = options or SimOptions(stop_on_hard_failure=False, stop_when_settled=True)
+    actions = np.asarray(actions, float)
+    states, res = _resimulate_states(task_name, object_keypoints, actions, fps, opt)
+    if res.failure == "invalid_action" or not states:
+        raise ValueError(f"cannot render the episode: {res.detail}")
+    sc = get_scene(task_name, opt.gripper, opt.physics)
+    m = sc.model
+    d = mujoco.MjData(m)
+    with mujoco.Renderer(m, height=height, width=width) as r:
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        for i in range(len(actions)):  # the action frames; the settle frames after them are not steps
+            d.qpos[:] = states[min(i, len(states) - 1)]
+            mujoco.mj_forward(m, d)
+            r.update_scene(d)
+            for c in r.scene.camera:
+                pinhole_gl_camera(c, K, T_world_camera, width, height)
+            yield r.render()
