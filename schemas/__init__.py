@@ -18,4 +18,4 @@ from schemas.core import (  # noqa: F401
     write_table_file,
     read_table_file,
 )
-from schemas import augment, benchmarks, ingest, keypoints, llm, policy, sim, synthetic, takes, variations  # noqa: F401,E402  (registers tables)
+from schemas import augment, benchmarks, ingest, keypoints, llm, policy, sim, synthetic, table3, takes, variations  # noqa: F401,E402  (registers tables)
