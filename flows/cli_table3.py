@@ -36,7 +36,15 @@ def table3_cmd(
     from schemas.catalog import query
     from tasks.table3 import ALL_STRATEGIES
 
+    from lib.trajectories.query_scenes import PROTOCOLS
+
     protocols = protocol or ["thesis"]
+    bad = [p for p in protocols if p not in PROTOCOLS] + [s for s in strategy or [] if s not in ALL_STRATEGIES]
+    if bad:
+        raise fail(f"unknown protocol or strategy {bad}: protocols {', '.join(PROTOCOLS)}; "
+                   f"strategies {', '.join(ALL_STRATEGIES)}")
+    if llm_scenes is not None and llm_scenes > scenes:
+        raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
     try:
         run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, takes=takes, scenes=scenes,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,

@@ -124,3 +124,14 @@ def test_table3_grid_end_to_end(prefect_api, warehouse, trash_take):
            strategies=["replay_top1"], episodes=200, take_dirs=[str(trash_take)], show_progress=False)
     again = query("SELECT success FROM table3_trials WHERE strategy = 'replay_top1' ORDER BY scene", warehouse)
     assert again.column(0).to_pylist() == [r["success"] for r in by["replay_top1"]]
+
+
+@pytest.mark.parametrize("args", [["--protocol", "bogus"], ["--strategy", "gpt"], ["--scenes", "2", "--llm-scenes", "3"]])
+def test_table3_command_refuses_bad_options_in_one_line(warehouse, args):
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    r = CliRunner().invoke(app, ["table3", *args])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert len(r.output.strip().splitlines()) == 1, r.output
