@@ -54,7 +54,6 @@ def table3(
     Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped."""
     from tqdm import tqdm
 
-    from flows.augment import augment_take_flow
     from flows.synth import synthesize_takes
     from lib.task_library import TASK_NAMES, get_task
     from lib.trajectories.query_scenes import PROTOCOLS
