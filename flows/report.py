@@ -202,7 +202,7 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "mirrored-and-translated episodes; invalid ones are kept and flagged with the reason."))
     llm_stamp = stamp + f" · LLM backend: {params.get('llm_backend')} · trials per strategy: {params.get('trials')}"
     md += table3_sections(warehouse, reports, llm_stamp + f" · LLM-free and policy scenes: {params.get('grid_scenes')}")
-    md.append(_section("Table 3: prompting strategies", "report_table3", warehouse, reports, llm_stamp,
+    md.append(_section("Prompting trials of `demoforge llm-eval` (placement scenes; not the grid above)", "report_table3", warehouse, reports, llm_stamp,
                        "Successes of the predicted trajectories in the MuJoCo check, per take and strategy: "
                        "`single` (the original demonstration as the only example), `random` (3 random "
                        "augmented episodes), `retrieval` (the top 3 by keypoint MSE), and the LLM-free "
