@@ -6,10 +6,10 @@ STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
 
-.PHONY: setup test evaluate bench catalog help check-exports
+.PHONY: setup test evaluate bench catalog table3 help check-exports
 
 help:  ## list the targets
-	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
+	@grep -E '^[a-z0-9-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
 
 setup: $(STAMP)  ## create .venv and install pinned dependencies (fast when nothing changed)
 
@@ -23,6 +23,9 @@ test: setup  ## run the test suite
 
 evaluate: setup  ## the main job: synthetic takes -> every flow -> reports/
 	$(VENV)/bin/demoforge evaluate $(EVALUATE_ARGS)
+
+table3: setup  ## the thesis's Table 3 grid: 5 pouring takes x 10 scenes x every strategy, both protocols (resumable)
+	$(VENV)/bin/demoforge table3 --protocol thesis --protocol novel $(TABLE3_ARGS)
 
 bench: setup  ## run the benchmarks, write warehouse/benchmarks and print a table
 	$(VENV)/bin/demoforge bench $(BENCH_ARGS)

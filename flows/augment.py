@@ -29,6 +29,7 @@ def augment_take_flow(
     show_progress: bool = True,
     ingest_options: dict | None = None,
     allow_untrusted_hands: bool = False,
+    database: str | None = None,
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
@@ -42,6 +43,8 @@ def augment_take_flow(
     manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
     options: generate_episodes keyword arguments, e.g. {"translation_range": [[-0.1, 0.1], [-0.1, 0.1]],
     "yaw_range": [-0.5, 0.5], "independent": true, "safety_distance": 0.04, "mode": "thesis"}.
+    database: the episodes' key in `episodes.take` (default: the take's id), to keep a second database
+    of the same take.
     """
     if n < 1 or not 0 <= n_mirrored <= n:
         raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
@@ -58,7 +61,7 @@ def augment_take_flow(
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=n, n_mirrored=n_mirrored,
-                         seed=seed, options=options or {})
+                         seed=seed, options=options or {}, **({"database": database} if database else {}))
     return {**ingested, "segments": segments, "episodes": episodes}
 
 

@@ -338,7 +338,8 @@ def evaluate(
     sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
     stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
     stability_repeats: int = typer.Option(3, envvar="STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
-    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="LLM query scenes per strategy on --llm-task (thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them)."),
+    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them). `make table3` runs the full grid."),
+    grid_scenes: int = typer.Option(5, envvar="GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
@@ -362,7 +363,7 @@ def evaluate(
         raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
     params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
                   sim_episodes=sim_episodes, stability_episodes=stability_episodes,
-                  stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials,
+                  stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials, grid_scenes=grid_scenes,
                   llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
                   variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials)
     warehouse, reports_dir = current_warehouse(), reports.resolve()
@@ -824,7 +825,7 @@ def serve(
 
 
 # Commands of the larger areas live in their own modules and register on `app` when imported.
-from flows import cli_export, cli_hamer, cli_policy, cli_variations  # noqa: E402,F401
+from flows import cli_export, cli_hamer, cli_policy, cli_table3, cli_variations  # noqa: E402,F401
 
 
 def main() -> None:

@@ -11,11 +11,11 @@ from flows.artifacts import ProgressArtifact
 from flows.augment import augment_take_flow
 from flows.ingest import ingest_take
 from flows.keypoint_eval import evaluate_keypoints
-from flows.llm_eval import llm_eval
 from flows.report import write_report
 from flows.runners import run_flow
 from flows.sim import check_stability, simulate_episodes
 from flows.synth import synthesize_takes
+from flows.table3 import table3
 
 
 @flow(name="evaluate")
@@ -33,6 +33,7 @@ def evaluate(
     stability_repeats: int = 3,
     llm_tasks: Sequence[str] = ("pouring",),
     trials: int = 1,
+    grid_scenes: int = 5,
     llm_backend: str = "local",
     llm_options: dict | None = None,
     variation_trials: int = 2,
@@ -49,8 +50,10 @@ def evaluate(
     `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo,
     and `stability_episodes` of them `stability_repeats` times with the scene shifted by about 0.1 mm (how
     far a single verdict can be trusted).
-    The prompting strategies (thesis Table 3) run `trials` query scenes each on `llm_tasks` with
-    `llm_backend` (the embedded Gemma 3 270M by default; answers are cached).
+    Table 3 (flows/table3.py, protocol `thesis`, the first take of each of `llm_tasks`): the LLM-free
+    baselines and the learned policy on `grid_scenes` query scenes, the three prompts on the first
+    `trials` of them with `llm_backend` (the embedded Gemma 3 270M by default: minutes per trial on 2
+    cores, so 1 by default; answers are cached). `make table3` runs the full grid.
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
     labelled real photos, and on ARCTIC when `arctic_root` (or $ARCTIC_ROOT) is given."""
     import os
@@ -61,6 +64,7 @@ def evaluate(
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
     manifests = run_flow(synthesize_takes, warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
+    first_take: dict[str, str] = {}  # task -> path of its first plain take (the task database)
     progress = ProgressArtifact("evaluate-progress", len(manifests) + 2,
                                 "The main job: takes processed, then the evaluations and the report.")
     for m in manifests:
@@ -68,6 +72,7 @@ def evaluate(
         if name.endswith(f"_s{seed:04d}"):  # the first plain take of its task: the task database
             run_flow(augment_take_flow, m.path, warehouse, n=episodes, n_mirrored=episodes // 2, seed=seed)
             task = name.split("_s")[0].removeprefix("synth_")
+            first_take[task] = m.path
             if sim_episodes:
                 run_flow(simulate_episodes, warehouse, task=task, episodes=sim_episodes, take=name, seed=seed)
             if stability_episodes and stability_repeats >= 2:
@@ -76,19 +81,26 @@ def evaluate(
         else:
             run_flow(ingest_take, m.path, warehouse)
         progress.step()
+    from tasks.table3 import ALL_STRATEGIES, POLICY
+
     for llm_task in llm_tasks:
-        if llm_task in tasks and trials > 0:
-            run_flow(llm_eval, warehouse, task=llm_task, backend=llm_backend, backend_options=llm_options or {},
-                     trials=trials, seed=seed)
+        if llm_task in first_take and grid_scenes > 0:
+            with_policy = llm_task in policy_tasks and policy_trials > 0
+            run_flow(table3, warehouse, task=llm_task, protocols=["thesis"], takes=1, scenes=grid_scenes,
+                     llm_scenes=min(trials, grid_scenes), backend=llm_backend, backend_options=llm_options or {},
+                     strategies=[s for s in ALL_STRATEGIES if s != POLICY or with_policy], seed=seed,
+                     episodes=episodes, policy_epochs=policy_epochs, policy_waypoints=policy_waypoints,
+                     take_dirs=[first_take[llm_task]])
     from flows.policy import evaluate_policy, train_policy
     from tasks.policy import checkpoint_row
 
     for policy_task in policy_tasks:
         if policy_task in tasks and policy_trials > 0:
             # no time cap: a run that stops on a budget is not reproducible from its seed
-            ck = run_flow(train_policy, warehouse, task=policy_task, seed=seed, epochs=policy_epochs,
+            take = Path(first_take[policy_task]).name if policy_task in first_take else None
+            ck = run_flow(train_policy, warehouse, task=policy_task, take=take, seed=seed, epochs=policy_epochs,
                           max_minutes=None, threads=2, n_waypoints=policy_waypoints)
-            run_flow(evaluate_policy, warehouse, task=policy_task, trials=policy_trials, seed=seed,
+            run_flow(evaluate_policy, warehouse, task=policy_task, take=take, trials=policy_trials, seed=seed,
                      checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
     from flows.variations import evaluate_variations
     from lib.variations import TABLE4_TASKS
@@ -114,6 +126,7 @@ def evaluate(
                                                    "stability_episodes": stability_episodes,
                                                    "stability_repeats": stability_repeats,
                                                    "llm_tasks": list(llm_tasks), "trials": trials,
+                                                   "grid_scenes": grid_scenes,
                                                    "llm_backend": llm_backend,
                                                    "variation_trials": variation_trials,
                                                    "policy_epochs": policy_epochs, "policy_trials": policy_trials,

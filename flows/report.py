@@ -119,6 +119,33 @@ def keypoint_sections(warehouse: Path, reports: Path, commit: str) -> list[str]:
     return md
 
 
+TABLE3_INTRO = (
+    "The thesis's Table 3 (pouring: 5 takes x 10 query scenes; its figures: One Demo 6 %, 3 Random 24 %, "
+    "3 Retrieved 96 %) in its layout, successes/scenes in the MuJoCo check per take and the pooled rate on "
+    "the Average row. Protocol `thesis`: every take has its own database and its query scenes are drawn from "
+    "that database's own augmentation sampler with held-out seeds (in its distribution, never one of its "
+    "episodes: the thesis's 5.3.1). Protocol `novel`: the task library's placements (each object placed "
+    "and turned independently) against a second database of the take built to cover them. Prompts: "
+    "`one_demo` (the original demonstration as the only example), `random_3`, `retrieved_3` (top 3 by "
+    "keypoint MSE). LLM-free: `replay_original` (the demonstration replayed unchanged: One Demo without an "
+    "LLM), `replay_top1` (the nearest episode replayed), `knn_blend` (the 3 nearest episodes carried to the "
+    "scene in their objects' frames and averaged), `transform_demo` (the demonstration, or its mirror image, "
+    "carried to the scene); `policy`: the learned policy trained on that take's database. A grid run with "
+    "fewer LLM scenes than scenes shows it in the denominators.")
+
+
+def table3_sections(warehouse: Path, reports: Path, stamp: str) -> list[str]:
+    """Table 3 in the thesis's layout, its Wilson intervals and failure reasons (empty without a grid run)."""
+    if _view("report_table3_grid", warehouse).num_rows == 0:
+        return ["## Table 3 (thesis layout)", "", "_No Table 3 grid in this warehouse yet: `make table3`._", ""]
+    return [_section("Table 3 (thesis layout), per protocol", "report_table3_grid", warehouse, reports, stamp,
+                     TABLE3_INTRO),
+            _section("Table 3: success rates with Wilson 95 % intervals", "report_table3_intervals", warehouse,
+                     reports, stamp, "Pooled over the takes; `nearest_episode_rms_mm`: how far the scenes lie "
+                     "from their nearest database episode (RMS over the keypoints)."),
+            _section("Table 3: why trials failed", "report_table3_failures", warehouse, reports, stamp)]
+
+
 def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -> Path:
     global _REPORT_VIEWS_READ
     _REPORT_VIEWS_READ = {}
@@ -174,7 +201,8 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "The task databases: episode 0 is the ingested demonstration, then translated and "
                        "mirrored-and-translated episodes; invalid ones are kept and flagged with the reason."))
     llm_stamp = stamp + f" · LLM backend: {params.get('llm_backend')} · trials per strategy: {params.get('trials')}"
-    md.append(_section("Table 3: prompting strategies", "report_table3", warehouse, reports, llm_stamp,
+    md += table3_sections(warehouse, reports, llm_stamp + f" · LLM-free and policy scenes: {params.get('grid_scenes')}")
+    md.append(_section("Prompting trials of `demoforge llm-eval` (placement scenes; not the grid above)", "report_table3", warehouse, reports, llm_stamp,
                        "Successes of the predicted trajectories in the MuJoCo check, per take and strategy: "
                        "`single` (the original demonstration as the only example), `random` (3 random "
                        "augmented episodes), `retrieval` (the top 3 by keypoint MSE), and the LLM-free "
@@ -241,7 +269,8 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                                   "report_big_vs_small", "report_real_photos", "report_sim", "report_sim_failures",
                                   "report_sim_stability",
                                   "report_table3", "report_llm_failures", "report_table4", "report_table4_failures",
-                                  "report_policy", "report_policy_failures"}
+                                  "report_policy", "report_policy_failures", "report_table3_grid",
+                                  "report_table3_intervals", "report_table3_failures"}
     assert not unused, f"report views not in the report: {unused}"
     out = reports / "REPORT.md"
     tmp = out.with_name(".REPORT.md.tmp")

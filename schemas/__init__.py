@@ -18,4 +18,6 @@ from schemas.core import (  # noqa: F401
     write_table_file,
     read_table_file,
 )
-from schemas import augment, benchmarks, detection, ingest, keypoints, llm, policy, sim, synthetic, takes, variations  # noqa: F401,E402  (registers tables)
+from schemas import (  # noqa: F401,E402  (registers tables)
+    augment, benchmarks, detection, ingest, keypoints, llm, policy, sim, synthetic, table3, takes, variations,
+)

@@ -5,6 +5,7 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+from schemas.table3 import REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL
 from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
 
 # Views over the tables that are not report sections (the report views may use them).
@@ -167,6 +168,10 @@ REPORT_VIEWS: dict[str, str] = {
         ORDER BY task, take, CASE strategy WHEN 'single' THEN 0 WHEN 'random' THEN 1 WHEN 'retrieval' THEN 2
                                    WHEN 'replay_top1' THEN 3 ELSE 4 END
     """,
+    # Thesis Table 3 in its layout (per protocol: takes x strategies), Wilson intervals, failure reasons.
+    "report_table3_grid": REPORT_TABLE3_GRID_SQL,
+    "report_table3_intervals": REPORT_TABLE3_INTERVALS_SQL,
+    "report_table3_failures": REPORT_TABLE3_FAILURES_SQL,
     # Why trials failed, per strategy.
     "report_llm_failures": """
         SELECT task, strategy, backend, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,

@@ -105,8 +105,10 @@ def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
 @stage_task(name="augment_take", version=AUGMENT_VERSION)
 def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
-                 options: dict | None = None) -> Manifest:
-    """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes."""
+                 options: dict | None = None, database: str | None = None) -> Manifest:
+    """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes.
+    database: the key written to `episodes.take` (default: the take's id); another key keeps a second
+    database of the same take (other augmentation options) beside the first."""
     from lib.augmentation import generate_episodes
     from lib.ingest import open_take
 
@@ -119,16 +121,17 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     opts.setdefault("workspace", np.asarray(ws))
     batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
     N = len(batch)
-    before = _episode_file_digests(warehouse, name, take.take_id)
+    key = database or take.take_id
+    before = _episode_file_digests(warehouse, name, key)
     written = write_table("episodes", {
-        "task": [name] * N, "take": [take.take_id] * N, "episode_id": batch.episode_id.astype(np.int64),
+        "task": [name] * N, "take": [key] * N, "episode_id": batch.episode_id.astype(np.int64),
         "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
         "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
         "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
         "reject_reason": batch.reject_reason.astype(str).tolist(),
         "min_gripper_distance": batch.min_gripper_distance,
     }, warehouse)
-    written += write_table("episode_steps", episode_steps_columns(name, take.take_id, batch), warehouse)
+    written += write_table("episode_steps", episode_steps_columns(name, key, batch), warehouse)
     if before and before != {w.path: w.content_hash for w in written}:  # the writer's sha256 of each file
         # the take's robot checks describe episodes that no longer exist: drop them, so that no
         # report or query mixes them with the new database (simulate again to refill)
@@ -136,7 +139,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
         from schemas.sim import drop_results
 
-        gone = drop_results(warehouse, name, take.take_id)
+        gone = drop_results(warehouse, name, key)
         if gone:
             get_run_logger().warning("%s/%s: the episodes changed; removed %d robot-check file(s) (sim_results, "
                                      "sim_stability) of the previous episodes", name, take.take_id, gone)

@@ -63,7 +63,6 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
                n_waypoints: int = 20, precision: int = 3, max_tokens: int | None = None,
                temperature: float = 0.0) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
-    from lib.prompting import build_prompt, parse_actions
     from tasks.augment import episode_actions
     from lib.retrieval import KeypointIndex, select_random
     from lib.robot_sim import execute
@@ -75,7 +74,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     init = db["initial"][db["ids"] == original][0]
     llm = None
     if strategy in LLM_STRATEGIES:
-        from lib.llm import Sampling, get_backend
+        from lib.llm import get_backend
 
         llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
     rows = []
@@ -102,25 +101,13 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
         else:
             acts = episode_actions(warehouse, task, take, ids)
             examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
-            prompt = build_prompt(examples, kp, init, n_waypoints=n_waypoints, precision=precision)
-            row["prompt_hash"] = prompt.hash
-            sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
-                                seed=seed, stop=tuple(prompt.stop))
-            t0 = time.perf_counter()
-            try:
-                c = llm.complete(prompt, sampling)
-            except Exception as e:  # noqa: BLE001 - a backend failure is a failed trial, never a crash
-                row.update(parse_status="llm_error", parse_detail=f"{type(e).__name__}: {e}"[:500],
-                           latency_s=time.perf_counter() - t0, success=False, failure_reason="llm_error",
-                           sim_detail="")
+            actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints, precision=precision,
+                                          max_tokens=max_tokens, temperature=temperature, seed=seed)
+            row.update(fields)
+            if fields["parse_status"] == "llm_error":
+                row.update(success=False, failure_reason="llm_error", sim_detail="")
                 rows.append(row)
                 continue
-            row.update(prompt_tokens=int(c.prompt_tokens or 0), answer_tokens=int(c.completion_tokens or 0),
-                       latency_s=0.0 if c.cached else float(c.latency_s), cached=bool(c.cached), raw_answer=c.text)
-            parsed = parse_actions(c.text, expected_waypoints=n_waypoints, prefix=prompt.answer_prefix)
-            row.update(parse_status=parsed.status, parse_detail=parsed.detail)
-            if parsed.ok:
-                actions = upsample(parsed.actions, n_steps)
         if actions is None:
             row.update(success=False, failure_reason=row["parse_status"], sim_detail="")
         else:
@@ -130,6 +117,35 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
         rows.append(row)
     written = write_table("llm_trials", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("llm_trials", written)
+
+
+def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int, n_waypoints: int = 20,
+                precision: int = 3, max_tokens: int | None = None, temperature: float = 0.0,
+                seed: int = 0) -> tuple[np.ndarray | None, dict]:
+    """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt -> the
+    backend's answer -> parsed actions upsampled to n_steps (None when the answer does not parse), and
+    the llm_trials fields of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).
+    A backend failure gives parse_status `llm_error`, never an exception."""
+    from lib.llm import Sampling
+    from lib.prompting import build_prompt, parse_actions
+
+    prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision)
+    fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
+              "raw_answer": "", "parse_status": "ok", "parse_detail": ""}
+    sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
+                        seed=seed, stop=tuple(prompt.stop))
+    t0 = time.perf_counter()
+    try:
+        c = llm.complete(prompt, sampling)
+    except Exception as e:  # noqa: BLE001 - a backend failure is a failed trial, never a crash
+        fields.update(parse_status="llm_error", parse_detail=f"{type(e).__name__}: {e}"[:500],
+                      latency_s=time.perf_counter() - t0)
+        return None, fields
+    fields.update(prompt_tokens=int(c.prompt_tokens or 0), answer_tokens=int(c.completion_tokens or 0),
+                  latency_s=0.0 if c.cached else float(c.latency_s), cached=bool(c.cached), raw_answer=c.text)
+    parsed = parse_actions(c.text, expected_waypoints=n_waypoints, prefix=prompt.answer_prefix)
+    fields.update(parse_status=parsed.status, parse_detail=parsed.detail)
+    return (upsample(parsed.actions, n_steps) if parsed.ok else None), fields
 
 
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:

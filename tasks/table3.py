@@ -1,0 +1,155 @@
+"""Prefect task of the Table 3 grid: one (protocol, take, strategy) cell over its query scenes ->
+predictions -> MuJoCo success check -> `table3_trials` rows."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+import lib  # noqa: F401
+from schemas.core import get_schema, write_table
+from tasks.common import Manifest, stage_task
+
+TABLE3_VERSION = "1"
+LLM_STRATEGIES = ("single", "random", "retrieval")
+FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
+POLICY = "policy"
+ALL_STRATEGIES = LLM_STRATEGIES + FREE_STRATEGIES + (POLICY,)
+K_EXAMPLES = 3
+
+
+def _database(warehouse: str, task: str, database: str) -> dict:
+    """The database's valid episodes (ids, kinds, keypoints, initial poses, lengths)."""
+    from schemas.catalog import query
+
+    ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
+               f"WHERE task = '{task}' AND take = '{database}' AND valid ORDER BY episode_id", warehouse)
+    if ep.num_rows == 0:
+        raise ValueError(f"no valid episodes of {task}/{database}: build the database first (`demoforge table3` does)")
+    kinds = np.array(ep.column("kind").to_pylist())
+    if not (kinds == "original").any():
+        raise ValueError(f"{task}/{database} has no original episode: re-run the augmentation")
+    return {"ids": np.asarray(ep.column("episode_id").to_numpy()), "kinds": kinds,
+            "keypoints": np.asarray(ep.column("object_keypoints").to_pylist(), float),
+            "initial": np.asarray(ep.column("initial_poses").to_pylist(), float),
+            "length": np.asarray(ep.column("length").to_numpy())}
+
+
+def nearest_source(source, query_keypoints: np.ndarray):
+    """The demonstration or its mirror image, whichever is nearer to the scene in keypoint MSE (the
+    augmentation's two layouts), for transform_demo."""
+    from lib.augmentation import mirror_source
+
+    m = mirror_source(source)
+    q = np.asarray(query_keypoints, float)
+    return m if np.mean(np.sum((m.keypoints - q) ** 2, -1)) < np.mean(np.sum((source.keypoints - q) ** 2, -1)) \
+        else source
+
+
+@stage_task(name="table3_trials", version=TABLE3_VERSION, key_ignore=("show_progress",))
+def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
+                  episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
+                  backend_options: dict | None = None, n_waypoints: int = 20, precision: int = 3,
+                  max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
+                  show_progress: bool = True) -> Manifest:
+    """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
+    `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
+    are cached by the backend, so a re-run after an interruption pays only the robot checks."""
+    from tqdm import tqdm
+
+    from lib.retrieval import KeypointIndex, select_random
+    from lib.robot_sim import execute
+    from tasks.augment import episode_actions, load_demo_source
+    from tasks.llm_eval import llm_predict, upsample
+
+    if strategy not in ALL_STRATEGIES:
+        raise ValueError(f"unknown strategy {strategy!r}; choose from {', '.join(ALL_STRATEGIES)}")
+    db = _database(warehouse, task, database)
+    index = KeypointIndex(db["keypoints"], ids=db["ids"])
+    orig_row = int(np.flatnonzero(db["kinds"] == "original")[0])
+    original = int(db["ids"][orig_row])
+    source = load_demo_source(take, task, warehouse) if strategy in ("knn_blend", "transform_demo") else None
+    llm, model, policy = None, "", None
+    if strategy in LLM_STRATEGIES:
+        from lib.llm import get_backend
+
+        llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
+        model = str(getattr(llm, "model", "") or "")
+    elif strategy == POLICY:
+        from lib.policy.train import load_checkpoint
+        from tasks.policy import checkpoint_row
+
+        if policy_checkpoint is None:
+            raise ValueError("strategy `policy` needs a trained checkpoint")
+        ck = checkpoint_row(policy_checkpoint)
+        policy, model = load_checkpoint(ck["path"]), ck["checkpoint_id"]
+    rows = []
+    for sc in tqdm(scenes, desc=f"{protocol} {take} {strategy}", unit="scene", leave=False,
+                   disable=None if show_progress else True):
+        kp = np.asarray(sc["keypoints"], float)
+        poses = np.asarray(sc["object_poses"], float)
+        init = np.asarray(sc["initial"], float)
+        # the episode length of the scene's layout (plain and mirrored plans may differ)
+        layout = db["kinds"] == ("mirrored" if sc["mirrored"] else "original")
+        n_steps = int(db["length"][layout][0] if layout.any() else db["length"][orig_row])
+        row = {"task": task, "protocol": protocol, "take": take, "take_index": int(take_index), "database": database,
+               "scene": int(sc["scene"]), "seed": int(seed), "scene_mirrored": bool(sc["mirrored"]),
+               "nearest_mse": float(sc["nearest_mse"]), "query_keypoints": kp.tolist(), "strategy": strategy,
+               "backend": backend if llm else "torch" if policy is not None else "none", "model": model,
+               "example_ids": [], "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
+               "parse_status": "ok", "parse_detail": "", "prompt_hash": "", "raw_answer": ""}
+        top = [int(i) for i in np.asarray(index.query(kp, k=K_EXAMPLES).ids).ravel()]
+        t0 = time.perf_counter()
+        actions = None
+        if strategy == "single":
+            ids = [original]
+        elif strategy == "random":
+            ids = [int(i) for i in select_random(db["ids"], K_EXAMPLES, seed=seed * 1000 + int(sc["scene"]))]
+        elif strategy == "replay_original":
+            ids = [original]
+        elif strategy == "replay_top1":
+            ids = top[:1]
+        elif strategy == "knn_blend":
+            ids = top
+        else:
+            ids = []
+        row["example_ids"] = ids
+        if strategy in LLM_STRATEGIES:
+            acts = episode_actions(warehouse, task, database, ids)
+            pos = {int(i): r for r, i in enumerate(db["ids"])}
+            examples = [(db["keypoints"][pos[i]], db["initial"][pos[i]], acts[i]) for i in ids]
+            actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints,
+                                          precision=precision, max_tokens=max_tokens, seed=seed)
+            row.update(fields)
+        elif strategy in ("replay_original", "replay_top1"):
+            actions = episode_actions(warehouse, task, database, ids)[ids[0]]
+        elif strategy == "knn_blend":
+            from lib.trajectories.blend import knn_blend
+
+            acts = episode_actions(warehouse, task, database, ids)
+            pos = {int(i): r for r, i in enumerate(db["ids"])}
+            actions = knn_blend(source, [(acts[i], db["keypoints"][pos[i]], db["kinds"][pos[i]] == "mirrored")
+                                         for i in ids], poses)
+        elif strategy == "transform_demo":
+            from lib.augmentation import transform_demo
+
+            actions = transform_demo(nearest_source(source, kp), poses)
+        else:  # policy
+            actions = upsample(policy.predict(kp, init), n_steps)
+        if strategy not in LLM_STRATEGIES:
+            row["latency_s"] = time.perf_counter() - t0
+        row.pop("parse_detail", None)
+        if actions is None:
+            row.update(success=False, failure_reason=row["parse_status"],
+                       sim_detail=str(fields.get("parse_detail", ""))[:500])
+        else:
+            result = execute(task, kp, actions)
+            row.update(success=bool(result.success), failure_reason="" if result.success else str(result.failure),
+                       sim_detail=str(result.detail))
+        rows.append(row)
+    schema = get_schema("table3_trials").arrow
+    written = write_table("table3_trials", pa.Table.from_pylist(rows, schema=schema), warehouse)
+    return Manifest.from_written("table3_trials", written)
