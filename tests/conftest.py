@@ -83,6 +83,15 @@ def prefect_api():
         yield
 
 
+@pytest.fixture(scope="session")
+def prefect_api_env(prefect_api):
+    """Environment for a `demoforge` or `prefect` subprocess: the session's Prefect API, so the
+    subprocess does not start a temporary server of its own (13 s each on 2 loaded cores)."""
+    from prefect.settings import PREFECT_API_URL
+
+    return {"PREFECT_API_URL": PREFECT_API_URL.value()}
+
+
 @pytest.fixture()
 def warehouse(tmp_path, monkeypatch):
     root = tmp_path / "warehouse"
@@ -99,3 +108,28 @@ def trash_take(tmp_path_factory):
     out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
     generate_take("trash_in_bin", 0, False, out, video=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def _ingested_trash(tmp_path_factory, trash_take, prefect_api):
+    """trash_take ingested once (default options) into a warehouse at a fixed path, and a pristine copy."""
+    from flows.ingest import ingest_take
+
+    root = tmp_path_factory.mktemp("ingested")
+    live = root / "warehouse"
+    ingest_take(str(trash_take), str(live), show_progress=False)
+    shutil.copytree(live, root / "pristine")
+    return live, root / "pristine"
+
+
+@pytest.fixture()
+def ingested_warehouse(_ingested_trash, monkeypatch):
+    """A warehouse holding trash_take's ingest and its cache: a flow that builds on the ingest (augment,
+    simulate, llm-eval) finds every ingest stage cached instead of ingesting the take again (4-5 s each).
+    Cache keys name the warehouse folder, so the warehouse is always at the same path, restored from the
+    pristine copy for each test (tests run one at a time)."""
+    live, pristine = _ingested_trash
+    shutil.rmtree(live)
+    shutil.copytree(pristine, live)
+    monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(live))
+    return live

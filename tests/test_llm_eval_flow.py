@@ -4,11 +4,12 @@ from flows.augment import augment_take_flow
 from schemas.catalog import query
 
 
-def test_llm_eval_flow_parses_judges_and_records(prefect_api, warehouse, trash_take, monkeypatch):
+def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse, trash_take, monkeypatch):
     """Table 3 machinery with a scripted backend (the real local model is tested in test_llm_backends):
     a well-formed answer is parsed and judged in MuJoCo, garbage becomes a failed trial, not a crash.
     Trial 0's query scene is the take's own scene, so the demonstration itself is a known-good answer
     there (and the LLM-free baselines replay it); trial 1 is a new scene."""
+    warehouse = ingested_warehouse  # the take ingested once per session
     import tasks.llm_eval as te
     from flows.llm_eval import llm_eval
     from lib.prompting import format_actions, resample_actions
