@@ -86,7 +86,8 @@ def test_read_depth_robust_synthetic_and_batch():
     assert np.isnan(z2[0, 0])
 
 
-@pytest.mark.skipif(not (DEXCAP / "depth_image.png").exists(), reason="shared dexcap frame missing")
+@pytest.mark.skipif(not (DEXCAP / "depth_image.png").exists(), reason="../shared/data/rgbd/dexcap_frame_0 absent: the real RGB-D frame comes with "
+                    "the shared data folder (../shared/data beside the checkout)")
 def test_read_depth_robust_real_dexcap_frame():
     import cv2
 

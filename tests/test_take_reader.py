@@ -272,7 +272,8 @@ def test_real_dexcap_depth_png(tmp_path):
 
     src = SHARED_DATA / "rgbd" / "dexcap_frame_0"
     if not src.is_dir():
-        pytest.skip("shared data not present")
+        pytest.skip(f"{src} absent: the real RGB-D frame comes with the shared data folder "
+                    "(../shared/data beside the checkout)")
     (tmp_path / "rgb").mkdir()
     (tmp_path / "depth").mkdir()
     shutil.copy(src / "color_image.jpg", tmp_path / "rgb" / "frame_0.jpg")
