@@ -21,6 +21,10 @@ settings.register_profile("dev", print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE")
                       or ("ci" if os.environ.get("CI", "").lower() in ("1", "true", "yes") else "dev"))
 
+# Folder digests (tasks.common) of the suite's temporary takes: remembered in the temporary directory,
+# not in the user's cache folder; the suite's subprocesses inherit this.
+os.environ.setdefault("DEMOFORGE_DIGEST_CACHE", os.path.join(tempfile.gettempdir(), "demoforge-test-digests"))
+
 # A skip is only for what is truly absent. Where ../shared/data is present (a machine set up like
 # CI's), $DEMOFORGE_FAIL_ON_SKIP=1 (set by .ci/run) makes any skip fail the run: a skip there means
 # something the suite needs went missing, or a test hides an error behind a skip.
