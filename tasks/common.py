@@ -88,6 +88,46 @@ def _file_digest(path: Path) -> str:
     return digest
 
 
+def digest_cache_dir() -> Path:
+    """Where folder digests are remembered across processes ($DEMOFORGE_DIGEST_CACHE, else
+    $XDG_CACHE_HOME/demoforge/digests or ~/.cache/demoforge/digests)."""
+    env = os.environ.get("DEMOFORGE_DIGEST_CACHE")
+    if env:
+        return Path(env)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "demoforge" / "digests"
+
+
+def _dir_file_digests(folder: Path) -> list[tuple[str, str]]:
+    """(relative path, sha256) of every file under ``folder``, sorted. A take is hundreds of MB: every
+    command (and every Dask worker) used to hash it again. Each file's digest is remembered on disk
+    with its identity (inode, size, mtime and ctime in ns: a write changes ctime, which no tool can
+    set back), so an unchanged take is only stat'ed; a changed file is hashed again."""
+    folder = folder.resolve()
+    record = digest_cache_dir() / (hashlib.sha256(str(folder).encode()).hexdigest()[:32] + ".json")
+    try:
+        known = json.loads(record.read_text()) if record.is_file() else {}
+    except (OSError, ValueError):
+        known = {}
+    out, fresh = [], {}
+    for f in sorted(p for p in folder.rglob("*") if p.is_file()):
+        rel = str(f.relative_to(folder))
+        st = f.stat()
+        ident = [st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+        entry = known.get(rel)
+        digest = entry[1] if entry and entry[0] == ident else _file_digest(f)
+        fresh[rel] = [ident, digest]
+        out.append((rel, digest))
+    if fresh != known:
+        try:  # atomic; a failure only costs hashing again next time
+            record.parent.mkdir(parents=True, exist_ok=True)
+            tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
+            tmp.write_text(json.dumps(fresh))
+            os.replace(tmp, record)
+        except OSError:
+            pass
+    return out
+
+
 def content_fingerprint(value: Any) -> Any:
     """A JSON-able, content-based stand-in for a task input."""
     if isinstance(value, Manifest):
@@ -97,9 +137,9 @@ def content_fingerprint(value: Any) -> Any:
             return {"file": value.name, "sha256": _file_digest(value)}
         if value.is_dir():
             h = hashlib.sha256()
-            for f in sorted(p for p in value.rglob("*") if p.is_file()):
-                h.update(str(f.relative_to(value)).encode())
-                h.update(_file_digest(f).encode())
+            for rel, digest in _dir_file_digests(value):
+                h.update(rel.encode())
+                h.update(digest.encode())
             return {"dir": value.name, "sha256": h.hexdigest()}
         return {"missing_path": str(value)}
     if isinstance(value, dict):

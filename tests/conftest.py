@@ -1,15 +1,34 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
 
+import os
 import shutil
 import tempfile
 
 import pytest
+from hypothesis import settings
 
 import lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
 import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
 SHARED_DATA = lib.SHARED_DATA
+
+# Hypothesis: CI draws the same examples on every run (a red CI run is a real regression, not a new
+# random draw, and a rerun reproduces it); local runs keep drawing new examples and remember failing
+# ones in .hypothesis/. Chosen by $HYPOTHESIS_PROFILE, else "ci" when $CI is true (CI services set it).
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
+settings.register_profile("dev", print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE")
+                      or ("ci" if os.environ.get("CI", "").lower() in ("1", "true", "yes") else "dev"))
+
+# Folder digests (tasks.common) of the suite's temporary takes: remembered in the temporary directory,
+# not in the user's cache folder; the suite's subprocesses inherit this.
+os.environ.setdefault("DEMOFORGE_DIGEST_CACHE", os.path.join(tempfile.gettempdir(), "demoforge-test-digests"))
+
+# A skip is only for what is truly absent. Where ../shared/data is present (a machine set up like
+# CI's), $DEMOFORGE_FAIL_ON_SKIP=1 (set by .ci/run) makes any skip fail the run: a skip there means
+# something the suite needs went missing, or a test hides an error behind a skip.
+FAIL_ON_SKIP = os.environ.get("DEMOFORGE_FAIL_ON_SKIP", "") not in ("", "0") and SHARED_DATA.is_dir()
 
 # Free space the suite needs in the temporary directory (synthetic takes, warehouses, videos, model
 # weights the tests build): measured peak 1-2 GB (README, Development), plus a margin. A CI run that
@@ -27,6 +46,38 @@ def pytest_sessionstart(session):
                     f"larger disk, then run `make test` again.", returncode=3)
 
 
+def _skipped(session) -> list:
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    return list(reporter.stats.get("skipped", [])) if reporter is not None else []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if FAIL_ON_SKIP and _skipped(session) and exitstatus in (pytest.ExitCode.OK, pytest.ExitCode.NO_TESTS_COLLECTED):
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter):
+    skipped = terminalreporter.stats.get("skipped", [])
+    if FAIL_ON_SKIP and skipped:
+        terminalreporter.write_line(
+            f"DEMOFORGE_FAIL_ON_SKIP: {len(skipped)} test(s) skipped although {SHARED_DATA} is present "
+            f"(reasons in the short test summary): the run fails", red=True, bold=True)
+
+
+def require_mediapipe_model():
+    """Skip, saying how to provide it, when the MediaPipe package or its hand-landmarker model file is
+    absent; once both are there, every error of the detector is the test's to report."""
+    pytest.importorskip("mediapipe", reason="mediapipe is not installed: pip install --no-deps -r "
+                        "requirements/mediapipe.txt (make setup does)")
+    from lib.detectors.mediapipe_backend import MODEL_ENV, default_model_path
+
+    path = default_model_path()
+    if not path.is_file():
+        pytest.skip(f"MediaPipe hand model {path} absent: build it with `.venv/bin/python "
+                    f"scripts/fetch_mediapipe_model.py` (make setup does) or point ${MODEL_ENV} at a .task file")
+    return path
+
+
 @pytest.fixture(scope="session")
 def prefect_api():
     """A real, temporary Prefect API for flows run by tests (started once per session)."""
@@ -34,6 +85,15 @@ def prefect_api():
 
     with prefect_test_harness(server_startup_timeout=120):
         yield
+
+
+@pytest.fixture(scope="session")
+def prefect_api_env(prefect_api):
+    """Environment for a `demoforge` or `prefect` subprocess: the session's Prefect API, so the
+    subprocess does not start a temporary server of its own (13 s each on 2 loaded cores)."""
+    from prefect.settings import PREFECT_API_URL
+
+    return {"PREFECT_API_URL": PREFECT_API_URL.value()}
 
 
 @pytest.fixture()
@@ -52,3 +112,28 @@ def trash_take(tmp_path_factory):
     out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
     generate_take("trash_in_bin", 0, False, out, video=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def _ingested_trash(tmp_path_factory, trash_take, prefect_api):
+    """trash_take ingested once (default options) into a warehouse at a fixed path, and a pristine copy."""
+    from flows.ingest import ingest_take
+
+    root = tmp_path_factory.mktemp("ingested")
+    live = root / "warehouse"
+    ingest_take(str(trash_take), str(live), show_progress=False)
+    shutil.copytree(live, root / "pristine")
+    return live, root / "pristine"
+
+
+@pytest.fixture()
+def ingested_warehouse(_ingested_trash, monkeypatch):
+    """A warehouse holding trash_take's ingest and its cache: a flow that builds on the ingest (augment,
+    simulate, llm-eval) finds every ingest stage cached instead of ingesting the take again (4-5 s each).
+    Cache keys name the warehouse folder, so the warehouse is always at the same path, restored from the
+    pristine copy for each test (tests run one at a time)."""
+    live, pristine = _ingested_trash
+    shutil.rmtree(live)
+    shutil.copytree(pristine, live)
+    monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(live))
+    return live

@@ -8,16 +8,42 @@ from lib.benchmarking import BenchCase, run_case
 from schemas.catalog import query
 
 
-def test_run_case_times_both_and_checks_agreement():
+class FakeClock:
+    """time.perf_counter for lib.benchmarking: the benchmarked functions advance it by known amounts."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+    def spend(self, seconds):
+        self.now += seconds
+
+
+@pytest.fixture()
+def clock(monkeypatch):
+    c = FakeClock()
+    monkeypatch.setattr("lib.benchmarking.time.perf_counter", c)
+    return c
+
+
+def test_run_case_times_both_and_checks_agreement(clock):
+    fast_costs = iter([0.5, 0.2, 0.3])  # best of 3 repeats: 0.2 s
+    checked = []
+
     def setup(n):
         a = np.arange(n, dtype=float)
-        return (lambda: a * 2.0), (lambda: np.array([x * 2.0 for x in a]))
+        return (lambda: clock.spend(next(fast_costs)) or a * 2.0), (lambda: clock.spend(3.0) or np.array([x * 2.0 for x in a]))
 
     def check(fast, base):
+        checked.append(len(fast))
         np.testing.assert_array_equal(fast, base)
 
-    r = run_case(BenchCase("t", "double", 10_000, "items", "python loop", setup, check, repeats=2))
-    assert r.seconds > 0 and r.baseline_seconds > 0 and r.ratio == r.baseline_seconds / r.seconds
+    r = run_case(BenchCase("t", "double", 10_000, "items", "python loop", setup, check, repeats=3))
+    assert r.seconds == pytest.approx(0.2) and r.baseline_seconds == pytest.approx(3.0)
+    assert r.ratio == pytest.approx(15.0) and r.items_per_second == pytest.approx(50_000)
+    assert checked == [10_000]
 
 
 def test_run_case_refuses_a_fast_path_that_disagrees_with_its_baseline():
@@ -31,19 +57,29 @@ def test_run_case_refuses_a_fast_path_that_disagrees_with_its_baseline():
         run_case(BenchCase("t", "wrong", 100, "items", "ones", setup, check, repeats=1))
 
 
-def test_scaled_baseline_on_fewer_items():
-    def setup(n):
-        return (lambda: sum(range(n))), (lambda: sum(range(n)))
+def test_scaled_baseline_on_fewer_items(clock):
+    sizes = []
 
-    r = run_case(BenchCase("t", "scaled", 100_000, "items", "same", setup, None, repeats=1, baseline_size=10_000))
-    assert r.baseline_seconds > 0
+    def setup(n):
+        sizes.append(n)
+        return (lambda: clock.spend(2.0) or sum(range(n))), (lambda: clock.spend(1.0) or sum(range(n)))
+
+    checked = []
+    r = run_case(BenchCase("t", "scaled", 100_000, "items", "same", setup, lambda f, b: checked.append((f, b)),
+                           repeats=1, baseline_size=10_000))
+    # the baseline ran on 10,000 items in 1 s: 10 s for the case's 100,000, ratio 10 / 2
+    assert r.baseline_seconds == pytest.approx(10.0) and r.ratio == pytest.approx(5.0)
+    # fast and baseline are compared on the baseline's size, where both exist
+    assert sizes == [100_000, 10_000, 10_000] and checked == [(sum(range(10_000)), sum(range(10_000)))]
 
 
 def test_bench_flow_writes_rows_queryable_in_sql(prefect_api, warehouse):
     rows = run_benchmarks(str(warehouse), stages=["warehouse"], quick=True)
     assert len(rows) == len(CASE_FACTORIES["warehouse"](True)) >= 1
-    t = query("SELECT stage, case_name, ratio, machine FROM benchmarks")
-    assert t.num_rows == len(rows)
-    assert all(x > 0 for x in t.column("ratio").to_pylist())
+    t = query("SELECT stage, case_name, seconds, baseline_seconds, ratio FROM benchmarks ORDER BY case_name")
+    assert t.to_pylist() == sorted(({k: r[k] for k in ("stage", "case_name", "seconds", "baseline_seconds", "ratio")}
+                                    for r in rows), key=lambda r: r["case_name"])
+    assert all(r["stage"] == "warehouse" and r["ratio"] == pytest.approx(r["baseline_seconds"] / r["seconds"])
+               for r in t.to_pylist())
     with pytest.raises(ValueError, match="unknown benchmark stage"):
         run_benchmarks(str(warehouse), stages=["nope"], quick=True)

@@ -96,3 +96,33 @@ def test_unhashable_inputs_are_refused_with_advice():
 
     with pytest.raises(TypeError, match="pathlib.Path"):
         content_fingerprint({"arr": np.zeros(3)})
+
+
+def test_folder_digests_are_remembered_across_processes_and_follow_changes(tmp_path, monkeypatch):
+    """A take folder is hashed once; a later process (the in-process memo cleared) only stats it, and a
+    changed file is hashed again and changes the key."""
+    import tasks.common as common
+
+    monkeypatch.setenv("DEMOFORGE_DIGEST_CACHE", str(tmp_path / "digests"))
+    take = tmp_path / "take"
+    (take / "rgb").mkdir(parents=True)
+    for i in range(3):
+        (take / "rgb" / f"{i:06d}.png").write_bytes(bytes([i]) * 1000)
+    (take / "camera.json").write_text('{"fx": 1}')
+    first = content_fingerprint(take)
+    assert len(list((tmp_path / "digests").glob("*.json"))) == 1
+
+    hashed = []
+    real = common.file_sha256
+    monkeypatch.setattr(common, "file_sha256", lambda p: hashed.append(Path(p).name) or real(p))
+    monkeypatch.setattr(common, "_FILE_HASH_MEMO", {})  # as in a new process
+    assert content_fingerprint(take) == first and hashed == []
+    (take / "rgb" / "000001.png").write_bytes(b"other pixels")
+    changed = content_fingerprint(take)
+    assert changed != first and hashed == ["000001.png"]
+    # the same content as a fresh folder elsewhere (no record yet) gives the same key
+    monkeypatch.setattr(common, "_FILE_HASH_MEMO", {})
+    import shutil
+
+    shutil.copytree(take, tmp_path / "copy" / "take")
+    assert content_fingerprint(tmp_path / "copy" / "take") == changed

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -19,12 +18,6 @@ pytestmark = pytest.mark.slow
 
 TABLES = ("gripper_poses", "object_keypoints", "segments", "episodes", "episode_steps", "sim_results")
 VOLATILE = {"wall_s"}  # wall-clock time of a simulated episode
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _run_pipeline(take: Path, warehouse: Path, env: dict) -> None:
@@ -51,34 +44,29 @@ def _table(warehouse: Path, name: str) -> pa.Table:
     return t.sort_by([(k, "ascending") for k in keys])
 
 
-def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_runner(trash_take, tmp_path):
+def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_runner(trash_take, tmp_path,
+                                                                                   prefect_api_env):
     from distributed import Client, LocalCluster
-    from prefect.server.api.server import SubprocessASGIServer
 
     for name in ("distributed", "distributed.nanny", "distributed.scheduler", "distributed.worker"):
         logging.getLogger(name).setLevel(logging.WARNING)
     base = {k: v for k, v in os.environ.items() if not k.startswith("DEMOFORGE_")}
-    base["PREFECT_HOME"] = str(tmp_path / "prefect_home")
+    # every command talks to the session's Prefect API instead of starting a temporary server
+    base.update(prefect_api_env, PREFECT_HOME=str(tmp_path / "prefect_home"))
 
     _run_pipeline(trash_take, tmp_path / "threads", {**base, "DEMOFORGE_TASK_RUNNER": "threads"})
 
     # An existing cluster, as on a real deployment: a scheduler address plus a shared Prefect API.
-    api = SubprocessASGIServer(port=_free_port())
-    api.start(timeout=180)
+    os.environ["PREFECT_API_URL"] = prefect_api_env["PREFECT_API_URL"]  # the workers spawned below inherit it
     try:
-        dask_env = {**base, "PREFECT_API_URL": api.api_url}
-        os.environ["PREFECT_API_URL"] = api.api_url  # the workers spawned below inherit it
-        try:
-            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-                _run_pipeline(trash_take, tmp_path / "dask", {**dask_env, "DEMOFORGE_TASK_RUNNER": "dask",
-                                                              "DEMOFORGE_DASK_ADDRESS": cluster.scheduler_address})
-                with Client(cluster.scheduler_address) as client:
-                    ran = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
-                    workers = len(client.scheduler_info()["workers"])
-        finally:
-            os.environ.pop("PREFECT_API_URL", None)
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+            _run_pipeline(trash_take, tmp_path / "dask", {**base, "DEMOFORGE_TASK_RUNNER": "dask",
+                                                          "DEMOFORGE_DASK_ADDRESS": cluster.scheduler_address})
+            with Client(cluster.scheduler_address) as client:
+                ran = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
+                workers = len(client.scheduler_info()["workers"])
     finally:
-        api.stop()
+        os.environ.pop("PREFECT_API_URL", None)
 
     assert workers == 2
     # every stage of the two flows was executed by the cluster, not in the flow's process

@@ -9,7 +9,7 @@ from flows.keypoint_eval import evaluate_keypoints
 from lib.keypoint_eval import table1, table2
 from schemas.catalog import query
 from tests.arctic_fixture import build_arctic_tree
-from tests.conftest import SHARED_DATA
+from tests.conftest import SHARED_DATA, require_mediapipe_model
 
 
 def test_arctic_flow_writes_the_thesis_tables(prefect_api, warehouse, tmp_path):
@@ -46,8 +46,10 @@ def test_arctic_errors_name_what_is_missing(warehouse, tmp_path):
     assert r.exit_code == 2 and "arctic-root" in r.stderr
 
 
-@pytest.mark.skipif(not (SHARED_DATA / "real_hands").is_dir(), reason="../shared/data/real_hands not present")
+@pytest.mark.skipif(not (SHARED_DATA / "real_hands").is_dir(), reason="../shared/data/real_hands not present: the real "
+                    "hand photos come with the shared data folder (../shared/data beside the checkout)")
 def test_real_photo_table(prefect_api, warehouse):
+    require_mediapipe_model()
     evaluate_keypoints(str(warehouse), dataset="real_photos")
     rows = {r["dataset"]: r for r in query("SELECT * FROM report_real_photos", warehouse).to_pylist()}
     assert set(rows) == {"freihand", "onehand10k", "panoptic", "coco_wholebody", "all"}

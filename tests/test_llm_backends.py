@@ -17,7 +17,7 @@ from lib.llm import (Completion, FakeBackend, LLMBudgetExceeded, LLMError, LLMRe
                      Sampling, get_backend)
 from lib.llm.cache import CachedBackend
 from lib.llm.openai_backend import OpenAIBackend
-from lib.prompting import build_prompt, count_tokens, parse_actions
+from lib.prompting import PARSE_STATUSES, build_prompt, count_tokens, parse_actions
 
 SECRET = "sk-test-DO-NOT-LEAK-4242"
 
@@ -158,10 +158,8 @@ def test_openai_completions_mode_and_missing_usage(server):
 def test_openai_timeout_is_retried_then_fails_clearly(server):
     server.script = [("sleep", 1.0)]
     b = backend(server, timeout_s=0.25, max_retries=2)
-    t0 = time.perf_counter()
-    with pytest.raises(LLMTimeoutError) as ei:
+    with pytest.raises(LLMTimeoutError) as ei:  # the server would answer after 1 s: only a timeout raises
         b.complete(small_prompt(), Sampling())
-    assert time.perf_counter() - t0 < 5
     msg = str(ei.value)
     assert "timeout" in msg and "3 attempts" in msg and SECRET not in msg
     assert len(server.requests) == 3 and b.requests_made == 3
@@ -352,7 +350,9 @@ def test_local_backend_generates_a_real_answer(tmp_path):
     res = parse_actions(c.text)
     print(f"\nlocal gemma: load {b.load_time_s:.2f}s, {c.prompt_tokens} prompt tok, {c.completion_tokens} "
           f"completion tok in {dt:.2f}s; parse: {res.status} {res.detail}\n{c.text!r}")
-    assert res.status in ("ok", "truncated", "wrong_shape", "non_finite", "zero_quaternion", "no_array")
+    # what the 270M base model answers is not this backend's contract (any parse status can come back;
+    # the parser has its own tests): only that an answer is parsed without raising, into a known status
+    assert res.status in PARSE_STATUSES and (res.status != "ok" or res.actions.shape[1:] == (2, 8))
     # cached through the wrapper
     cb = CachedBackend(b, tmp_path)
     first = cb.complete(p, s)

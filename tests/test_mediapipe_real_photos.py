@@ -12,28 +12,25 @@ Measured (mediapipe 1.2.2 with the 0.10.21 full models, CPU, full images, defaul
 Bounds asserted below sit a little under these numbers. Run with -s to print the table.
 """
 
-import time
-
 import numpy as np
 import pytest
 
-from tests.conftest import SHARED_DATA
+from tests.conftest import SHARED_DATA, require_mediapipe_model
 
 REAL = SHARED_DATA / "real_hands"
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present (../shared/data beside the checkout)")
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present: the real hand photos come "
+                                "with the shared data folder (../shared/data beside the checkout)")
 
-mediapipe = pytest.importorskip("mediapipe", reason="pip install --no-deps -r requirements/mediapipe.txt")
+mediapipe = pytest.importorskip("mediapipe", reason="mediapipe is not installed: pip install --no-deps -r "
+                                "requirements/mediapipe.txt (make setup does)")
 
 
 @pytest.fixture(scope="module")
 def detector():
-    from lib.detectors import DetectorError
     from lib.detectors.mediapipe_backend import MediaPipeDetector
 
-    try:
-        det = MediaPipeDetector()
-    except DetectorError as e:
-        pytest.skip(f"{e}")
+    require_mediapipe_model()  # absent model: a skip; any error of the detector itself: a failure
+    det = MediaPipeDetector()
     yield det
     det.close()
 
@@ -42,8 +39,6 @@ def detector():
 def results(detector):
     from lib.detectors.real_photos_eval import evaluate, format_table
 
-    if not REAL.is_dir():
-        pytest.skip(f"{REAL} not present")
     res = {r.dataset: r for r in evaluate(detector, REAL)}
     print("\n" + format_table(list(res.values())))
     return res
@@ -98,23 +93,24 @@ def test_mirrored_flag_swaps_handedness(detector):
     a = detector.detect_image(rgb)
     with MediaPipeDetector(mirrored=True) as m:
         b = m.detect_image(rgb)
+    assert len(a) >= 1  # with no hand found the comparison below would hold for any flag
     assert [c.handedness for c in a] == [{"left": "right", "right": "left"}[c.handedness] for c in b]
 
 
-def test_speed_640x480(detector):
+def test_repeated_frames_give_the_same_hands(detector):
+    """Image mode keeps no state between calls: the same 640x480 frame gives the same hands every time
+    (its speed is measured by `make bench`, not asserted here)."""
     import cv2
 
     rgb = cv2.cvtColor(cv2.imread(str(REAL / "onehand10k" / "784.jpg")), cv2.COLOR_BGR2RGB)
     frame = cv2.resize(rgb, (640, 480))
     K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
-    detector.detect(frame[None], K, [0])
-    n = 20
-    t0 = time.perf_counter()
-    for i in range(n):
-        detector.detect(frame[None], K, [i])
-    dt = (time.perf_counter() - t0) / n
-    print(f"\nmediapipe (image mode) 640x480: {1000 * dt:.1f} ms/frame = {1 / dt:.1f} frames/s")
-    assert dt < 1.0
+    runs = [detector.detect(frame[None], K, [i])[0] for i in range(3)]
+    assert len(runs[0]) >= 1
+    for r in runs[1:]:
+        assert [c.handedness for c in r] == [c.handedness for c in runs[0]]
+        for c, c0 in zip(r, runs[0]):
+            np.testing.assert_allclose(c.joints_px, c0.joints_px, atol=1e-6)
 
 
 def test_handedness_follows_chirality(detector):

@@ -83,6 +83,11 @@ def test_2d_metrics_and_pck_by_hand():
     assert mpjpe_2d_from_3d(p3, g3, K) == pytest.approx(5.0)
     km = keypoint_metrics(p3.repeat(3, 1) + [[[0], [0.1], [0.2]]], g3.repeat(3, 1) + [[[0], [0.1], [0.2]]], K)
     assert set(km) >= {"mpjpe_m", "pa_mpjpe_m", "rr_mpjpe_m", "mpjpe_2d_px", "pck@0.05", "pck@0.15"}
+    # every joint off by the same (-3, -4, 0) cm: 5 cm MPJPE, nothing left after alignment; in pixels
+    # 5 cm at depth z is 500 / z px with f = 100 (joints at z = 1, 1.1, 1.2)
+    assert km["mpjpe_m"] == pytest.approx(0.05) and km["rr_mpjpe_m"] == pytest.approx(0.0, abs=1e-12)
+    assert km["pa_mpjpe_m"] == pytest.approx(0.0, abs=1e-9)
+    assert km["mpjpe_2d_px"] == pytest.approx((5 + 5 / 1.1 + 5 / 1.2) / 3)
 
 
 def test_gripper_metrics_by_hand():

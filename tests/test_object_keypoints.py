@@ -29,7 +29,8 @@ def test_round_trip_on_synthetic_plane():
     assert r.reasons == ["ok", "ok", "no valid depth in the window", "outside the image", "uv not finite"]
 
 
-@pytest.mark.skipif(not (DEXCAP / "depth_image.png").exists(), reason="shared dexcap frame missing")
+@pytest.mark.skipif(not (DEXCAP / "depth_image.png").exists(), reason="../shared/data/rgbd/dexcap_frame_0 absent: the real RGB-D frame comes with "
+                    "the shared data folder (../shared/data beside the checkout)")
 def test_real_dexcap_frame_round_trip_and_zeros():
     import cv2
 

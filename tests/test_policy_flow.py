@@ -68,8 +68,16 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     for t in trials:
         assert t["checkpoint_id"] == ck["checkpoint_id"] and t["latency_ms"] > 0
         assert np.asarray(t["predicted_waypoints"]).shape == (20, 2, 8)
-        assert t["success"] or t["failure_reason"]  # judged by the simulator
     held, ind, _, ood = trials
+    # each verdict is the simulator's verdict on the predicted waypoints, spread over the original's length
+    from lib.robot_sim import FAILURES, execute
+    from tasks.llm_eval import upsample
+
+    n_steps = query("SELECT length FROM episodes WHERE kind = 'original'", warehouse).column(0)[0].as_py()
+    for t in (ind, ood):
+        r = execute("pouring", np.asarray(t["query_keypoints"]), upsample(np.asarray(t["predicted_waypoints"]), n_steps))
+        assert (t["success"], t["failure_reason"], t["sim_detail"]) == (r.success, r.failure or "", r.detail)
+    assert all(t["success"] or t["failure_reason"] in FAILURES for t in trials)
     assert ood["in_augmented_region"] is False and ood["max_offset_m"] > 0
     assert held["in_augmented_region"] is True  # a database placement the policy did not train on
     import json

@@ -117,13 +117,14 @@ def test_format_number():
     assert format_number(-0.0001) == "0"
     assert format_number(-0.25) == "-0.25"
     assert format_number(0.123456, 4) == "0.1235"
-    assert format_number(12.5, 0) in ("12", "13")
+    assert format_number(12.5, 0) == "12" and format_number(13.5, 0) == "14"  # ties to even, like round()
 
 
 def test_token_counts_and_compactness():
     p = build_prompt(three_examples(), hand_episode(0.01).keypoints, hand_episode(0.01).initial, n_waypoints=20)
     n = count_tokens(p.text)
-    assert n == approx_token_count(p.text)
+    # without a tokenizer: 1 per digit, symbol and newline, ceil(len / 4) per word, spaces free
+    assert count_tokens("Keypoints up 0.25,\n[1]") == approx_token_count("Keypoints up 0.25,\n[1]") == 3 + 1 + 4 + 1 + 1 + 3
     # three demos of 20 waypoints stay well inside a small model's context
     assert 3000 < n < 12000
 
@@ -221,8 +222,8 @@ def test_parse_python_numpy_and_exponents():
     res = parse_actions(np_style)
     assert res.status == "ok" and np.allclose(res.actions[:, :, :3], a[:, :, :3], atol=1e-6)
     no_commas = np.array2string(a, threshold=10**6)  # numpy print without commas
-    assert parse_actions(no_commas).status == "ok"
-    exp = format_actions(a).replace("0.", "0.0e0+").replace("+", "")  # stays parseable
+    res = parse_actions(no_commas)
+    assert res.status == "ok" and np.allclose(res.actions[:, :, :3], a[:, :, :3], atol=1e-6)
     r2 = parse_actions("[[[1e-1, 2.5E-2, -3e+0, 0, 0, 0, 1, 1], [1, 2, 3, 0, 0, 0, 2, 0]],"
                        " [[.1, -.2, 3., 0, 1e0, 0, 0, 0.7], [1, 2, 3, 0, 0, 0, 1, 0.2]]]")
     assert r2.status == "ok"
@@ -230,7 +231,6 @@ def test_parse_python_numpy_and_exponents():
     assert np.allclose(r2.actions[1, 0, :3], [0.1, -0.2, 3.0])
     assert np.allclose(r2.actions[0, 1, 3:7], [0, 0, 0, 1])  # normalised
     assert np.array_equal(r2.actions[:, :, 7], [[1, 0], [1, 0]])  # snapped
-    del exp
 
 
 def test_parse_completion_continuing_prefix():

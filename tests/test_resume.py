@@ -9,7 +9,7 @@ import os
 import signal
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import pyarrow as pa
@@ -25,15 +25,25 @@ TABLES = ("takes", "frames", "hand_keypoints", "aligned_keypoints", "gripper_pos
 VOLATILE = {"wall_s", "generate_seconds", "replay_seconds"}  # wall-clock timings
 
 
-def _env(tmp_path: Path, warehouse: Path) -> dict:
+HOLD_POINTS = Path(__file__).resolve().parent / "hold_points"  # its sitecustomize parks a process (see there)
+
+
+def _env(tmp_path: Path, warehouse: Path, api: dict) -> dict:
+    """``api``: the session's Prefect API (the uninterrupted runs: no temporary server to start), or {}
+    (the interrupted runs: their own temporary server, which must survive Ctrl-C and die with them)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("DEMOFORGE_")}
-    return {**env, "DEMOFORGE_WAREHOUSE": str(warehouse), "PREFECT_HOME": str(tmp_path / "prefect_home"),
+    return {**env, **api, "DEMOFORGE_WAREHOUSE": str(warehouse), "PREFECT_HOME": str(tmp_path / "prefect_home"),
             "MUJOCO_GL": "egl"}
 
 
-def _start(env: dict, cwd: Path, log: Path) -> subprocess.Popen:
-    # a session of its own: the signal reaches demoforge and every child (Prefect's temporary
-    # server, simulation workers), like Ctrl-C in a terminal or a machine going down
+def _start(env: dict, cwd: Path, log: Path, hold: str, fifo: Path) -> subprocess.Popen:
+    """Start `demoforge evaluate` parked at the hold point `hold` (tests/hold_points), which it announces
+    on the FIFO `fifo`."""
+    os.mkfifo(fifo)
+    env = {**env, "DEMOFORGE_TEST_HOLD": hold, "DEMOFORGE_TEST_HOLD_FIFO": str(fifo),
+           "PYTHONPATH": os.pathsep.join([str(HOLD_POINTS)] + [p for p in [env.get("PYTHONPATH")] if p])}
+    # a session of its own: the signal reaches demoforge and every child (Prefect's temporary server,
+    # simulation workers), like Ctrl-C in a terminal or a machine going down
     # SIGINT back to its default: a shell that starts a command in the background (CI, `cmd &`) makes it
     # ignore SIGINT, and an ignored signal stays ignored across exec, so Python would never see Ctrl-C
     return subprocess.Popen([str(VENV_BIN / "demoforge"), *ARGS], env=env, cwd=cwd, start_new_session=True,
@@ -41,16 +51,19 @@ def _start(env: dict, cwd: Path, log: Path) -> subprocess.Popen:
                             stdout=log.open("a"), stderr=subprocess.STDOUT)
 
 
-def _wait_for(path_glob: str, root: Path, proc: subprocess.Popen, log: Path, timeout: float = 900) -> None:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if any(root.glob(path_glob)):
-            return
-        if proc.poll() is not None:
-            raise AssertionError(f"evaluate ended ({proc.returncode}) before {path_glob} appeared:\n"
-                                 f"{log.read_text()[-3000:]}")
-        time.sleep(0.5)
-    raise AssertionError(f"{path_glob} did not appear within {timeout} s")
+def _wait_for_hold(fifo: Path, proc: subprocess.Popen, log: Path, hold: str) -> None:
+    """Block until the process is parked at its hold point (it writes the point's name to the FIFO), or
+    has ended without reaching it (a watcher thread then writes 'exited'): no polling, no race."""
+    def on_exit():
+        proc.wait()
+        with open(fifo, "w") as f:  # wakes the reader below if the process never got there
+            f.write("exited")
+
+    threading.Thread(target=on_exit, daemon=True).start()
+    with open(fifo) as f:
+        got = f.read()
+    if got != hold:
+        raise AssertionError(f"evaluate ended ({proc.returncode}) before its hold point {hold}:\n{log.read_text()[-3000:]}")
 
 
 def _finish(env: dict, cwd: Path, log: Path) -> str:
@@ -81,28 +94,33 @@ def _table(warehouse: Path, name: str) -> pa.Table:
     return t.sort_by([(k, "ascending") for k in keys])
 
 
-def test_evaluate_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(tmp_path):
+def test_evaluate_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(tmp_path, prefect_api_env):
+    from tests.conftest import SHARED_DATA, require_mediapipe_model
+
+    if (SHARED_DATA / "real_hands").is_dir():  # the main job runs the MediaPipe detector on the photos
+        require_mediapipe_model()
     ref, crashed = tmp_path / "reference", tmp_path / "crashed"
     log = tmp_path / "evaluate.log"
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    _finish(_env(tmp_path, ref), tmp_path / "a", log)
+    _finish(_env(tmp_path, ref, prefect_api_env), tmp_path / "a", log)
 
-    env = _env(tmp_path, crashed)
-    # 1) Ctrl-C once the episode database is written (the robot checks have not run yet)
-    proc = _start(env, tmp_path / "b", log)
-    _wait_for("episodes/**/data.parquet", crashed, proc, log)
+    env, own_server = _env(tmp_path, crashed, prefect_api_env), _env(tmp_path, crashed, {})
+    # 1) Ctrl-C once the episode database is written, before the first robot check (parked there)
+    proc = _start(own_server, tmp_path / "b", log, "robot_check", tmp_path / "hold1")
+    _wait_for_hold(tmp_path / "hold1", proc, log, "robot_check")
+    assert next(crashed.glob("episodes/**/data.parquet"), None) and not list(crashed.glob("sim_results/**/*.parquet"))
     os.killpg(proc.pid, signal.SIGINT)
     assert proc.wait(120) != 0
-    # stages that had certainly finished: the take and its ingest (the augmentation stage, running
-    # when the signal came, may have written episodes without finishing: it is allowed to rerun)
+    # stages that had finished: the take, its ingest and its episode database
     finished = [next(crashed.glob("synthetic/*/camera.json"))] + \
         [next(crashed.glob(f"{t}/**/data.parquet")) for t in ("frames", "hand_keypoints", "gripper_poses")]
     stamps = [f.stat().st_mtime_ns for f in finished]
 
-    # 2) SIGKILL everything as soon as the first robot-check chunk is on disk
-    proc = _start(env, tmp_path / "b", log)
-    _wait_for("sim_results/**/data.parquet", crashed, proc, log)
+    # 2) SIGKILL everything once the first robot-check chunk is on disk (parked right after writing it)
+    proc = _start(own_server, tmp_path / "b", log, "after_sim_chunk", tmp_path / "hold2")
+    _wait_for_hold(tmp_path / "hold2", proc, log, "after_sim_chunk")
+    assert len(list(crashed.glob("sim_results/**/data.parquet"))) == 1
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(60)
 

@@ -85,6 +85,27 @@ def test_arms_into_each_other_is_arm_collision():
     assert not r.success and r.failure == "arm_collision", r.detail
 
 
+def test_gripper_lifted_out_of_the_workspace_is_left_workspace():
+    d, obj, act = _lid_case()
+    top = get_task("open_container").workspace[1, 2]
+    w = np.clip((np.arange(len(act)) - 20) / 40.0, 0, 1)  # a smooth 1 m lift of the right gripper
+    act[:, 1, 2] += 1.0 * w
+    r = execute("open_container", obj, act)
+    assert not r.success and r.failure == "left_workspace", r.detail
+    assert "gripper 1" in r.detail and r.predicate_ok is None  # a hard failure: simulation stopped there
+    assert r.gripper_poses[:, 1, 2].max() > top
+
+
+@pytest.mark.parametrize("task,fault", [("open_container", "no_lift"), ("pouring", "no_tilt")])
+def test_clean_execution_that_misses_the_goal_is_predicate_not_met(task, fault):
+    """Both objects grasped and carried without a drop or a collision, but the lid is never lifted /
+    the cup never tilted: the only explanation left is the task predicate."""
+    d = get_task(task).scripted_demo(0, fault=fault)
+    r = execute(task, d.placement.object_poses, d.gripper_actions())
+    assert not r.success and r.failure == "predicate_not_met", (r.failure, r.detail)
+    assert r.predicate_ok is False and r.detail == r.predicate_detail
+
+
 @pytest.mark.parametrize("kind", ["nan", "inf", "quat", "shape", "g"])
 def test_invalid_actions(kind):
     d, obj, act = _lid_case()

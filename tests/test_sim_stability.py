@@ -77,7 +77,8 @@ def test_a_shifted_scripted_demo_still_succeeds():
 
 
 def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simulate(
-        prefect_api, warehouse, trash_take, monkeypatch):
+        prefect_api, ingested_warehouse, trash_take, monkeypatch):
+    warehouse = ingested_warehouse  # the take ingested once per session
     from flows.augment import augment_take_flow
     from flows.cli import app
     from flows.sim import check_stability, simulate_episodes

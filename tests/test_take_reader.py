@@ -134,8 +134,11 @@ def test_corrupt_image_is_flagged_and_skipped(take_copy):
     idx, rgb, _ = _all_frames(take, batch_size=4)
     assert 4 not in idx and 9 not in idx
     assert take.frames[4].status == "unreadable_rgb" and "000004.png" in take.frames[4].message
-    # a truncated PNG either fails to decode or decodes partially; either way no exception
-    assert take.frames[7].status in ("unreadable_rgb", "ok")
+    # a truncated PNG does not decode here (OpenCV's libpng refuses an incomplete buffer): flagged and
+    # left out of the batches like the corrupt one, with no exception
+    assert take.frames[7].status == "unreadable_rgb" and "000007.png" in take.frames[7].message
+    assert 7 not in idx and idx == [i for i in range(take.n_frames) if i not in (4, 7, 9)]
+    assert len(rgb) == len(idx)
     assert all(f.status in FRAME_STATUSES for f in take.frames)
 
 
@@ -269,7 +272,8 @@ def test_real_dexcap_depth_png(tmp_path):
 
     src = SHARED_DATA / "rgbd" / "dexcap_frame_0"
     if not src.is_dir():
-        pytest.skip("shared data not present")
+        pytest.skip(f"{src} absent: the real RGB-D frame comes with the shared data folder "
+                    "(../shared/data beside the checkout)")
     (tmp_path / "rgb").mkdir()
     (tmp_path / "depth").mkdir()
     shutil.copy(src / "color_image.jpg", tmp_path / "rgb" / "frame_0.jpg")

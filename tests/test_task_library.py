@@ -154,7 +154,6 @@ def test_replay_succeeds(name, demos):
             r = t.replay(d)
             assert r.success, f"{name} mirror={m} seed={s}: {r.reason}"
             assert r.object_poses.shape == d.object_poses.shape
-            assert r.wall_time_s < 10.0
             # the simulated objects follow the kinematic ones while held (weld to the hand)
             held = d.held_object >= 0
             for arm in range(2):

@@ -1,0 +1,87 @@
+"""Every `demoforge` command's main path on a tiny take: exit code 0 and one table or file it writes.
+
+Deeper checks of each stage live in the flow tests; these catch a command whose wiring (options,
+defaults, the flow it calls, what it prints) broke. Commands run in-process (typer's CliRunner)
+against the session's Prefect API."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from flows.cli import app
+from schemas.catalog import query
+
+
+def _run(*args: str):
+    r = CliRunner().invoke(app, list(args))
+    assert r.exit_code == 0, f"demoforge {' '.join(args)} -> {r.exit_code}:\n{r.output[-3000:]}\n{r.exception!r}"
+    return r
+
+
+def _count(table: str, warehouse, where: str = "true") -> int:
+    return query(f"SELECT count(*) AS n FROM {table} WHERE {where}", warehouse).column("n")[0].as_py()
+
+
+def test_synth_then_ingest_folder(prefect_api, warehouse, tmp_path):
+    inbox = tmp_path / "inbox"
+    r = _run("synth", "--task", "pouring", "--takes", "1", "--max-frames", "6", "--no-video", "--out", str(inbox))
+    take = inbox / "synth_pouring_s0000"
+    assert str(take) in r.output and (take / "camera.json").is_file() and len(list((take / "rgb").glob("*.png"))) == 6
+    assert query("SELECT take, task, n_frames FROM takes", warehouse).to_pylist() == [
+        {"take": "synth_pouring_s0000", "task": "pouring", "n_frames": 6}]
+    assert _count("gt_hand_joints", warehouse) == 12
+
+    _run("ingest-folder", str(inbox))
+    rows = query("SELECT take, status, gripper_rows FROM folder_ingests", warehouse).to_pylist()
+    assert rows == [{"take": "synth_pouring_s0000", "status": "ingested", "gripper_rows": 12}]
+    assert _count("gripper_poses", warehouse, "take = 'synth_pouring_s0000'") == 12
+
+
+def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_take, tmp_path):
+    """augment -> llm-eval (the LLM-free strategies) -> variations (default strategies, the spatial kind)
+    -> render-episode, on trash_take's ingest."""
+    wh = ingested_warehouse
+    _run("augment", str(trash_take), "-n", "20", "--mirrored", "10")
+    assert _count("episodes", wh) == 21  # the original, 10 translated, 10 mirrored
+
+    r = _run("llm-eval", "--task", "trash_in_bin", "--strategy", "replay_top1", "--strategy", "transform_demo",
+             "--trials", "1")
+    trials = query("SELECT strategy, backend, sim_detail FROM llm_trials ORDER BY strategy", wh).to_pylist()
+    assert [(t["strategy"], t["backend"]) for t in trials] == [("replay_top1", "none"), ("transform_demo", "none")]
+    assert all(t["sim_detail"] for t in trials) and "replay_top1" in r.output  # report_table3 printed
+
+    r = _run("variations", "--task", "trash_in_bin", "--kind", "spatial", "--trials", "1")
+    v = query("SELECT variation, strategy, detail FROM variation_trials ORDER BY strategy", wh).to_pylist()
+    assert [(x["variation"], x["strategy"]) for x in v] == [("spatial", "replay_top1"), ("spatial", "transform_demo")]
+    assert all(x["detail"] for x in v) and "transform_demo" in r.output  # report_table4 printed
+
+    out = tmp_path / "ep0.mp4"
+    r = _run("render-episode", "--task", "trash_in_bin", "--episode", "0", "--out", str(out))
+    assert out.stat().st_size > 10_000 and str(out) in r.output
+
+
+def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
+    r = _run("bench", "--stage", "warehouse", "--quick")
+    rows = query("SELECT stage, case_name FROM benchmarks", warehouse).to_pylist()
+    assert len(rows) == 1 and rows[0]["stage"] == "warehouse" and rows[0]["case_name"][:30] in r.output
+
+    r = _run("catalog")
+    assert (warehouse / "catalog.duckdb").is_file() and "catalog rebuilt" in r.output
+    import duckdb
+
+    con = duckdb.connect(str(warehouse / "catalog.duckdb"), read_only=True)
+    try:
+        assert "benchmarks" in {row[0] for row in con.execute("SELECT view_name FROM duckdb_views()").fetchall()}
+    finally:
+        con.close()
+
+    listing = _run("tables").output
+    line = next(ln for ln in listing.splitlines() if ln.split() and ln.split()[0] == "benchmarks")
+    assert "1" in line.split()[1:]  # one row
+    described = _run("tables", "benchmarks").output
+    assert "case_name" in described and "ratio" in described
+
+    out = json.loads(_run("sql", "SELECT count(*) AS n FROM benchmarks", "-f", "json").output)
+    assert out == {"n": 1}
