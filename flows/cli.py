@@ -110,7 +110,6 @@ def _main(
     if "tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
         sys.modules["tasks.common"].quiet_user_errors()
     runners.install_interrupt_handler()
-    _quiet_user_error_tracebacks()
     if task_runner:
         os.environ[runners.ENV_RUNNER] = task_runner
     if dask_address:
@@ -121,26 +120,6 @@ def _main(
             runners.dask_workers()
     except ValueError as e:
         raise fail(str(e))
-
-
-def _quiet_user_error_tracebacks() -> None:
-    """Prefect logs a failed task or flow with its traceback; for the user errors that the commands
-    report in one line (a bad take, untrustworthy depth, ...) that traceback is noise: drop it."""
-    import logging
-
-    from lib.ingest import TakeError
-
-    class _Filter(logging.Filter):
-        def filter(self, record: logging.LogRecord) -> bool:
-            exc = record.exc_info[1] if record.exc_info else None
-            if isinstance(exc, (TakeError, ValueError)):
-                record.exc_info, record.exc_text = None, None
-            return True
-
-    for name in ("prefect.task_runs", "prefect.flow_runs"):
-        logger = logging.getLogger(name)
-        if not any(type(f).__name__ == "_Filter" for f in logger.filters):
-            logger.addFilter(_Filter())
 
 
 class OutputFormat(str, enum.Enum):
@@ -487,7 +466,7 @@ def ingest(
         if box_source not in ("previous", "mediapipe"):
             raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
         options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
-    _open_take_or_fail(path)
+    take = _open_take_or_fail(path)
     try:
         result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
                              detector_options=options, state_method=state_method, smoothing=smoothing,
@@ -503,7 +482,6 @@ def ingest(
     if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
         from lib.annotate import annotation_status, not_annotated_message
 
-        take = _open_take_or_fail(path)
         typer.echo(f"warning: object_keypoints: {not_annotated_message(path, annotation_status(take).detail)}", err=True)
 
 

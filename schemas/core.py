@@ -37,6 +37,11 @@ class Column:
     nullable: bool = False
 
 
+def metric_column(name: str, doc: str) -> Column:
+    """A float64 metric that may be null (NaN or missing when nothing could be measured)."""
+    return Column(name, pa.float64(), doc, nullable=True)
+
+
 @dataclass(frozen=True)
 class TableSchema:
     name: str

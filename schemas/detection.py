@@ -2,13 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, table
-
-_F = pa.float64()
-
-
-def _m(name: str, doc: str) -> Column:
-    return Column(name, _F, doc, nullable=True)
+from schemas.core import Column, metric_column as _m, table
 
 
 DETECTION_METRICS = table(

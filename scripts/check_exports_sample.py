@@ -24,7 +24,7 @@ def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, se
     from lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
     from lib.task_library import get_task
     from schemas.core import write_table
-    from tasks.augment import episode_steps_columns
+    from tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
     demo = spec.scripted_demo(0)
@@ -32,15 +32,7 @@ def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, se
                      keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
                      segments=demo.segments, object_arm=spec.object_arm(False))
     batch = generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed, workspace=spec.workspace, workers=1)
-    N = len(batch)
-    write_table("episodes", {
-        "task": [TASK] * N, "take": [TAKE] * N, "episode_id": batch.episode_id.astype(np.int64),
-        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
-        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
-        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
-        "reject_reason": batch.reject_reason.astype(str).tolist(),
-        "min_gripper_distance": batch.min_gripper_distance,
-    }, warehouse)
+    write_table("episodes", episodes_columns(TASK, TAKE, seed, batch), warehouse)
     write_table("episode_steps", episode_steps_columns(TASK, TAKE, batch), warehouse)
     take = takes_dir / TAKE
     take.mkdir(parents=True, exist_ok=True)
@@ -48,7 +40,7 @@ def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, se
         "K": camera_K().tolist(), "width": WIDTH, "height": HEIGHT,
         "T_world_camera": camera_T_world_camera().tolist(), "fps": 30.0, "depth_unit": "m"}))
     write_table("takes", takes_row(take, int(batch.lengths[0])), warehouse)
-    return {"episodes": N, "valid": int(batch.valid.sum())}
+    return {"episodes": len(batch), "valid": int(batch.valid.sum())}
 
 
 def takes_row(take: Path, n_frames: int = 0) -> dict:

@@ -120,17 +120,9 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     ws = spec.workspace(source.keypoints, source.trajectory[..., :3]) if callable(spec.workspace) else spec.workspace
     opts.setdefault("workspace", np.asarray(ws))
     batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
-    N = len(batch)
     key = database or take.take_id
     before = _episode_file_digests(warehouse, name, key)
-    written = write_table("episodes", {
-        "task": [name] * N, "take": [key] * N, "episode_id": batch.episode_id.astype(np.int64),
-        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
-        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
-        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
-        "reject_reason": batch.reject_reason.astype(str).tolist(),
-        "min_gripper_distance": batch.min_gripper_distance,
-    }, warehouse)
+    written = write_table("episodes", episodes_columns(name, key, seed, batch), warehouse)
     written += write_table("episode_steps", episode_steps_columns(name, key, batch), warehouse)
     if before and before != {w.path: w.content_hash for w in written}:  # the writer's sha256 of each file
         # the take's robot checks describe episodes that no longer exist: drop them, so that no
@@ -153,6 +145,19 @@ def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str
     files = [*table_files("episodes", warehouse, task=task, take=take),
              *table_files("episode_steps", warehouse, task=task, take=take)]
     return {str(f): file_sha256(f) for f in files}
+
+
+def episodes_columns(task: str, take: str, seed: int, batch) -> dict:
+    """One `episodes` row per generated episode of ``batch`` (lib.augmentation.EpisodeBatch)."""
+    N = len(batch)
+    return {
+        "task": [task] * N, "take": [take] * N, "episode_id": batch.episode_id.astype(np.int64),
+        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
+        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
+        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
+        "reject_reason": batch.reject_reason.astype(str).tolist(),
+        "min_gripper_distance": batch.min_gripper_distance,
+    }
 
 
 def episode_steps_columns(task: str, take: str, batch) -> dict:

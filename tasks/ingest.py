@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 import lib  # noqa: F401
+from lib.errors import UserError
 from schemas.core import column_numpy, read_table, write_table
 from tasks.common import Manifest, stage_task
 
@@ -25,18 +26,18 @@ ANNOTATIONS = "annotations.json"
 def take_media_key(take_dir: Path) -> str:
     """Content hash of a take folder (its name and every file) except annotations.json: the cache key
     of the stages that never read the annotation (frames, detection, alignment), so annotating a take
-    after a first ingest does not redo its hand detection."""
+    after a first ingest does not redo its hand detection. Per-file digests come from the same
+    remembered records as every other folder key (tasks.common), so an unchanged take is only stat'ed."""
     import hashlib
 
-    from tasks.common import _file_digest
+    from tasks.common import _dir_file_digests
 
     take_dir = Path(take_dir)
     h = hashlib.sha256(take_dir.name.encode())
-    for f in sorted(p for p in take_dir.rglob("*") if p.is_file()):
-        rel = f.relative_to(take_dir)
-        if rel != Path(ANNOTATIONS):
-            h.update(str(rel).encode())
-            h.update(_file_digest(f).encode())
+    for rel, digest in _dir_file_digests(take_dir):
+        if rel != ANNOTATIONS:
+            h.update(rel.encode())
+            h.update(digest.encode())
     return h.hexdigest()
 
 
@@ -159,7 +160,7 @@ def _save_detector_extra(take, track, warehouse: str) -> None:
 
 # --- 3. aligned keypoints ------------------------------------------------------------------------
 
-class DepthError(ValueError):
+class DepthError(UserError):
     """The take's depth cannot be trusted (one-line message: what is wrong and how to fix it)."""
 
 

@@ -26,7 +26,7 @@ def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: 
     from lib.augmentation import DemoSource, generate_episodes
     from lib.task_library import get_task
     from schemas.core import write_table
-    from tasks.augment import episode_steps_columns
+    from tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
     demo = spec.scripted_demo(0)
@@ -34,15 +34,7 @@ def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: 
                      keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
                      segments=demo.segments, object_arm=spec.object_arm(False))
     batch = generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed, workspace=spec.workspace, workers=1)
-    N = len(batch)
-    write_table("episodes", {
-        "task": [TASK] * N, "take": [TAKE] * N, "episode_id": batch.episode_id.astype(np.int64),
-        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, seed, np.int64),
-        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
-        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
-        "reject_reason": batch.reject_reason.astype(str).tolist(),
-        "min_gripper_distance": batch.min_gripper_distance,
-    }, root)
+    write_table("episodes", episodes_columns(TASK, TAKE, seed, batch), root)
     write_table("episode_steps", episode_steps_columns(TASK, TAKE, batch), root)
     actions = {int(i): batch.actions[k, : batch.lengths[k]].astype(np.float32) for k, i in enumerate(batch.episode_id)}
     return {"actions": actions, "valid": dict(zip(batch.episode_id.tolist(), batch.valid.tolist())),

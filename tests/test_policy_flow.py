@@ -19,18 +19,12 @@ def _tiny_database(warehouse: Path, n: int = 48) -> None:
     """A pouring database from the task library's scripted demonstration (no rendering needed)."""
     from lib.augmentation import from_scripted_demo, generate_episodes
     from lib.task_library import get_task
-    from tasks.augment import episode_steps_columns
+    from tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task("pouring")
     batch = generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n, n_mirrored=n // 2, seed=1,
                               workspace=spec.workspace)
-    N = len(batch)
-    write_table("episodes", {
-        "task": ["pouring"] * N, "take": [TAKE] * N, "episode_id": batch.episode_id.astype(np.int64),
-        "kind": batch.kind.astype(str).tolist(), "seed": np.full(N, 1, np.int64), "transform": batch.params,
-        "object_keypoints": batch.keypoints, "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32),
-        "valid": batch.valid, "reject_reason": batch.reject_reason.astype(str).tolist(),
-        "min_gripper_distance": batch.min_gripper_distance}, warehouse)
+    write_table("episodes", episodes_columns("pouring", TAKE, 1, batch), warehouse)
     write_table("episode_steps", episode_steps_columns("pouring", TAKE, batch), warehouse)
 
 

@@ -188,21 +188,14 @@ def tiny_trash_db(warehouse):
 
     from lib.augmentation import from_scripted_demo, generate_episodes
     from schemas.core import get_schema, write_table
-    from tasks.augment import episode_steps_columns
+    from tasks.augment import episode_steps_columns, episodes_columns
 
     task = get_task("trash_in_bin")
     demo = task.scripted_demo(0)
     take = "synth_trash_in_bin_s0000"
     batch = generate_episodes(from_scripted_demo(task, demo), n=24, n_mirrored=0, seed=0,
                               workspace=np.asarray(task.workspace), workers=1)
-    N = len(batch)
-    write_table("episodes", {
-        "task": ["trash_in_bin"] * N, "take": [take] * N, "episode_id": batch.episode_id.astype(np.int64),
-        "kind": batch.kind.astype(str).tolist(), "seed": np.zeros(N, np.int64),
-        "transform": batch.params.astype(np.float64), "object_keypoints": batch.keypoints,
-        "initial_poses": batch.initial, "length": batch.lengths.astype(np.int32), "valid": batch.valid,
-        "reject_reason": batch.reject_reason.astype(str).tolist(), "min_gripper_distance": batch.min_gripper_distance,
-    }, warehouse)
+    write_table("episodes", episodes_columns("trash_in_bin", take, 0, batch), warehouse)
     write_table("episode_steps", episode_steps_columns("trash_in_bin", take, batch), warehouse)
     write_table("takes", pa.Table.from_pylist([{
         "take": take, "task": "trash_in_bin", "source": "synthetic", "mirror": False, "seed": 0,
