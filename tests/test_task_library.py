@@ -1,5 +1,7 @@
 """Task library: scenes, scripted takes, mirroring, and the physics replay acceptance criterion."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -183,13 +185,34 @@ def test_replay_succeeds_more_seeds(name):
     assert not bad, bad
 
 
+def _planar_offset(reason: str) -> float:
+    """Distance in the receiver's xy plane from the `... frame (x, y, z)` of a predicate's reason."""
+    x, y, _ = (float(v) for v in re.search(r"frame \((-?[\d.]+), (-?[\d.]+), (-?[\d.]+)\)", reason).groups())
+    return float(np.hypot(x, y))
+
+
+# What each scripted fault must make the predicate report: the failure the fault causes, not just any
+# failure (a replay that fails for another reason, or a fault that is ignored, does not match).
+FAULT_EVIDENCE = {
+    "no_tilt": lambda r: re.match(r"0/\d+ liquid spheres in the cup", r),  # nothing poured
+    "release_far": lambda r: _planar_offset(r) > 0.15,  # released well outside the bin / case
+    "no_circle": lambda r: re.search(r"circled [0-9] deg inside the bowl", r),
+    "no_lift": lambda r: _planar_offset(r) < 0.01,  # the lid never left its seat
+    "no_pull": lambda r: r.endswith("out of the vase: False"),
+}
+
+
 @pytest.mark.parametrize("name,fault", [(n, f) for n in TASK_NAMES for f in get_task(n).faults])
 def test_faulty_demo_fails(name, fault):
-    """Predicates can fail: no pour tilt, can/paper released away from the receiver, lid never lifted,
-    whisk not circled, flowers never pulled."""
+    """Predicates can fail, for the reason the fault causes: no pour tilt, can/paper released away
+    from the receiver, lid never lifted, whisk not circled, flowers never pulled."""
     t = get_task(name)
-    r = t.replay(t.scripted_demo(0, mirror=(fault in ("release_far", "no_circle")), fault=fault))
+    mirror = fault in ("release_far", "no_circle")
+    r = t.replay(t.scripted_demo(0, mirror=mirror, fault=fault))
     assert not r.success, r.reason
+    assert FAULT_EVIDENCE[fault](r.reason), f"{name}/{fault} failed for another reason: {r.reason}"
+    ok = t.replay(t.scripted_demo(0, mirror=mirror))  # the same demo without the fault passes
+    assert ok.success and not FAULT_EVIDENCE[fault](ok.reason), ok.reason
     with pytest.raises(ValueError):
         t.scripted_demo(0, fault="not_a_fault")
 
