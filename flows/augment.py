@@ -104,9 +104,8 @@ def retrieve(warehouse: str, task: str, keypoints: np.ndarray, k: int = 3, strat
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     if take is not None and not re.fullmatch(r"[A-Za-z0-9_.\-]+", take):
         raise ValueError(f"invalid take name {take!r}")
-    where = f"task = '{task}' AND valid" + (f" AND take = '{take}'" if take else "")
-    t = query(f"SELECT take, episode_id, kind, object_keypoints FROM episodes WHERE {where} "
-              "ORDER BY take, episode_id", warehouse)
+    t = query("SELECT take, episode_id, kind, object_keypoints FROM episodes WHERE task = ? AND valid "
+              "AND (? IS NULL OR take = ?) ORDER BY take, episode_id", warehouse, [task, take, take])
     if t.num_rows == 0:
         raise ValueError(f"no valid episodes of task {task!r}{' from take ' + take if take else ''} in "
                          f"{warehouse}; run `demoforge augment` first")

@@ -544,7 +544,7 @@ def augment(
     from schemas.catalog import query
 
     t = query("SELECT kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid FROM episodes "
-              f"WHERE take = '{Path(path).resolve().name}' GROUP BY kind ORDER BY kind", current_warehouse())
+              "WHERE take = ? GROUP BY kind ORDER BY kind", current_warehouse(), [Path(path).resolve().name])
     _emit(t, OutputFormat.table, None, 10)
 
 
@@ -664,7 +664,7 @@ def llm_eval_cmd(
         raise fail(str(e))
     from schemas.catalog import query
 
-    _emit(query(f"SELECT * FROM report_table3 WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+    _emit(query("SELECT * FROM report_table3 WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)
 
 
 def _episodes_option(episodes: str) -> int | str:
@@ -697,7 +697,7 @@ def simulate(
     from schemas.catalog import query
 
     wh = current_warehouse()
-    result = query(f"SELECT * FROM report_sim WHERE task = '{task}'", wh)
+    result = query("SELECT * FROM report_sim WHERE task = ?", wh, [task])
     _emit(result, OutputFormat.table, None, 40)
     if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
         typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}'\". Whether a "
@@ -729,7 +729,7 @@ def stability(
         raise fail(str(e))
     from schemas.catalog import query
 
-    _emit(query(f"SELECT * FROM report_sim_stability WHERE task = '{task}'", current_warehouse()), OutputFormat.table, None, 40)
+    _emit(query("SELECT * FROM report_sim_stability WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)
 
 
 @app.command("render-episode")

@@ -10,11 +10,11 @@ from flows.cli import app, current_warehouse, fail  # noqa: F401
 from flows.runners import run_flow
 
 
-def _print_rows(sql: str) -> None:
+def _print_rows(sql: str, params: list | None = None) -> None:
     from lib.markdown import markdown_table
     from schemas.catalog import query
 
-    t = query(sql, current_warehouse())
+    t = query(sql, current_warehouse(), params)
     typer.echo(markdown_table(t.column_names, [list(r.values()) for r in t.to_pylist()]))
 
 
@@ -51,7 +51,7 @@ def train_policy_cmd(
         raise fail(str(e))
     _print_rows("SELECT checkpoint_id, n_train, n_val, epochs_run, threads, round(train_seconds, 1) AS train_s, "
                 "round(val_loss, 5) AS val_loss, round(val_pos_err_mm, 1) AS pos_mm, round(val_rot_err_deg, 2) AS rot_deg, "
-                f"round(val_grip_acc, 3) AS grip_acc FROM policy_checkpoints WHERE task = '{task}' ORDER BY trained_at DESC LIMIT 1")
+                "round(val_grip_acc, 3) AS grip_acc FROM policy_checkpoints WHERE task = ? ORDER BY trained_at DESC LIMIT 1", [task])
 
 
 @app.command("eval-policy")
@@ -84,4 +84,4 @@ def eval_policy_cmd(
         raise fail(str(e))
     _print_rows("SELECT checkpoint_id, scene_kind, count(*) AS trials, sum(success::INT) AS successes, "
                 "round(avg(success::INT), 3) AS success_rate, round(median(latency_ms), 2) AS median_latency_ms "
-                f"FROM policy_trials WHERE task = '{task}' GROUP BY ALL ORDER BY checkpoint_id, scene_kind")
+                "FROM policy_trials WHERE task = ? GROUP BY ALL ORDER BY checkpoint_id, scene_kind", [task])

@@ -52,8 +52,8 @@ def table3_cmd(
                  policy_epochs=policy_epochs, n_waypoints=waypoints)
     except ValueError as e:
         raise fail(str(e))
-    where = f"WHERE task = '{task}' AND protocol IN ({', '.join(repr(p) for p in protocols)})"
+    where = "WHERE task = ? AND list_contains(?, protocol)"
     for title, view in (("Table 3", "report_table3_grid"), ("Wilson 95 % intervals", "report_table3_intervals"),
                         ("Outcomes", "report_table3_failures")):
-        t = query(f"SELECT * FROM {view} {where}", current_warehouse())
+        t = query(f"SELECT * FROM {view} {where}", current_warehouse(), [task, list(protocols)])
         typer.echo(f"\n{title}\n\n" + markdown_table(t.column_names, [list(r.values()) for r in t.to_pylist()]))

@@ -42,7 +42,7 @@ def llm_eval(
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
-    have = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
+    have = query("SELECT DISTINCT take FROM episodes WHERE task = ? ORDER BY take", warehouse, [task]).column(0).to_pylist()
     use = [t for t in have if takes is None or t in takes]
     if not use:
         raise ValueError(f"no episode database for task {task!r}: run `demoforge augment` on a {task} take first")

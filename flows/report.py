@@ -57,14 +57,14 @@ def takes_figure(warehouse: Path, out_png: Path, columns: int = 3) -> Path | Non
     for t in takes:
         grasp = query(
             "SELECT coalesce(min(frame), 0) AS f FROM gt_gripper "
-            f"WHERE take = '{t['take']}' AND closed", warehouse).column("f")[0].as_py()
+            "WHERE take = ? AND closed", warehouse, [t["take"]]).column("f")[0].as_py()
         frame = int(grasp) + 10
         hands = query(
             "SELECT hand, joints_px, visible, present FROM gt_hand_joints "
-            f"WHERE take = '{t['take']}' AND frame = {frame} ORDER BY hand", warehouse).to_pylist()
+            "WHERE take = ? AND frame = ? ORDER BY hand", warehouse, [t["take"], frame]).to_pylist()
         kps = query(
             "SELECT keypoints_px FROM gt_object_keypoints "
-            f"WHERE take = '{t['take']}' AND frame = {frame}", warehouse).to_pylist()
+            "WHERE take = ? AND frame = ?", warehouse, [t["take"], frame]).to_pylist()
         png = Path(t["path"]) / "rgb" / f"{frame:06d}.png"
         if not png.exists():
             continue
@@ -95,11 +95,11 @@ def keypoint_sections(warehouse: Path, reports: Path, commit: str) -> list[str]:
         src = {"arctic": "ARCTIC (egocentric view; anchor depth from ground truth: ARCTIC has no depth camera)",
                "synthetic": "synthetic renders (depth alignment on the rendered depth)"}.get(dataset, dataset)
         stamp = f"data: {src} · detector: {detector} · commit {commit}"
-        where = f"WHERE dataset = '{dataset}' AND detector = '{detector}'"
+        where = "WHERE dataset = ? AND detector = ?"
         for title, view in (("Table 1: MPJPE and PA-MPJPE (m)", "report_table1"),
                             ("Table 2: 2D MPJPE (px) and PCK", "report_table2"),
                             ("Appendix B: per take", "report_appendix_b")):
-            t = query(f"SELECT * FROM {view} {where}", warehouse)
+            t = query(f"SELECT * FROM {view} {where}", warehouse, [dataset, detector])
             name = f"{view}_{dataset}_{detector}"
             pacsv.write_csv(t, reports / f"{name}.csv")
             md += [f"## {title} — {dataset}, {detector} detector", "",

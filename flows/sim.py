@@ -19,8 +19,8 @@ def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Se
     """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids."""
     from schemas.catalog import query
 
-    t = query(f"SELECT episode_id FROM episodes WHERE task = '{task}' AND take = '{take}' AND valid "
-              "ORDER BY episode_id", warehouse)
+    t = query("SELECT episode_id FROM episodes WHERE task = ? AND take = ? AND valid "
+              "ORDER BY episode_id", warehouse, [task, take])
     valid = np.asarray(t.column(0).to_numpy())
     if isinstance(episodes, str):
         if episodes != "all":
@@ -59,7 +59,7 @@ def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str,
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     # (query() also brings files of older table contracts to the current layout before anything is written)
-    takes = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take", warehouse).column(0).to_pylist()
+    takes = query("SELECT DISTINCT take FROM episodes WHERE task = ? ORDER BY take", warehouse, [task]).column(0).to_pylist()
     if take is None and takes:
         take = takes[0]
     if take not in takes:
@@ -149,8 +149,8 @@ def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | 
     from schemas.catalog import query
     from tasks.augment import episode_actions
 
-    where = f"task = '{task}' AND episode_id = {int(episode_id)}" + (f" AND take = '{take}'" if take else "")
-    t = query(f"SELECT take, object_keypoints FROM episodes WHERE {where} ORDER BY take LIMIT 1", warehouse)
+    t = query("SELECT take, object_keypoints FROM episodes WHERE task = ? AND episode_id = ? "
+              "AND (? IS NULL OR take = ?) ORDER BY take LIMIT 1", warehouse, [task, int(episode_id), take, take])
     if t.num_rows == 0:
         raise ValueError(f"no episode {episode_id} of task {task!r} in the warehouse")
     take = t.column("take")[0].as_py()

@@ -50,8 +50,8 @@ def evaluate_variations(
     check_arguments(tasks, strategies, kinds, trials)
     out = []
     for task in tasks:
-        have = query(f"SELECT DISTINCT take FROM episodes WHERE task = '{task}' ORDER BY take",
-                     warehouse).column(0).to_pylist()
+        have = query("SELECT DISTINCT take FROM episodes WHERE task = ? ORDER BY take",
+                     warehouse, [task]).column(0).to_pylist()
         use = [t for t in have if takes is None or t in takes]
         if not use:
             raise ValueError(f"no episode database for task {task!r}"

@@ -14,6 +14,8 @@ import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
+from typing import Any, Sequence
+
 import duckdb
 import pyarrow as pa
 
@@ -45,6 +47,8 @@ def warehouse_root(explicit: str | os.PathLike | None = None) -> Path:
 
 
 def _sql_literal(s: str) -> str:
+    """A quoted SQL string: only for the catalog's view definitions (DDL takes no parameters); every
+    query passes its values as parameters (``query(sql, root, params)``)."""
     return "'" + s.replace("'", "''") + "'"
 
 
@@ -172,15 +176,17 @@ def check_read_only(sql: str) -> None:
         )
 
 
-def query(sql: str, root: str | os.PathLike | None = None) -> pa.Table:
-    """Run one read-only statement against the warehouse catalog and return the result."""
+def query(sql: str, root: str | os.PathLike | None = None, params: Sequence[Any] | dict | None = None) -> pa.Table:
+    """Run one read-only statement against the warehouse catalog and return the result. Values go in
+    ``params`` (DuckDB ``?`` or ``$name`` parameters), never spliced into ``sql``: a task or take name
+    is data, not SQL."""
     check_read_only(sql)
     root = warehouse_root(root)
     if not catalog_is_current(root):
         build_catalog(root)
     con = confined_connection(root)
     try:
-        result = con.sql(sql).arrow()
+        result = con.sql(sql, params=params).arrow()
         # duckdb >= 2 returns a RecordBatchReader here, older versions a Table.
         return result.read_all() if hasattr(result, "read_all") else result
     except duckdb.PermissionException as e:
@@ -189,6 +195,11 @@ def query(sql: str, root: str | os.PathLike | None = None) -> pa.Table:
         raise QueryRefused(_one_line(e)) from None
     finally:
         con.close()
+
+
+def placeholders(n: int) -> str:
+    """``?, ?, ...`` for an ``IN (...)`` list of ``n`` parameters (``NULL`` for none: ``IN ()`` is a syntax error)."""
+    return ", ".join("?" * n) or "NULL"
 
 
 def confined_connection(root: Path) -> duckdb.DuckDBPyConnection:
@@ -204,8 +215,7 @@ def confined_connection(root: Path) -> duckdb.DuckDBPyConnection:
     con = duckdb.connect(str(root / CATALOG_FILE), read_only=True,
                          config={"autoinstall_known_extensions": False, "autoload_known_extensions": False})
     try:
-        allowed = ", ".join(_sql_literal(str(root / name) + os.sep) for name in sorted(registry()))
-        con.execute(f"SET allowed_directories = [{allowed}]")
+        con.execute("SET allowed_directories = ?", [[str(root / name) + os.sep for name in sorted(registry())]])
         con.execute("SET enable_external_access = false")
         con.execute("SET lock_configuration = true")
     except BaseException:

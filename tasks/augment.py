@@ -181,11 +181,11 @@ def episode_steps_columns(task: str, take: str, batch) -> dict:
 
 def episode_actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
     """{episode_id: (length, 2, 8) actions} of the given episodes, read from `episode_steps`."""
-    from schemas.catalog import query
+    from schemas.catalog import placeholders, query
 
-    id_list = ", ".join(str(int(i)) for i in ids)
-    t = query(f"SELECT episode_id, action FROM episode_steps WHERE task = '{task}' AND take = '{take}' "
-              f"AND episode_id IN ({id_list}) ORDER BY episode_id, step", warehouse)
+    id_list = [int(i) for i in ids]
+    t = query("SELECT episode_id, action FROM episode_steps WHERE task = ? AND take = ? "
+              f"AND episode_id IN ({placeholders(len(id_list))}) ORDER BY episode_id, step", warehouse, [task, take, *id_list])
     eid = np.asarray(t.column("episode_id").to_numpy())
     act = np.asarray(t.column("action").to_pylist(), float)
     return {int(i): act[eid == i] for i in np.unique(eid)}

@@ -47,7 +47,7 @@ def _episode_data(warehouse: str, task: str, take: str):
     from schemas.catalog import query
 
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
-               f"WHERE task = '{task}' AND take = '{take}' AND valid ORDER BY episode_id", warehouse)
+               "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
     if ep.num_rows == 0:
         raise ValueError(f"no valid episodes of {task}/{take}: run `demoforge augment` on the take first")
     return {"ids": np.asarray(ep.column("episode_id").to_numpy()),

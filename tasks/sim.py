@@ -20,12 +20,12 @@ SIM_VERSION = "3"
 def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     """(ids, kinds, object keypoints (n, K, 3), {id: actions (L, 2, 8)}) of episodes of a take's database."""
     from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
-    from schemas.catalog import query
+    from schemas.catalog import placeholders, query
     from tasks.augment import episode_actions
 
-    ids = ", ".join(str(int(i)) for i in episode_ids)
-    ep = query(f"SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = '{task}' AND take = '{take}' "
-               f"AND episode_id IN ({ids}) ORDER BY episode_id", warehouse)
+    ids = [int(i) for i in episode_ids]
+    ep = query("SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = ? AND take = ? "
+               f"AND episode_id IN ({placeholders(len(ids))}) ORDER BY episode_id", warehouse, [task, take, *ids])
     eids = [int(i) for i in ep.column("episode_id").to_pylist()]
     missing = sorted(set(int(i) for i in episode_ids) - set(eids))
     if missing:

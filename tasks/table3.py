@@ -26,7 +26,7 @@ def _database(warehouse: str, task: str, database: str) -> dict:
     from schemas.catalog import query
 
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
-               f"WHERE task = '{task}' AND take = '{database}' AND valid ORDER BY episode_id", warehouse)
+               "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, database])
     if ep.num_rows == 0:
         raise ValueError(f"no valid episodes of {task}/{database}: build the database first (`demoforge table3` does)")
     kinds = np.array(ep.column("kind").to_pylist())

@@ -47,7 +47,7 @@ class _Strategies:
             from schemas.catalog import query
 
             ep = query("SELECT episode_id, object_keypoints FROM episodes "
-                       f"WHERE task = '{task}' AND take = '{take}' AND valid ORDER BY episode_id", warehouse)
+                       "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
             if ep.num_rows == 0:
                 raise ValueError(f"no valid episodes of {task}/{take}: run `demoforge augment` on the take first")
             self.index = KeypointIndex(np.asarray(ep.column("object_keypoints").to_pylist(), float),
@@ -81,8 +81,8 @@ def _scripted_source(warehouse: str, task: str, take: str):
     from lib.task_library import get_task
     from schemas.catalog import query
 
-    rows = query(f"SELECT source, seed, mirror FROM takes WHERE take = '{take}' AND task = '{task}'",
-                 warehouse).to_pylist()
+    rows = query("SELECT source, seed, mirror FROM takes WHERE take = ? AND task = ?",
+                 warehouse, [take, task]).to_pylist()
     if not rows or rows[0]["source"] != "synthetic" or rows[0]["seed"] < 0:
         raise ValueError(f"strategy transform_scripted needs a synthetic take registered in `takes`; {task}/{take} "
                          "is not one (use replay_top1 / transform_demo for recorded takes)")

@@ -243,3 +243,36 @@ def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_ru
                    {"episode_id": 1, "selection": "all", "success": True},
                    {"episode_id": 7, "selection": "sample-2-seed0", "success": False}]
     assert query("SELECT sum(episodes) AS n FROM report_sim", warehouse).column("n")[0].as_py() == 3
+
+
+def test_values_are_passed_as_parameters_not_spliced(warehouse):
+    """A value with a quote is data: it cannot end the string and change the statement."""
+    write_table("_test_poses", _rows(3, "a"), warehouse)
+    n = lambda take: query("SELECT count(*) AS n FROM _test_poses WHERE take = ?", warehouse, [take]).column("n")[0].as_py()
+    assert n("a") == 3
+    assert n("a' OR '1'='1") == 0
+
+
+def _spliced_values(path: Path) -> list[str]:
+    """f-strings passed to query() that put a value inside quotes or after `=`/`IN (` (a splice)."""
+    import ast
+
+    bad = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not (isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "query"):
+            continue
+        for s in (n for n in ast.walk(node.args[0]) if isinstance(n, ast.JoinedStr)) if node.args else ():
+            for before, part in zip(s.values, s.values[1:]):
+                if (isinstance(part, ast.FormattedValue) and isinstance(before, ast.Constant)
+                        and before.value.rstrip().endswith(("'", "=", "IN ("))
+                        and getattr(getattr(part.value, "func", None), "id", None) != "placeholders"):
+                    bad.append(f"{path.name}:{node.lineno}")
+    return bad
+
+
+def test_no_query_splices_a_value_into_its_sql():
+    from lib.errors import PROJECT_ROOT
+
+    files = [p for d in ("lib", "tasks", "flows", "schemas", "scripts") for p in sorted((PROJECT_ROOT / d).rglob("*.py"))]
+    assert len(files) > 50
+    assert [b for f in files for b in _spliced_values(f)] == []
