@@ -33,7 +33,7 @@ Joint order. ARCTIC's joints come from the MANO layer (smplx): MANO's 16 joints 
 4-6 middle, 7-9 pinky, 10-12 ring, 13-15 thumb) followed by the 5 fingertips smplx appends in the
 order thumb, index, middle, ring, pinky (16-20). The standard MANO -> OpenPose re-indexing
 ``MANO_TO_OPENPOSE = [0, 13, 14, 15, 16, 1, 2, 3, 17, 4, 5, 6, 18, 10, 11, 12, 19, 7, 8, 9, 20]``
-(the one HaMeR and FrankMocap use) gives the fixed order of DESIGN.md: output joint j is ARCTIC
+(the one HaMeR and FrankMocap use) gives the fixed order of docs/architecture.md: output joint j is ARCTIC
 joint ``MANO_TO_OPENPOSE[j]`` (e.g. output 1-4 thumb CMC..tip = ARCTIC 13, 14, 15, 16).
 ``joint_order="openpose"`` skips the re-indexing if a release turns out to be in OpenPose order
 already; :meth:`ArcticTake.bone_length_check` is a data-driven check of which order fits.
@@ -132,7 +132,7 @@ def object_of(seq: str) -> str:
 
 @dataclass
 class ArcticTake:
-    """One ARCTIC sequence seen from one view. Hand slot 0 = left, 1 = right (DESIGN.md)."""
+    """One ARCTIC sequence seen from one view. Hand slot 0 = left, 1 = right (docs/architecture.md)."""
 
     name: str                      # "<subject>/<seq>"
     subject: str

@@ -1,6 +1,6 @@
 """Rigid-body geometry for demoforge: quaternions, SE(3), mirroring, alignment, interpolation.
 
-Conventions (DESIGN.md section 3, fixed):
+Conventions (docs/architecture.md, fixed):
 
 * quaternions are scalar-last ``[qx, qy, qz, qw]`` (``scipy.spatial.transform.Rotation.as_quat``);
   MuJoCo's scalar-first order appears only through :func:`xyzw_to_wxyz` / :func:`wxyz_to_xyzw`;

@@ -4,8 +4,8 @@ Pose (:func:`hand_to_gripper`), exactly the thesis's heuristic, completed to a f
 
 * position p = (p_thumb_tip(4) + p_index_tip(8)) / 2;
 * approach axis: the thesis's Rodrigues rotation R_rod maps the reference axis (gripper z, the
-  approach axis of DESIGN.md) onto the unit vector from b = (p_0 + p_1) / 2 to a = p. Rodrigues
-  alone leaves the twist about z free; it is fixed with the DESIGN.md convention: x = thumb tip ->
+  approach axis of docs/architecture.md) onto the unit vector from b = (p_0 + p_1) / 2 to a = p. Rodrigues
+  alone leaves the twist about z free; it is fixed with the docs/architecture.md convention: x = thumb tip ->
   index tip made orthogonal to z, y = z x x, i.e. R = R_rod @ Rz(psi) with psi the angle from
   R_rod's x to that direction. Where the tips (nearly) coincide (their orthogonalised separation
   < ``min_tip_separation``) the x direction of the nearest earlier valid frame (projected
@@ -615,7 +615,7 @@ PINCH_MIN_HEIGHT = 0.010
 
 
 def clamp_above_table(pose7: np.ndarray, min_height: float = PINCH_MIN_HEIGHT, table_z: float = 0.0) -> np.ndarray:
-    """Raise pinch points below ``table_z + min_height`` to that height (world frame, z up; DESIGN.md:
+    """Raise pinch points below ``table_z + min_height`` to that height (world frame, z up; docs/architecture.md:
     the table top is z = 0). A human pinch cannot go below the table, but the ingest's ~9 mm
     position error puts a grasp of an object lying on the table (a whisk handle, approached from
     above) below it, and the gripper's fingers, which reach 6 mm beyond the pinch point, then push

@@ -16,7 +16,7 @@ Posing:
 * :func:`hand_joints` -- forward kinematics from a wrist pose and per-finger flexion in [0, 1]
   (thumb, index, middle, ring, pinky).
 * :func:`hand_from_pinch` -- the inverse used by the synthetic generator: given the pinch (gripper)
-  frame of ``DESIGN.md`` and the thumb-index aperture, a natural hand whose thumb tip (4) and index
+  frame of docs/architecture.md and the thumb-index aperture, a natural hand whose thumb tip (4) and index
   tip (8) lie exactly at ``origin -/+ aperture/2 * x``, whose base midpoint ((0 + 1) / 2) lies on the
   pinch's -z axis, and whose other fingers curl as the aperture shrinks. The thesis's mapping
   (:func:`pinch_from_joints`) applied to the result gives back the requested frame.

@@ -1,7 +1,7 @@
 """Ground-truth tables written beside a synthetic take (``<take>/ground_truth/<table>.parquet``).
 
 Written by :mod:`lib.synth.take` with :func:`schemas.core.write_table_file`. Frames of reference:
-*world* = the table frame of ``DESIGN.md`` (origin on the table top in front of the robot, z up,
+*world* = the table frame of docs/architecture.md (origin on the table top in front of the robot, z up,
 y away from the robot, x to the robot's right; metres); *camera* = the head camera's OpenCV frame
 (x right, y down, z forward; metres), related to the world by ``camera.json``'s ``T_world_camera``;
 *px* = image pixels of the 640 x 480 RGB/depth frames, OpenCV convention (the centre of the

@@ -31,7 +31,7 @@ os.environ.setdefault("DEMOFORGE_DIGEST_CACHE", os.path.join(tempfile.gettempdir
 FAIL_ON_SKIP = os.environ.get("DEMOFORGE_FAIL_ON_SKIP", "") not in ("", "0") and SHARED_DATA.is_dir()
 
 # Free space the suite needs in the temporary directory (synthetic takes, warehouses, videos, model
-# weights the tests build): measured peak 1-2 GB (README, Development), plus a margin. A CI run that
+# weights the tests build): measured peak 1-2 GB (docs/development.md), plus a margin. A CI run that
 # started on a nearly full disk ended with 71 fixture errors; one clear message up front is better.
 MIN_FREE_TMP_BYTES = 3 * 1024**3
 

@@ -1,4 +1,4 @@
-"""The bad-input battery (README: Reliability): every kind of broken input a user can hand demoforge.
+"""The bad-input battery (docs/orchestration.md: Reliability): every kind of broken input a user can hand demoforge.
 
 Each case asserts a clear outcome -- a one-line error (exit code 2) that names the file and the fix,
 or a flagged row -- and, where the input is rejected, that the warehouse stays readable and

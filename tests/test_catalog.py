@@ -102,11 +102,12 @@ def test_confinement_cannot_be_lifted_from_a_query(warehouse, statement):
 
 
 def test_every_readme_query_runs(warehouse):
-    """Each `demoforge sql "..."` example in README.md binds and runs through the confined connection."""
+    """Each `demoforge sql "..."` example in README.md and docs/ binds and runs through the confined connection."""
     import re
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    examples = [e for e in re.findall(r'demoforge sql "([^"]+)"', readme) if "..." not in e]  # not placeholders
+    repo = Path(__file__).resolve().parents[1]
+    manual = "\n".join(p.read_text() for p in [repo / "README.md", *sorted((repo / "docs").glob("*.md"))])
+    examples = [e for e in re.findall(r'demoforge sql "([^"]+)"', manual) if "..." not in e]  # not placeholders
     assert len(examples) >= 10
     write_table("_test_poses", _rows(2, "a"), warehouse)  # one table with files, so a view reads Parquet
     for example in examples:

@@ -1,6 +1,6 @@
 """The annotation of a take as data: task definition, annotations.json, suggestions, status.
 
-``annotations.json`` (README "Take folders"; the keys ingest reads are validated by
+``annotations.json`` (docs/takes.md; the keys ingest reads are validated by
 :func:`lib.ingest.parse_annotations`)::
 
     {

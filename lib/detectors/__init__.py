@@ -6,7 +6,7 @@ applies the thesis's rule (section 3.1.1: the most confident left candidate and 
 right candidate per frame) and returns a vectorised :class:`HandTrack`, which is all that the later
 stages (depth alignment, outlier freeze, gripper mapping) see.
 
-Conventions (DESIGN.md section 3): OpenCV camera frame, metres, pixels; 21 joints in MediaPipe
+Conventions (docs/architecture.md): OpenCV camera frame, metres, pixels; 21 joints in MediaPipe
 order; hand/slot 0 = left (the person's left hand), 1 = right.
 
 Adding a backend::

@@ -15,7 +15,7 @@ lerobot 0.6.1 package, which reads and writes codebase v3.0)::
 
 Features per frame: ``observation.state`` = both grippers' current poses and ``action`` = the poses
 one step later (the last step of an episode holds its pose), each a flat float32 16-vector: the
-(2, 8) pose array of DESIGN.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
+(2, 8) pose array of docs/architecture.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
 right_gripper`` (policies read a 1-D state; the names keep the 2 x 8 structure recoverable).
 Quaternions are scalar-last ``qx, qy, qz, qw``; gripper 1 = open, 0 = closed; world (table) frame, m.
 ``observation.environment_state`` (when given) = the 11 object keypoints of the step, flattened to

@@ -17,7 +17,7 @@ and names the first problem it finds, with how to fix it:
    or too few consistent hands means the depth does not lie under the hands (misaligned streams or
    wrong intrinsics).
 
-Depth is in metres, 0 or NaN invalid (DESIGN.md section 3); frames are camera frames (OpenCV).
+Depth is in metres, 0 or NaN invalid (docs/architecture.md, Conventions); frames are camera frames (OpenCV).
 """
 
 from __future__ import annotations

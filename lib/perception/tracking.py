@@ -3,7 +3,7 @@
 A per-frame detector (the thesis's rule: best left and best right candidate per frame) answers each
 frame on its own: it mislabels hands, sees a hand twice, and "finds" hands in the background. Filling
 the gaps between such detections invents trajectories. This module decides, per take and per hand
-slot (0 = left, 1 = right; DESIGN.md section 3), which detections belong to a hand track:
+slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections belong to a hand track:
 
 1. **Depth consistency** (when depth at the hand is given): a detected hand must lie on depth pixels
    at a distance consistent with its apparent size. The ratio ``s = z_read / z_implied``

@@ -2,7 +2,7 @@
 rotation matrix.  Quaternions jump (q and -q are the same rotation) and have a unit-norm
 constraint; a network regresses 6 free numbers instead and Gram-Schmidt turns them back into a
 rotation.  numpy for data preparation, torch for the loss; quaternions are scalar-last [x, y, z, w]
-(DESIGN.md section 3)."""
+(docs/architecture.md, Conventions)."""
 
 from __future__ import annotations
 

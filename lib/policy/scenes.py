@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])  # x -> -x, the mirror plane of DESIGN.md
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])  # x -> -x, the mirror plane of docs/architecture.md
 
 
 def translation_box(transforms: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The embodiment: two free-floating parallel-jaw grippers (Robotiq 2F-140 class) as MJCF.
 
-Gripper frame = the pose's frame (DESIGN.md section 3): origin = the pinch point between the two
+Gripper frame = the pose's frame (docs/architecture.md, Conventions): origin = the pinch point between the two
 fingertip pads, z = approach direction (towards the fingertips), x = closing direction (from the
 left finger to the right finger), y = z x x.
 
@@ -23,7 +23,7 @@ speed 30-250 mm/s (default 250 mm/s), about 1 kg.  Pads 22 x 22 mm (6 mm thick) 
 spans [-16, +6] mm along the approach axis around the pinch point (a human pinch touches with the
 fingertips, so the gripper's pinch point is near its fingertip ends, not at the pad centre).
 
-Mapping of the human action's g (DESIGN.md: 1 open, 0 closed) to the gripper (documented, general):
+Mapping of the human action's g (docs/architecture.md: 1 open, 0 closed) to the gripper (documented, general):
 * g >= 0.5 -> open to `open_width` (default: fully open = stroke);
 * the close command is issued `close_lead_s` (0.3 s) before g switches from 1 to 0: a human closes
   the hand during the frames before the "closed" label, while the gripper needs stroke / speed

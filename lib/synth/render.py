@@ -44,7 +44,7 @@ CAMERA_TARGET = (0.0, 0.25, 0.0)
 CAMERA_NAME = "demoforge_head_cam"
 HAND_PREFIX = "demoforge_hand"
 SIDES = ("left", "right")
-#: Looks of the synthetic hands: "skin" (palm, forearm, sleeve) or "capsule" (the default; see README).
+#: Looks of the synthetic hands: "skin" (palm, forearm, sleeve) or "capsule" (the default; see docs/takes.md).
 HAND_STYLES = ("skin", "capsule")
 DEFAULT_HAND_STYLE = "capsule"
 

@@ -1,6 +1,6 @@
 """Task library core: data classes, keyframe tracks, interpolation, mirroring and physics replay.
 
-Conventions (DESIGN.md section 3): world = table frame (origin on the table top, z up, y away from
+Conventions (docs/architecture.md): world = table frame (origin on the table top, z up, y away from
 the robot / demonstrator, x to the right); quaternions scalar-last in our arrays, MuJoCo's
 scalar-first only in MJCF strings and mocap_quat; arm 0 = left hand, arm 1 = right hand.
 
@@ -136,7 +136,7 @@ class Demo:
         return get_task(self.task).keypoints_world(self.object_poses)
 
     def gripper_actions(self) -> np.ndarray:
-        """(T, 2, 8) [x, y, z, qx, qy, qz, qw, g] with g = 1 open, 0 closed (DESIGN.md)."""
+        """(T, 2, 8) [x, y, z, qx, qy, qz, qw, g] with g = 1 open, 0 closed (docs/architecture.md)."""
         T = self.n_frames
         out = np.zeros((T, 2, 8))
         out[..., :3] = self.pinch_poses[..., :3, 3]

@@ -14,7 +14,7 @@ scenes the evaluation used before. A database meant to serve them must cover tha
 demonstration's placement) that reach every placement the sampler can draw.
 
 Units: metres, radians; keypoints (K, 3) and object poses (n_obj, 4, 4) in the world (table) frame;
-initial gripper poses (2, 8) `[x, y, z, qx, qy, qz, qw, g]` (DESIGN.md section 3).
+initial gripper poses (2, 8) `[x, y, z, qx, qy, qz, qw, g]` (docs/architecture.md, Conventions).
 """
 
 from __future__ import annotations
