@@ -5,6 +5,7 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+from schemas.ingested_demos import REPORT_INGESTED_DEMOS_SQL
 from schemas.table3 import REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL
 from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
 
@@ -66,19 +67,25 @@ REPORT_VIEWS: dict[str, str] = {
                round(open_close_acc_threshold, 3) AS oc_threshold, round(open_close_acc_auto, 3) AS oc_auto,
                round(open_close_acc_manual, 3) AS oc_manual,
                swap_frames_injected AS swaps_injected, swap_frames_repaired_correctly AS swaps_repaired
-        FROM ingest_metrics ORDER BY task, take, hand
+        FROM ingest_metrics ORDER BY task, take, hand, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
     """,
     # The same, averaged per task (the goals: aligned within 5 mm of PA-MPJPE, auto open/close >= 95 %).
     "report_ingest_by_task": """
         SELECT task, detector, count(*) AS hands,
+               round(avg(detected_fraction), 3) AS detected_fraction,
                round(1000 * avg(mpjpe_aligned_m), 1) AS mpjpe_aligned_mm,
                round(1000 * avg(pa_mpjpe_m), 1) AS pa_mpjpe_mm,
                round(1000 * avg(mpjpe_aligned_m - pa_mpjpe_m), 1) AS aligned_minus_pa_mm,
                round(avg(gripper_position_error_mm), 1) AS gripper_pos_mm,
+               round(avg(gripper_orientation_error_deg), 1) AS gripper_rot_deg,
+               round(avg(open_close_acc_auto), 3) AS mean_oc_auto,
                round(min(open_close_acc_threshold), 3) AS worst_oc_threshold,
                round(min(open_close_acc_auto), 3) AS worst_oc_auto
-        FROM ingest_metrics GROUP BY task, detector ORDER BY task
+        FROM ingest_metrics GROUP BY task, detector
+        ORDER BY task, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
     """,
+    # The robot executing each take's ingested demonstration, per task and hand detector.
+    "report_ingested_demos": REPORT_INGESTED_DEMOS_SQL,
     # Segment boundaries found on the ingested takes against the scripted ones.
     "report_segmentation": """
         SELECT task, take, arm, boundaries_true, boundaries_found, matched,
