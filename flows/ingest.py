@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from prefect import flow, get_run_logger
 
@@ -99,7 +100,7 @@ def detector_variant(detector: str) -> dict | None:
 def ingest_side_by_side(
     path: str,
     warehouse: str,
-    detectors: list[str] = (SIMULATED, "mediapipe"),
+    detectors: Sequence[str] = (SIMULATED, "mediapipe"),
     task: str | None = None,
     check_demo: bool = True,
     show_progress: bool = False,
