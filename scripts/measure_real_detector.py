@@ -50,6 +50,65 @@ def handedness_rows(wh: str) -> list[dict]:
     return out
 
 
+def error_breakdown(wh: str) -> list[dict]:
+    """MediaPipe's gripper position error split by what the ingest had in each frame: a detection on the
+    hand of its own label, one on the other hand (left/right confusion the tracker did not repair), or
+    no detection (filled / held). For frames on the own hand, the error split into the camera's depth
+    axis and the image plane: is it the 2D keypoints or the depth?"""
+    from lib.alignment import project
+    from lib.ingest import open_take
+    from schemas.catalog import query
+    from schemas.core import read_table, read_table_file
+    from tasks.ingest import arrays
+
+    cats: dict[str, dict[str, list]] = {}
+    for r in query("SELECT path FROM takes ORDER BY take", wh).to_pylist():
+        take = open_take(r["path"])
+        v = {"detector": "mediapipe"}
+        al = read_table("aligned_keypoints", wh, variant=v, take=take.take_id)
+        if al.num_rows == 0:
+            continue
+        _, a = arrays(al, "joints_cam", "detected", "present")
+        _, gp = arrays(read_table("gripper_poses", wh, variant=v, take=take.take_id), "pose")
+        gd = take.ground_truth_dir
+        _, gt = arrays(read_table_file("gt_hand_joints", gd / "gt_hand_joints.parquet"), "joints_px", "present")
+        _, gg = arrays(read_table_file("gt_gripper", gd / "gt_gripper.parquet"), "pose")
+        Twc = np.asarray(take.camera.T_world_camera, float)
+        Tcw = np.linalg.inv(Twc)
+        px = project(a["joints_cam"], take.K)
+        for h in (0, 1):
+            own = np.linalg.norm(px[:, h] - gt["joints_px"][:, h], axis=-1).mean(-1)
+            oth = np.linalg.norm(px[:, h] - gt["joints_px"][:, 1 - h], axis=-1).mean(-1)
+            oth = np.where(gt["present"][:, 1 - h], oth, np.inf)
+            view = gt["present"][:, h].astype(bool)
+            det = a["detected"][:, h].astype(bool) & view
+            on_own = det & ~(oth < own)
+            kinds = {"detected, on its own hand": on_own, "detected, on the other hand": det & ~on_own,
+                     "not detected (filled or held)": view & ~det & a["present"][:, h].astype(bool),
+                     "no pose (hand absent)": view & ~a["present"][:, h].astype(bool)}
+            d_world = gp["pose"][:, h, :3] - gg["pose"][:, h, :3]
+            d_cam = d_world @ Tcw[:3, :3].T
+            for k, m in kinds.items():
+                c = cats.setdefault(k, {"frames": [], "err": [], "depth": [], "plane": [], "px": []})
+                c["frames"].append(int(m.sum()))
+                ok = m & np.isfinite(d_world).all(-1)
+                c["err"].append(1000 * np.linalg.norm(d_world[ok], axis=-1))
+                c["depth"].append(1000 * np.abs(d_cam[ok, 2]))
+                c["plane"].append(1000 * np.linalg.norm(d_cam[ok, :2], axis=-1))
+                c["px"].append(own[ok])
+    out = []
+    total = sum(sum(c["frames"]) for c in cats.values())
+    for k, c in cats.items():
+        med = {n: (float(np.median(np.concatenate(c[n]))) if np.concatenate(c[n]).size else float("nan"))
+               for n in ("err", "depth", "plane", "px")}
+        out.append({"frames (hand in view)": k, "share": round(sum(c["frames"]) / max(total, 1), 3),
+                    "median gripper error (mm)": round(med["err"], 1),
+                    "of it along the camera axis (mm)": round(med["depth"], 1),
+                    "in the image plane (mm)": round(med["plane"], 1),
+                    "median 2D joint error to its own hand (px)": round(med["px"], 1)})
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("warehouse", nargs="?", default="/tmp/demoforge-issue19-real-detector")
@@ -116,6 +175,9 @@ def main() -> None:
     tot = sum(r["detections"] for r in hr)
     other = sum(r["on_other_hand"] for r in hr)
     print(f"\nall takes: {other}/{tot} MediaPipe detections ({100 * other / max(tot, 1):.0f} %) lie on the other hand")
+    eb = error_breakdown(wh)
+    print("\n### MediaPipe's gripper position error by what the ingest had in the frame (all takes)\n")
+    print(markdown_table(list(eb[0]), [list(r.values()) for r in eb]))
     t = query("""SELECT detector, hand, sum(frames_detected) AS detected, sum(frames_accepted) AS accepted,
                         sum(frames_isolated) AS isolated, sum(frames_depth_inconsistent) AS depth_inconsistent,
                         sum(frames_duplicate) AS duplicate, sum(frames_filled) AS filled,
