@@ -130,3 +130,34 @@ def test_a_take_ingested_with_both_detectors_has_rows_for_both(prefect_api, inge
     assert demos["mediapipe"]["valid_left"] < 1.0 or demos["mediapipe"]["valid_right"] < 1.0
     assert (demos["mediapipe"]["success"], demos["mediapipe"]["failure"], demos["mediapipe"]["detail"]) != \
         (demos["simulated"]["success"], demos["simulated"]["failure"], demos["simulated"]["detail"])
+
+
+def _flow_must_not_run(*a, **k):
+    raise AssertionError("the main job started")
+
+
+def test_evaluate_refuses_a_detector_it_does_not_run(warehouse, monkeypatch):
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    monkeypatch.setattr("flows.evaluate.evaluate", _flow_must_not_run)
+
+    r = CliRunner().invoke(app, ["evaluate", "--detector", "simulated", "--detector", "precomputed"])
+    assert r.exit_code == 2
+    assert r.stderr.strip().splitlines() == [
+        "error: --detector 'precomputed' is not one the main job runs; choose from simulated, mediapipe"]
+
+
+def test_evaluate_stops_when_a_detector_asked_for_cannot_run(warehouse, monkeypatch):
+    """Asked for by name, a detector that cannot run here stops the command before any work."""
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    pytest.importorskip("mediapipe", reason="mediapipe is not installed: the message is then about the package")
+    monkeypatch.setattr("flows.evaluate.evaluate", _flow_must_not_run)
+    monkeypatch.setenv("DEMOFORGE_HAND_LANDMARKER", str(warehouse / "no_such_model.task"))
+    r = CliRunner().invoke(app, ["evaluate", "--detector", "mediapipe"])
+    assert r.exit_code == 2 and "no_such_model.task" in r.stderr and "fetch_mediapipe_model.py" in r.stderr
+    assert not (warehouse / "takes").exists()
