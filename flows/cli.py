@@ -225,7 +225,7 @@ def tables(
 ) -> None:
     """List the warehouse tables with their row counts, or describe one table's columns."""
     from schemas import registry
-    from schemas.core import get_schema, table_files
+    from schemas.core import ALL_VARIANTS, get_schema, table_files
 
     root = current_warehouse()
     if name:
@@ -238,7 +238,7 @@ def tables(
     import pyarrow.parquet as pq
 
     for tname, schema in sorted(registry().items()):
-        files = table_files(tname, root)
+        files = table_files(tname, root, ALL_VARIANTS)  # a second detector's rows too (schemas.core.variant_parts)
         rows = sum(pq.ParquetFile(f).metadata.num_rows for f in files)
         typer.echo(f"{tname:<24} v{schema.version}  {rows:>10} rows  {len(files):>5} files  {schema.doc.splitlines()[0][:70]}")
 
@@ -326,6 +326,7 @@ def evaluate(
     policy_epochs: int = typer.Option(6, envvar="POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
+    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
@@ -340,11 +341,21 @@ def evaluate(
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
     if mirror not in ("both", "no", "yes"):
         raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
+    from flows.evaluate import DETECTORS, detector_problem
+
+    detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
+    bad = [d for d in detectors if d not in DETECTORS]
+    if bad:
+        raise fail(f"--detector {bad[0]!r} is not one the main job runs; choose from {', '.join(DETECTORS)}")
+    for d in detectors if detector else ():  # asked for by name: it must run (the default only warns)
+        if detector_problem(d):
+            raise fail(f"--detector {d}: {detector_problem(d)}")
     params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
                   sim_episodes=sim_episodes, stability_episodes=stability_episodes,
                   stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials, grid_scenes=grid_scenes,
                   llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
-                  variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials)
+                  variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials,
+                  detectors=list(dict.fromkeys(detectors)))
     warehouse, reports_dir = current_warehouse(), reports.resolve()
     key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
                             {"real_hands": str(lib.SHARED_DATA / "real_hands"),

@@ -9,13 +9,36 @@ from prefect import flow, get_run_logger
 
 from flows.artifacts import ProgressArtifact
 from flows.augment import augment_take_flow
-from flows.ingest import ingest_take
+from flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
 from flows.keypoint_eval import evaluate_keypoints
 from flows.report import write_report
 from flows.runners import run_flow
 from flows.sim import check_stability, simulate_episodes
 from flows.synth import synthesize_takes
 from flows.table3 import table3
+
+# The hand detectors `make evaluate` ingests every take with, side by side: the simulated one (the ground
+# truth through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
+DETECTORS = (SIMULATED, "mediapipe")
+
+
+def detector_problem(name: str) -> str | None:
+    """Why a detector cannot run here (its package or model file is missing), or None."""
+    import importlib.util
+
+    from lib.detectors import available_detectors
+
+    if name not in available_detectors():
+        return f"unknown detector {name!r}; choose from {', '.join(available_detectors())}"
+    if name == "mediapipe":  # checked without loading it: a run served from the cache never does
+        from lib.detectors.mediapipe_backend import default_model_path
+
+        if importlib.util.find_spec("mediapipe") is None:
+            return "the mediapipe package is not installed: pip install --no-deps -r requirements/mediapipe.txt"
+        if not default_model_path().is_file():
+            return (f"the MediaPipe hand model {default_model_path()} is missing: "
+                    "python scripts/fetch_mediapipe_model.py (make setup does)")
+    return None
 
 
 @flow(name="evaluate")
@@ -41,11 +64,15 @@ def evaluate(
     policy_epochs: int = 6,
     policy_waypoints: int = 40,
     policy_trials: int = 5,
+    detectors: Sequence[str] = DETECTORS,
 ) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
 
-    Every take is ingested with the simulated detector (and measured against its ground truth);
+    Every take is ingested with the simulated detector (and measured against its ground truth), and
+    with each other detector of `detectors` beside it (flows.ingest.ingest_side_by_side: its ingest
+    accuracy, keypoint metrics and the robot executing its ingested demonstration, each detector in its
+    own rows; with `detectors=["simulated"]` none of this runs: the cost of the main job before it);
     the first plain take of each task becomes that task's database of `episodes` episodes, of which
     `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo,
     and `stability_episodes` of them `stability_repeats` times with the scene shifted by about 0.1 mm (how
@@ -63,6 +90,12 @@ def evaluate(
 
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
+    detectors = list(dict.fromkeys([SIMULATED, *detectors]))  # the simulated detector's ingest: always, first
+    for name in detectors[1:]:
+        problem = detector_problem(name)
+        if problem:
+            logger.warning("detector %s left out of the side-by-side ingest: %s", name, problem)
+            detectors.remove(name)
     manifests = run_flow(synthesize_takes, warehouse, tasks=tasks, takes=takes, seed=seed, mirror=mirror)
     first_take: dict[str, str] = {}  # task -> path of its first plain take (the task database)
     progress = ProgressArtifact("evaluate-progress", len(manifests) + 2,
@@ -80,6 +113,8 @@ def evaluate(
                          repeats=stability_repeats, take=name, seed=seed)
         else:
             run_flow(ingest_take, m.path, warehouse)
+        if len(detectors) > 1:
+            run_flow(ingest_side_by_side, m.path, warehouse, detectors=detectors)
         progress.step()
     from tasks.table3 import ALL_STRATEGIES, POLICY
 
@@ -130,7 +165,8 @@ def evaluate(
                                                    "llm_backend": llm_backend,
                                                    "variation_trials": variation_trials,
                                                    "policy_epochs": policy_epochs, "policy_trials": policy_trials,
-                                                   "policy_waypoints": policy_waypoints})
+                                                   "policy_waypoints": policy_waypoints,
+                                                   "detectors": detectors})
     progress.step()
     logger.info("report written: %s", report)
     return str(report)

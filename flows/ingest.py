@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from prefect import flow, get_run_logger
 
@@ -28,6 +29,7 @@ def ingest_take(
     table_clearance: float | None = 0.010,
     tracker: dict | None = None,
     accept_bad_depth: bool = False,
+    variant: dict | None = None,
 ) -> dict[str, Manifest | None]:
     """Ingest one take folder (layout: README 'Take folders') into the warehouse.
 
@@ -39,6 +41,8 @@ def ingest_take(
     the per-hand verdict is the `hand_presence` table.
     accept_bad_depth: go on when the take's depth fails a check (lib.ingest.depth_checks), flagging every
     row in `depth_problem`, instead of stopping with tasks.ingest.DepthError.
+    variant: None (where augment and every later stage read the take) or {"detector": detector} to keep
+    this detector's rows beside those (schemas.core.variant_parts; see ingest_side_by_side).
     """
     from lib.detectors import available_detectors
     from lib.ingest import open_take
@@ -46,6 +50,9 @@ def ingest_take(
     logger = get_run_logger()
     if detector not in available_detectors():
         raise ValueError(f"unknown detector {detector!r}; choose one of: {', '.join(available_detectors())}")
+    if variant is not None and variant != {"detector": detector}:
+        raise ValueError(f"variant must be None or {{'detector': {detector!r}}}, got {variant!r}")
+    var = {"variant": dict(variant)} if variant else {}  # absent, not None: the stages' keys stay as they were
     take_dir = Path(path).resolve()
     take = open_take(take_dir)  # fails early, with a clear message, on a take that cannot be read
     bad = take.status_counts()
@@ -61,22 +68,89 @@ def ingest_take(
     media = take_media_key(take_dir)
     frames = run_stage(index_frames, warehouse, **common, media_key=media)
     hands = run_stage(detect_hands, warehouse, **common, detector=detector,
-                      detector_options=options, frames=frames, show_progress=show_progress, media_key=media)
+                      detector_options=options, frames=frames, show_progress=show_progress, media_key=media, **var)
     aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {},
-                        tracker=tracker or {}, accept_bad_depth=bool(accept_bad_depth), media_key=media)
-    presence = run_stage(hand_presence, warehouse, **common, aligned=aligned, tracker=tracker or {})
+                        tracker=tracker or {}, accept_bad_depth=bool(accept_bad_depth), media_key=media, **var)
+    presence = run_stage(hand_presence, warehouse, **common, aligned=aligned, tracker=tracker or {}, **var)
     if grasp_prior not in ("twist", "pose", "off"):
         raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
     grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
-                         smoothing=smoothing, grasp_prior=grasp_prior, table_clearance=table_clearance)
+                         smoothing=smoothing, grasp_prior=grasp_prior, table_clearance=table_clearance, **var)
     objects = run_stage(object_keypoints, warehouse, **common)  # None: not annotated yet (warned)
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
-                        grippers=grippers)
+                        grippers=grippers, **var)
     result = {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
               "hand_presence": presence, "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
     if video:
-        result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers)
+        result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers,
+                                            **var)
     return result
+
+
+SIMULATED = "simulated"
+
+
+def detector_variant(detector: str) -> dict | None:
+    """Where a detector's rows go in a side-by-side ingest: the simulated detector's where every later
+    stage reads them (augment, simulate, ...), any other's beside them under `detector=<name>/`."""
+    return None if detector == SIMULATED else {"detector": detector}
+
+
+@flow(name="ingest-side-by-side")
+def ingest_side_by_side(
+    path: str,
+    warehouse: str,
+    detectors: Sequence[str] = (SIMULATED, "mediapipe"),
+    task: str | None = None,
+    check_demo: bool = True,
+    show_progress: bool = False,
+) -> dict[str, dict]:
+    """Ingest one take with each of `detectors` and keep their rows side by side (detector_variant);
+    for a synthetic take also its keypoint metrics per detector (`keypoint_metrics`, the simulated
+    detector's come from flows.keypoint_eval as before), and with `check_demo` the robot executing each
+    detector's ingested demonstration in MuJoCo (`ingested_demo_checks`).
+
+    A detector whose ingest or demonstration fails (e.g. untrustworthy depth, a hand never found) is
+    recorded in `ingested_demo_checks` with the reason, and the other detectors go on.
+    Returns {detector: {"ingest": manifests or None, "demo": manifest or None, "error": str}}."""
+    from flows.runners import run_flow
+    from lib.errors import one_line
+    from lib.ingest import open_take
+    from lib.robot_sim import scene_fingerprint
+    from lib.task_library import TASK_NAMES
+    from tasks.ingest import ingest_keypoint_metrics
+    from tasks.sim import check_ingested_demo, demo_failure_row
+
+    logger = get_run_logger()
+    take_dir = Path(path).resolve()
+    name = take_task_name(open_take(take_dir), task)
+    out: dict[str, dict] = {}
+    for det in dict.fromkeys(detectors):  # each once, in the given order
+        variant = detector_variant(det)
+        var = {"variant": variant} if variant else {}
+        res: dict = {"ingest": None, "demo": None, "error": ""}
+        try:
+            ingested = run_flow(ingest_take, str(take_dir), warehouse, detector=det, task=task,
+                                show_progress=show_progress, variant=variant)
+            res["ingest"] = ingested
+            common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
+            if variant is not None:
+                res["keypoints"] = run_stage(ingest_keypoint_metrics, warehouse, **common,
+                                             hand_keypoints=ingested["hand_keypoints"], **var)
+            if check_demo and ingested["object_keypoints"] is not None and name in TASK_NAMES:
+                res["demo"] = run_stage(check_ingested_demo, warehouse, **common, grippers=ingested["gripper_poses"],
+                                        objects=ingested["object_keypoints"], presence=ingested["hand_presence"],
+                                        scene=scene_fingerprint(name), **var)
+        except Exception as e:  # noqa: BLE001  (one detector's failure must not hide the other's rows)
+            res["error"] = f"{type(e).__name__}: {one_line(e)}"[:2000]
+            logger.warning("take %s, detector %s: %s", take_dir.name, det, res["error"])
+            if check_demo and name in TASK_NAMES:
+                from schemas.core import write_table
+
+                write_table("ingested_demo_checks", demo_failure_row(name, take_dir.name, det, "ingest_failed",
+                                                                     res["error"]), warehouse)
+        out[det] = res
+    return out
 
 
 def find_take_folders(folder: str | Path) -> list[Path]:

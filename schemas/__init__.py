@@ -19,5 +19,5 @@ from schemas.core import (  # noqa: F401
     read_table_file,
 )
 from schemas import (  # noqa: F401,E402  (registers tables)
-    augment, benchmarks, detection, ingest, keypoints, llm, policy, sim, synthetic, table3, takes, variations,
+    augment, benchmarks, detection, ingest, ingested_demos, keypoints, llm, policy, sim, synthetic, table3, takes, variations,
 )

@@ -5,6 +5,7 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+from schemas.ingested_demos import REPORT_INGESTED_DEMOS_SQL
 from schemas.table3 import REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL
 from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
 
@@ -26,6 +27,11 @@ def _wavg(metric: str, weight: str) -> str:
     """Frame-weighted mean over takes, skipping NaN (the thesis's eq. 4 pooled over all frames)."""
     ok = f"NOT isnan({metric}) AND {weight} > 0"
     return f"sum({metric} * {weight}) FILTER (WHERE {ok}) / sum({weight}) FILTER (WHERE {ok})"
+
+
+def _nanavg(expr: str) -> str:
+    """The mean over rows where ``expr`` is a number (NaN: nothing could be measured)."""
+    return f"avg({expr}) FILTER (WHERE NOT isnan({expr}))"
 
 
 REPORT_VIEWS: dict[str, str] = {
@@ -66,19 +72,27 @@ REPORT_VIEWS: dict[str, str] = {
                round(open_close_acc_threshold, 3) AS oc_threshold, round(open_close_acc_auto, 3) AS oc_auto,
                round(open_close_acc_manual, 3) AS oc_manual,
                swap_frames_injected AS swaps_injected, swap_frames_repaired_correctly AS swaps_repaired
-        FROM ingest_metrics ORDER BY task, take, hand
+        FROM ingest_metrics ORDER BY task, take, hand, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
     """,
-    # The same, averaged per task (the goals: aligned within 5 mm of PA-MPJPE, auto open/close >= 95 %).
-    "report_ingest_by_task": """
+    # The same, averaged per task and detector (the goals: aligned within 5 mm of PA-MPJPE, auto open/close
+    # >= 95 %); a hand a detector never found (NaN errors) is counted in hands_without_pose, not averaged.
+    "report_ingest_by_task": f"""
         SELECT task, detector, count(*) AS hands,
-               round(1000 * avg(mpjpe_aligned_m), 1) AS mpjpe_aligned_mm,
-               round(1000 * avg(pa_mpjpe_m), 1) AS pa_mpjpe_mm,
-               round(1000 * avg(mpjpe_aligned_m - pa_mpjpe_m), 1) AS aligned_minus_pa_mm,
-               round(avg(gripper_position_error_mm), 1) AS gripper_pos_mm,
+               count(*) FILTER (WHERE isnan(gripper_position_error_mm)) AS hands_without_pose,
+               round(avg(detected_fraction), 3) AS detected_fraction,
+               round(1000 * {_nanavg("mpjpe_aligned_m")}, 1) AS mpjpe_aligned_mm,
+               round(1000 * {_nanavg("pa_mpjpe_m")}, 1) AS pa_mpjpe_mm,
+               round(1000 * {_nanavg("mpjpe_aligned_m - pa_mpjpe_m")}, 1) AS aligned_minus_pa_mm,
+               round({_nanavg("gripper_position_error_mm")}, 1) AS gripper_pos_mm,
+               round({_nanavg("gripper_orientation_error_deg")}, 1) AS gripper_rot_deg,
+               round(avg(open_close_acc_auto), 3) AS mean_oc_auto,
                round(min(open_close_acc_threshold), 3) AS worst_oc_threshold,
                round(min(open_close_acc_auto), 3) AS worst_oc_auto
-        FROM ingest_metrics GROUP BY task, detector ORDER BY task
+        FROM ingest_metrics GROUP BY task, detector
+        ORDER BY task, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
     """,
+    # The robot executing each take's ingested demonstration, per task and hand detector.
+    "report_ingested_demos": REPORT_INGESTED_DEMOS_SQL,
     # Segment boundaries found on the ingested takes against the scripted ones.
     "report_segmentation": """
         SELECT task, take, arm, boundaries_true, boundaries_found, matched,

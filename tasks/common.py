@@ -162,6 +162,7 @@ class ContentHashPolicy(CachePolicy):
 
     salt: str = ""
     ignore: tuple[str, ...] = ()  # inputs that cannot change the result (worker counts, progress bars)
+    optional: tuple[str, ...] = ()  # inputs left out of the key while they are None (added later)
 
     def compute_key(
         self,
@@ -172,26 +173,31 @@ class ContentHashPolicy(CachePolicy):
     ) -> str:
         payload = json.dumps(
             {"salt": self.salt,
-             "inputs": content_fingerprint({k: v for k, v in (inputs or {}).items() if k not in self.ignore})},
+             "inputs": content_fingerprint({k: v for k, v in (inputs or {}).items()
+                                            if k not in self.ignore and not (k in self.optional and v is None)})},
             sort_keys=True,
             separators=(",", ":"),
         )
         return hashlib.sha256(payload.encode()).hexdigest()
 
 
-def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), **task_options: Any) -> Callable:
+def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), key_optional: tuple[str, ...] = (),
+               **task_options: Any) -> Callable:
     """Decorate a stage function as a Prefect task with demoforge's cache policy.
 
     ``version`` is the code-version salt: bump it when the stage's logic changes so old cache
     entries stop matching. ``key_ignore`` names inputs left out of the cache key because they cannot
-    change the result (how many worker processes, whether a progress bar is shown).
+    change the result (how many worker processes, whether a progress bar is shown). ``key_optional``
+    names inputs left out of the key while their value is None: a parameter added to a stage later
+    (e.g. a table ``variant``) keeps the keys, and so the cached results, of every call without it.
     """
 
     def decorate(fn: Callable) -> Any:
         return task(
             fn,
             name=name,
-            cache_policy=ContentHashPolicy(salt=f"{name}@{version}", ignore=tuple(key_ignore)),
+            cache_policy=ContentHashPolicy(salt=f"{name}@{version}", ignore=tuple(key_ignore),
+                                           optional=tuple(key_optional)),
             persist_result=True,
             **task_options,
         )

@@ -107,11 +107,16 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
 
 # --- 2. hand keypoints ---------------------------------------------------------------------------
 
-@stage_task(name="detect_hands", version=INGEST_VERSION, key_ignore=("take_dir",))  # keyed on media_key
+@stage_task(name="detect_hands", version=INGEST_VERSION, key_ignore=("take_dir",),  # keyed on media_key
+            key_optional=("variant",))
 def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str = "simulated",
                  detector_options: dict | None = None, frames: Manifest | None = None,
-                 show_progress: bool = True, *, media_key: str) -> Manifest:
-    """Run a detector backend over the take and keep the most confident left and right hand per frame."""
+                 show_progress: bool = True, *, media_key: str, variant: dict | None = None) -> Manifest:
+    """Run a detector backend over the take and keep the most confident left and right hand per frame.
+
+    ``variant`` (every stage of the ingest): None writes the take's rows where every later stage reads
+    them; ``{"detector": name}`` keeps them beside those (schemas.core.variant_parts), for a second
+    detector's ingest of the same take (flows.ingest.ingest_side_by_side)."""
     from lib.detectors import get_detector
     from lib.ingest import open_take
 
@@ -140,7 +145,7 @@ def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str
         present=track.present, confidence=np.nan_to_num(track.confidence),
         joints_cam=track.joints_cam, joints_px=track.joints_px,
         n_candidates=track.n_candidates.astype(np.int32),
-    ), warehouse)
+    ), warehouse, variant)
     _save_detector_extra(take, track, warehouse)
     return Manifest.from_written("hand_keypoints", written)
 
@@ -164,10 +169,11 @@ class DepthError(UserError):
     """The take's depth cannot be trusted (one-line message: what is wrong and how to fix it)."""
 
 
-@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-1", key_ignore=("take_dir",))  # keyed on media_key
+@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-1", key_ignore=("take_dir",),  # keyed on media_key
+            key_optional=("variant",))
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                     alignment: dict | None = None, tracker: dict | None = None,
-                    accept_bad_depth: bool = False, *, media_key: str) -> Manifest:
+                    accept_bad_depth: bool = False, *, media_key: str, variant: dict | None = None) -> Manifest:
     """Depth checks (lib.ingest.depth_checks), hand tracking (lib.perception.tracking), then depth
     alignment (thesis 3.1.2), outlier freeze and bounded gap filling; depth is streamed per batch.
 
@@ -181,7 +187,7 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    hk = read_table("hand_keypoints", warehouse, task=name, take=take.take_id)
+    hk = read_table("hand_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(hk, "joints_cam", "joints_px", "present", "confidence")
     detector = hk.column("detector")[0].as_py()
     cfg = AlignmentConfig(**(alignment or {}))
@@ -230,20 +236,20 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
         swap_repaired=tr.swapped[:, None] & tr.detected, filled_missing=res.filled_missing,
         track_id=tr.track_id.astype(np.int32), rejected=list(np.asarray(REJECT_REASONS)[tr.rejected].reshape(-1)),
         depth_ratio=tr.depth_ratio, depth_problem=[report.problem] * (2 * T),
-    ), warehouse)
+    ), warehouse, variant)
     return Manifest.from_written("aligned_keypoints", written)
 
 
-@stage_task(name="hand_presence", version=INGEST_VERSION)
+@stage_task(name="hand_presence", version=INGEST_VERSION, key_optional=("variant",))
 def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
-                  tracker: dict | None = None) -> Manifest:
+                  tracker: dict | None = None, variant: dict | None = None) -> Manifest:
     """Per hand: frames detected / accepted / rejected / filled / tracked and the trust verdict."""
     from lib.ingest import open_take
     from lib.perception.tracking import TrackerConfig, hand_trust
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    al = read_table("aligned_keypoints", warehouse, task=name, take=take.take_id)
+    al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(al, "present", "detected", "filled_missing", "track_id", "rejected")
     detector = al.column("detector")[0].as_py()
     problem = al.column("depth_problem")[0].as_py()
@@ -260,16 +266,16 @@ def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Man
         "tracks": int(a["track_id"][:, h].max() + 1) if T else 0,
         "trusted": bool(trusted[h]), "reason": reasons[h], "depth_problem": problem,
     } for h, hand in enumerate(HANDS)]
-    written = write_table("hand_presence", pa.Table.from_pylist(out), warehouse)
+    written = write_table("hand_presence", pa.Table.from_pylist(out), warehouse, variant)
     return Manifest.from_written("hand_presence", written)
 
 
 # --- 4. gripper poses ----------------------------------------------------------------------------
 
-@stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1/depth-flag-1")
+@stage_task(name="map_grippers", version=f"{INGEST_VERSION}/grasp-prior-1/depth-flag-1", key_optional=("variant",))
 def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
                  state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "pose",
-                 table_clearance: float | None = 0.010) -> Manifest:
+                 table_clearance: float | None = 0.010, variant: dict | None = None) -> Manifest:
     """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods,
     then the rigid-grasp prior while a hand is closed and the table floor (see lib.gripper_mapping)."""
     from lib.gripper_mapping import (clamp_above_table, gripper_state, hand_to_gripper, smooth_poses,
@@ -278,7 +284,7 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    al = read_table("aligned_keypoints", warehouse, task=name, take=take.take_id)
+    al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(al, "joints_world", "present")
     detector = al.column("detector")[0].as_py()
     depth_problem = al.column("depth_problem")[0].as_py()
@@ -303,7 +309,7 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
         fingertip_distance=dist, g_threshold=g_thr.astype(np.int8), g_auto=g_auto.astype(np.int8),
         g_manual=None if g_man is None else g_man.astype(np.int8),
         state_method=[chosen_method] * (2 * T), depth_problem=[depth_problem] * (2 * T),
-    ) | ({"g_manual": pa.nulls(2 * T, pa.int8())} if g_man is None else {}), warehouse)
+    ) | ({"g_manual": pa.nulls(2 * T, pa.int8())} if g_man is None else {}), warehouse, variant)
     return Manifest.from_written("gripper_poses", written)
 
 
@@ -369,9 +375,9 @@ def alignment_options(config: Any) -> dict:
 
 # --- 6. accuracy against ground truth (synthetic takes) ------------------------------------------
 
-@stage_task(name="ingest_metrics", version=INGEST_VERSION)
+@stage_task(name="ingest_metrics", version=INGEST_VERSION, key_optional=("variant",))
 def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
-                   aligned: Manifest, grippers: Manifest) -> Manifest | None:
+                   aligned: Manifest, grippers: Manifest, variant: dict | None = None) -> Manifest | None:
     """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps."""
     from lib import metrics as M
     from lib.ingest import open_take
@@ -381,7 +387,7 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
     if not take.has_ground_truth:
         return None
     name = take_task_name(take, task)
-    part = dict(task=name, take=take.take_id)
+    part = dict(task=name, take=take.take_id, variant=variant)
     _, raw = arrays(read_table("hand_keypoints", warehouse, **part), "joints_cam", "joints_px", "present")
     al_t = read_table("aligned_keypoints", warehouse, **part)
     _, al = arrays(al_t, "joints_cam", "detected", "swap_repaired")
@@ -423,15 +429,58 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
             "swap_frames_injected": int(injected.sum()), "swap_frames_repaired": int(repaired.sum()),
             "swap_frames_repaired_correctly": int((repaired & injected).sum()),
         })
-    written = write_table("ingest_metrics", pa.Table.from_pylist(out), warehouse)
+    written = write_table("ingest_metrics", pa.Table.from_pylist(out), warehouse, variant)
     return Manifest.from_written("ingest_metrics", written)
+
+
+@stage_task(name="ingest_keypoint_metrics", version=INGEST_VERSION, key_optional=("variant",))
+def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
+                            variant: dict | None = None) -> Manifest | None:
+    """The thesis's keypoint metrics (`keypoint_metrics`, dataset `synthetic`: Tables 1, 2, Appendix B)
+    of the detections the ingest already made, so a detector that costs seconds per frame (MediaPipe)
+    is not run a second time: lib.keypoint_eval.evaluate_take on the `hand_keypoints` rows, with the
+    anchor depth read from the take's depth maps as lib.keypoint_eval.evaluate_synthetic_take does.
+    None for a take without ground truth."""
+    from lib.alignment import AlignmentConfig, read_depth_robust
+    from lib.ingest import iter_depth, open_take
+    from lib.keypoint_eval import _load_synth_gt, evaluate_take
+    from schemas.core import get_schema
+
+    take = open_take(take_dir)
+    if not take.has_ground_truth:
+        return None
+    name = take_task_name(take, task)
+    hk = read_table("hand_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
+    T, a = arrays(hk, "joints_cam", "joints_px", "present")
+    present = a["present"].astype(bool)
+    gt, gpx, valid = _load_synth_gt(Path(take.path), T)
+    cfg = AlignmentConfig()  # measured depth sees the skin: the default surface offset
+    uv = np.where(present[..., None, None], a["joints_px"], np.nan)[:, :, np.asarray(cfg.anchors), :]
+    anchor_depth = np.full(uv.shape[:-1], np.nan)
+    for idx, depth in iter_depth(take, 32):
+        anchor_depth[idx], _ = read_depth_robust(depth, uv[idx], cfg.window, cfg.min_valid)
+    out = evaluate_take(np.where(present[..., None, None], a["joints_cam"], np.nan), gt, gpx, take.K, present,
+                        valid, a["joints_px"], cfg, anchor_depth=anchor_depth, take=take.take_id,
+                        obj=str(take.meta.get("task", "")) or None, dataset="synthetic",
+                        detector=hk.column("detector")[0].as_py(),
+                        detector_version=hk.column("detector_version")[0].as_py(),
+                        note="aligned metrics: anchor depth read from the take's depth maps; detections of the ingest")
+    schema = get_schema("keypoint_metrics")
+    for r in out:
+        r.update(dataset="synthetic", take=take.take_id, subject="")
+    data = {c.name: [r.get(c.name) for r in out] for c in schema.columns}
+    for c in schema.columns:  # NaN-free strings; metrics stay NaN/None (as tasks.keypoint_eval writes them)
+        if c.type == pa.string():
+            data[c.name] = ["" if v is None else str(v) for v in data[c.name]]
+    written = write_table("keypoint_metrics", data, warehouse, variant)
+    return Manifest.from_written("keypoint_metrics", written)
 
 
 # --- optional: overlay video ---------------------------------------------------------------------
 
-@stage_task(name="overlay_video", version=INGEST_VERSION)
+@stage_task(name="overlay_video", version=INGEST_VERSION, key_optional=("variant",))
 def overlay_video(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
-                  grippers: Manifest) -> Manifest:
+                  grippers: Manifest, variant: dict | None = None) -> Manifest:
     """An MP4 of the take with the corrected hand skeletons and the gripper frames drawn on the RGB
     frames (like the GIFs of the thesis's public code): warehouse/videos/<take>.<detector>.mp4."""
     import cv2
@@ -443,7 +492,7 @@ def overlay_video(take_dir: Path, task: str | None, warehouse: str, aligned: Man
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    part = dict(task=name, take=take.take_id)
+    part = dict(task=name, take=take.take_id, variant=variant)
     al_t = read_table("aligned_keypoints", warehouse, **part)
     T, al = arrays(al_t, "joints_cam", "present")
     _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose")

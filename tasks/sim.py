@@ -109,3 +109,50 @@ def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: lis
                      **_outcome_columns(res)})
     written = write_table("sim_stability", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("sim_stability", written)
+
+
+def demo_failure_row(task: str, take: str, detector: str, status: str, detail: str) -> pa.Table:
+    """An `ingested_demo_checks` row for a demonstration that could not be executed."""
+    return pa.Table.from_pylist([{
+        "task": task, "take": take, "detector": detector, "status": status, "success": False, "failure": status,
+        "detail": detail[:2000], "frames": 0, "valid_left": None, "valid_right": None, "trusted_hands": None,
+        "wall_s": 0.0}])
+
+
+@stage_task(name="check_ingested_demo", version=f"{SIM_VERSION}/demo-1")
+def check_ingested_demo(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
+                        presence: Manifest, scene: str, variant: dict | None = None) -> Manifest:
+    """Execute the take's ingested demonstration (its `gripper_poses` of the given variant, undetected
+    frames held at the nearest valid pose like the episode database's episode 0; its object keypoints) in
+    MuJoCo and write its `ingested_demo_checks` row. `scene` (lib.robot_sim.scene_fingerprint) is in the
+    cache key only, as for simulate_chunk."""
+    from lib.errors import UserError, one_line
+    from lib.ingest import open_take
+    from lib.robot_sim import execute
+    from lib.segmentation import fill_invalid_poses
+    from schemas.core import read_table, read_table_file
+    from tasks.ingest import arrays, take_task_name
+
+    take = open_take(take_dir)
+    name = take_task_name(take, task)
+    part = dict(task=name, take=take.take_id)
+    gp_t = read_table("gripper_poses", warehouse, variant=variant, **part)
+    T, gp = arrays(gp_t, "pose", "valid")
+    detector = gp_t.column("detector")[0].as_py()
+    trusted = sum(bool(r["trusted"]) for f in presence.files for r in read_table_file("hand_presence", f).to_pylist())
+    ok = read_table("object_keypoints", warehouse, **part).sort_by("keypoint")
+    kp = np.array(ok.column("point_world").to_pylist(), float)
+    valid = gp["valid"].astype(bool)
+    row = {"task": name, "take": take.take_id, "detector": detector, "frames": int(T),
+           "valid_left": float(valid[:, 0].mean()) if T else None,
+           "valid_right": float(valid[:, 1].mean()) if T else None, "trusted_hands": int(trusted)}
+    try:
+        traj = fill_invalid_poses(gp["pose"], valid)
+    except UserError as e:
+        row.update(status="no_trajectory", success=False, failure="no_trajectory", detail=one_line(e)[:2000],
+                   frames=0, wall_s=0.0)
+    else:
+        r = execute(name, kp, traj)
+        row.update(status="executed", **_outcome_columns(r))
+    written = write_table("ingested_demo_checks", pa.Table.from_pylist([row]), warehouse)
+    return Manifest.from_written("ingested_demo_checks", written)
