@@ -326,7 +326,7 @@ def evaluate(
     policy_epochs: int = typer.Option(6, envvar="POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
-    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
+    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
