@@ -13,7 +13,7 @@ help:  ## list the targets
 
 setup: $(STAMP)  ## create .venv and install pinned dependencies (fast when nothing changed)
 
-$(STAMP): pyproject.toml requirements/lock.txt requirements/torch.txt requirements/mediapipe.txt \
+$(STAMP): pyproject.toml setup.py requirements/lock.txt requirements/torch.txt requirements/mediapipe.txt \
           requirements/llm.txt scripts/setup.sh scripts/setup_llm.sh scripts/fetch_mediapipe_model.py
 	bash scripts/setup.sh
 	@touch $@

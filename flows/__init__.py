@@ -1,3 +1,3 @@
 """Prefect flows composing the stages; the CLI and the deployments call these."""
 
-import tasks  # noqa: F401  (Prefect environment defaults before prefect is imported)
+import demoforge.tasks  # noqa: F401  (Prefect environment defaults before prefect is imported)

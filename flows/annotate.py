@@ -1,6 +1,6 @@
 """`demoforge annotate`: a local web page to click a take's object keypoints and mark open/close ranges.
 
-A standard-library HTTP server on loopback serves one static page (lib/annotate/page.html) and a
+A standard-library HTTP server on loopback serves one static page (lib/takes/annotate/page.html) and a
 small JSON API over the take:
 
     GET  /                     the page
@@ -12,7 +12,7 @@ small JSON API over the take:
     POST /api/save             {"frame", "points": {name: [u, v]}, "ranges": {"left": [[s, e]], ...},
                                 "task": {...}} -> annotations.json written atomically
 
-The pure logic (format, validation, back-projection, suggestion) is lib.annotate; this module is glue.
+The pure logic (format, validation, back-projection, suggestion) is demoforge.lib.takes.annotate; this module is glue.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-import lib  # noqa: F401
+import demoforge.lib  # noqa: F401
 
-PAGE = Path(lib.__file__).resolve().parent / "annotate" / "page.html"
+PAGE = Path(demoforge.lib.__file__).resolve().parent / "takes" / "annotate" / "page.html"
 
 
 class AnnotationSession:
@@ -37,8 +37,8 @@ class AnnotationSession:
 
     def __init__(self, take_dir: str | Path, warehouse: str | Path | None = None, task: str | None = None,
                  keypoints: str | None = None, task_file: str | Path | None = None):
-        from lib.annotate import task_for_take
-        from lib.ingest import open_take
+        from demoforge.lib.takes.annotate import task_for_take
+        from demoforge.lib.takes import open_take
 
         self.take = open_take(Path(take_dir).resolve())
         self.task = task_for_take(self.take, task, keypoints, task_file)
@@ -49,7 +49,7 @@ class AnnotationSession:
 
     # --- frames -----------------------------------------------------------------------------------
     def frame(self, index: int) -> tuple[np.ndarray | None, np.ndarray]:
-        from lib.ingest import read_frame
+        from demoforge.lib.takes import read_frame
 
         if not 0 <= index < self.take.n_frames:
             raise ValueError(f"frame {index} out of range: the take has {self.take.n_frames} frames")
@@ -76,7 +76,7 @@ class AnnotationSession:
         return buf.tobytes()
 
     def points(self, frame: int, uv: Any) -> list[dict]:
-        from lib.annotate import point_info
+        from demoforge.lib.takes.annotate import point_info
 
         _, depth = self.frame(int(frame))
         return point_info(np.asarray(uv, float).reshape(-1, 2), depth, self.take.K,
@@ -87,9 +87,9 @@ class AnnotationSession:
         """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
         import pyarrow.parquet as pq
 
-        from lib.annotate import suggest_closed_ranges
-        from schemas.core import table_files
-        from tasks.ingest import arrays
+        from demoforge.lib.takes.annotate import suggest_closed_ranges
+        from demoforge.schemas.core import table_files
+        from demoforge.tasks.ingest import arrays
 
         if self.warehouse is None:
             return None
@@ -107,7 +107,7 @@ class AnnotationSession:
 
     # --- state and saving --------------------------------------------------------------------------
     def state(self) -> dict:
-        from lib.annotate import annotation_status
+        from demoforge.lib.takes.annotate import annotation_status
 
         ann = self.take.annotations
         cam = self.take.camera
@@ -127,7 +127,7 @@ class AnnotationSession:
             current["ranges_from"] = "suggestion" if signals else "empty"
         else:
             current["ranges_from"] = "annotations.json"
-        from lib.task_library import TASK_NAMES
+        from demoforge.lib.task_library import TASK_NAMES
 
         return {
             "take": self.take.take_id, "path": str(self.take.path), "n_frames": self.take.n_frames,
@@ -140,8 +140,8 @@ class AnnotationSession:
         }
 
     def save(self, payload: dict) -> dict:
-        from lib.annotate import build_annotations, parse_task_section, write_annotations
-        from lib.ingest import open_take
+        from demoforge.lib.takes.annotate import build_annotations, parse_task_section, write_annotations
+        from demoforge.lib.takes import open_take
 
         if not isinstance(payload, dict):
             raise ValueError("the request body must be a JSON object")
@@ -154,7 +154,7 @@ class AnnotationSession:
         write_annotations(self.path, obj)
         self.take = open_take(self.take.path)  # re-read: what ingest will see
         self.task = task
-        from lib.annotate import annotation_status
+        from demoforge.lib.takes.annotate import annotation_status
 
         status = annotation_status(self.take)
         return {"saved": str(self.path), "annotations": obj, "status": status.__dict__}
@@ -200,7 +200,7 @@ def make_handler(session: AnnotationSession):
                 self._error(e, 500)
 
         def do_POST(self) -> None:  # noqa: N802
-            from lib.ingest import TakeError
+            from demoforge.lib.takes import TakeError
 
             try:
                 n = int(self.headers.get("Content-Length") or 0)

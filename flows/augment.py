@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 from prefect import flow
 
-import lib  # noqa: F401
-from flows.ingest import ingest_take
-from flows.runners import run_flow
-from tasks.augment import augment_take, segment_take
-from tasks.common import Manifest, run_stage
+import demoforge.lib  # noqa: F401
+from demoforge.flows.ingest import ingest_take
+from demoforge.runtime.runners import run_flow
+from demoforge.tasks.augment import augment_take, segment_take
+from demoforge.tasks.common import Manifest, run_stage
 
 
 @flow(name="augment-take")
@@ -33,7 +33,7 @@ def augment_take_flow(
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
-    ingest_options: keyword arguments of the ingest it builds on (flows.ingest.ingest_take: smoothing,
+    ingest_options: keyword arguments of the ingest it builds on (demoforge.flows.ingest.ingest_take: smoothing,
     grasp_prior, table_clearance, state_method, ...). The ingest runs again with them (a cache hit
     when the take was ingested with the same ones): without them the defaults would rewrite the take's
     gripper poses, so episodes would silently come from another hand-to-gripper mapping than the one
@@ -51,8 +51,8 @@ def augment_take_flow(
     ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress,
                         **(ingest_options or {}))
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
-        from lib.annotate import annotation_status, not_annotated_message
-        from lib.ingest import TakeError, open_take
+        from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+        from demoforge.lib.takes import TakeError, open_take
 
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
     if not allow_untrusted_hands:
@@ -67,7 +67,7 @@ def augment_take_flow(
 
 def require_trusted_hands(presence: Manifest) -> None:
     """Raise a one-line ValueError naming the take's untrusted hands (see the `hand_presence` table)."""
-    from schemas.core import read_table_file
+    from demoforge.schemas.core import read_table_file
 
     rows = [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]
     bad = [r for r in rows if not r["trusted"]]
@@ -96,9 +96,9 @@ def retrieve(warehouse: str, task: str, keypoints: np.ndarray, k: int = 3, strat
     the original demonstration (`single`). Only valid episodes are candidates."""
     import re
 
-    from lib.retrieval import KeypointIndex, select_original, select_random
-    from lib.task_library import TASK_NAMES
-    from schemas.catalog import query
+    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_original, select_random
+    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.schemas.catalog import query
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")

@@ -28,8 +28,8 @@ EVALUATE_DEPLOYMENT = "evaluate/default"
 def build_deployments(warehouse: str, inbox: str, reports_dir: str, interval_minutes: float = 10.0,
                       detector: str = "simulated", augment: bool = False):
     """The two deployments, with absolute paths baked into their default parameters."""
-    from flows.evaluate import evaluate
-    from flows.ingest import ingest_folder
+    from demoforge.flows.evaluate import evaluate
+    from demoforge.flows.ingest_folder import ingest_folder
 
     if interval_minutes <= 0:
         raise ValueError(f"the ingest interval must be positive minutes, got {interval_minutes}")

@@ -7,15 +7,15 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-from flows.artifacts import ProgressArtifact
-from flows.augment import augment_take_flow
-from flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
-from flows.keypoint_eval import evaluate_keypoints
-from flows.report import write_report
-from flows.runners import run_flow
-from flows.sim import check_stability, simulate_episodes
-from flows.synth import synthesize_takes
-from flows.table3 import table3
+from demoforge.runtime.artifacts import ProgressArtifact
+from demoforge.flows.augment import augment_take_flow
+from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
+from demoforge.flows.keypoint_eval import evaluate_keypoints
+from demoforge.flows.report import write_report
+from demoforge.runtime.runners import run_flow
+from demoforge.flows.sim import check_stability, simulate_episodes
+from demoforge.flows.synth import synthesize_takes
+from demoforge.flows.table3 import table3
 
 # The hand detectors `make evaluate` ingests every take with, side by side: the simulated one (the ground
 # truth through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
@@ -26,12 +26,12 @@ def detector_problem(name: str) -> str | None:
     """Why a detector cannot run here (its package or model file is missing), or None."""
     import importlib.util
 
-    from lib.detectors import available_detectors
+    from demoforge.lib.perception.detectors import available_detectors
 
     if name not in available_detectors():
         return f"unknown detector {name!r}; choose from {', '.join(available_detectors())}"
     if name == "mediapipe":  # checked without loading it: a run served from the cache never does
-        from lib.detectors.mediapipe_backend import default_model_path
+        from demoforge.lib.perception.detectors.mediapipe_backend import default_model_path
 
         if importlib.util.find_spec("mediapipe") is None:
             return "the mediapipe package is not installed: pip install --no-deps -r requirements/mediapipe.txt"
@@ -70,7 +70,7 @@ def evaluate(
     on them and write reports/REPORT.md. Everything already computed comes from the cache.
 
     Every take is ingested with the simulated detector (and measured against its ground truth), and
-    with each other detector of `detectors` beside it (flows.ingest.ingest_side_by_side: its ingest
+    with each other detector of `detectors` beside it (demoforge.flows.ingest.ingest_side_by_side: its ingest
     accuracy, keypoint metrics and the robot executing its ingested demonstration, each detector in its
     own rows; with `detectors=["simulated"]` none of this runs: the cost of the main job before it);
     the first plain take of each task becomes that task's database of `episodes` episodes, of which
@@ -86,7 +86,7 @@ def evaluate(
     import os
 
     arctic_root = arctic_root or os.environ.get("ARCTIC_ROOT") or None
-    from lib.task_library import TASK_NAMES
+    from demoforge.lib.task_library import TASK_NAMES
 
     logger = get_run_logger()
     tasks = list(tasks) if tasks else list(TASK_NAMES)
@@ -116,7 +116,7 @@ def evaluate(
         if len(detectors) > 1:
             run_flow(ingest_side_by_side, m.path, warehouse, detectors=detectors)
         progress.step()
-    from tasks.table3 import ALL_STRATEGIES, POLICY
+    from demoforge.tasks.table3 import ALL_STRATEGIES, POLICY
 
     for llm_task in llm_tasks:
         if llm_task in first_take and grid_scenes > 0:
@@ -126,8 +126,8 @@ def evaluate(
                      strategies=[s for s in ALL_STRATEGIES if s != POLICY or with_policy], seed=seed,
                      episodes=episodes, policy_epochs=policy_epochs, policy_waypoints=policy_waypoints,
                      take_dirs=[first_take[llm_task]])
-    from flows.policy import evaluate_policy, train_policy
-    from tasks.policy import checkpoint_row
+    from demoforge.flows.policy import evaluate_policy, train_policy
+    from demoforge.tasks.policy import checkpoint_row
 
     for policy_task in policy_tasks:
         if policy_task in tasks and policy_trials > 0:
@@ -137,16 +137,16 @@ def evaluate(
                           max_minutes=None, threads=2, n_waypoints=policy_waypoints)
             run_flow(evaluate_policy, warehouse, task=policy_task, take=take, trials=policy_trials, seed=seed,
                      checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
-    from flows.variations import evaluate_variations
-    from lib.variations import TABLE4_TASKS
-    from tasks.variations import VARIATION_STRATEGIES
+    from demoforge.flows.variations import evaluate_variations
+    from demoforge.lib.sim.variations import TABLE4_TASKS
+    from demoforge.tasks.variations import VARIATION_STRATEGIES
 
     variation_tasks = [t for t in TABLE4_TASKS if t in tasks]
     if variation_trials > 0 and variation_tasks:
         run_flow(evaluate_variations, warehouse, tasks=variation_tasks, trials=variation_trials,
                  strategies=VARIATION_STRATEGIES, seed=seed)
     run_flow(evaluate_keypoints, warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
-    from flows.keypoint_eval import REAL_HANDS
+    from demoforge.flows.keypoint_eval import REAL_HANDS
 
     if REAL_HANDS.is_dir():
         run_flow(evaluate_keypoints, warehouse, dataset="real_photos")

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Sequence
-
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
-from tasks.common import Manifest, run_stage
-from tasks.ingest import (align_keypoints, detect_hands, hand_presence, index_frames, ingest_metrics,
-                          map_grippers, object_keypoints, overlay_video, take_media_key, take_task_name)
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.ingest import (
+    align_keypoints, detect_hands, hand_presence, index_frames, ingest_metrics, map_grippers,
+    object_keypoints, overlay_video, take_media_key, take_task_name,
+)
 
 
 @flow(name="ingest-take")
@@ -37,15 +38,15 @@ def ingest_take(
     (detector_options={"path": ...}: the thesis code's keypoint JSON, or Parquet/NPZ predictions).
     Every stage is cached on the content of its inputs: a second run is served from the cache.
     video: also write warehouse/videos/<take>.<detector>.mp4 with the skeletons and gripper frames.
-    tracker: lib.perception.tracking.TrackerConfig fields (births, longest filled gap, trust thresholds);
+    tracker: demoforge.lib.perception.tracking.TrackerConfig fields (births, longest filled gap, trust thresholds);
     the per-hand verdict is the `hand_presence` table.
-    accept_bad_depth: go on when the take's depth fails a check (lib.ingest.depth_checks), flagging every
-    row in `depth_problem`, instead of stopping with tasks.ingest.DepthError.
+    accept_bad_depth: go on when the take's depth fails a check (demoforge.lib.ingest.depth_checks), flagging every
+    row in `depth_problem`, instead of stopping with demoforge.tasks.ingest.DepthError.
     variant: None (where augment and every later stage read the take) or {"detector": detector} to keep
-    this detector's rows beside those (schemas.core.variant_parts; see ingest_side_by_side).
+    this detector's rows beside those (demoforge.schemas.core.variant_parts; see ingest_side_by_side).
     """
-    from lib.detectors import available_detectors
-    from lib.ingest import open_take
+    from demoforge.lib.perception.detectors import available_detectors
+    from demoforge.lib.takes import open_take
 
     logger = get_run_logger()
     if detector not in available_detectors():
@@ -107,19 +108,19 @@ def ingest_side_by_side(
 ) -> dict[str, dict]:
     """Ingest one take with each of `detectors` and keep their rows side by side (detector_variant);
     for a synthetic take also its keypoint metrics per detector (`keypoint_metrics`, the simulated
-    detector's come from flows.keypoint_eval as before), and with `check_demo` the robot executing each
+    detector's come from demoforge.flows.keypoint_eval as before), and with `check_demo` the robot executing each
     detector's ingested demonstration in MuJoCo (`ingested_demo_checks`).
 
     A detector whose ingest or demonstration fails (e.g. untrustworthy depth, a hand never found) is
     recorded in `ingested_demo_checks` with the reason, and the other detectors go on.
     Returns {detector: {"ingest": manifests or None, "demo": manifest or None, "error": str}}."""
-    from flows.runners import run_flow
-    from lib.errors import one_line
-    from lib.ingest import open_take
-    from lib.robot_sim import scene_fingerprint
-    from lib.task_library import TASK_NAMES
-    from tasks.ingest import ingest_keypoint_metrics
-    from tasks.sim import check_ingested_demo, demo_failure_row
+    from demoforge.runtime.runners import run_flow
+    from demoforge.lib.errors import one_line
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.sim import scene_fingerprint
+    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.tasks.ingest import ingest_keypoint_metrics
+    from demoforge.tasks.sim import check_ingested_demo, demo_failure_row
 
     logger = get_run_logger()
     take_dir = Path(path).resolve()
@@ -145,76 +146,9 @@ def ingest_side_by_side(
             res["error"] = f"{type(e).__name__}: {one_line(e)}"[:2000]
             logger.warning("take %s, detector %s: %s", take_dir.name, det, res["error"])
             if check_demo and name in TASK_NAMES:
-                from schemas.core import write_table
+                from demoforge.schemas.core import write_table
 
                 write_table("ingested_demo_checks", demo_failure_row(name, take_dir.name, det, "ingest_failed",
                                                                      res["error"]), warehouse)
         out[det] = res
     return out
-
-
-def find_take_folders(folder: str | Path) -> list[Path]:
-    """Take folders under ``folder`` (any depth): folders holding a camera.json, sorted by path."""
-    root = Path(folder)
-    if not root.is_dir():
-        raise ValueError(f"{root}: no such folder to ingest takes from")
-    return sorted(p.parent for p in root.rglob("camera.json"))
-
-
-@flow(name="ingest-folder")
-def ingest_folder(
-    folder: str,
-    warehouse: str,
-    detector: str = "simulated",
-    task: str | None = None,
-    augment: bool = False,
-    episodes: int = 10_000,
-    show_progress: bool = False,
-) -> list[dict]:
-    """Ingest every take folder under `folder` (the scheduled deployment's flow).
-
-    A take is a folder with camera.json (layout: README 'Take folders'). Takes already ingested are
-    served from the cache, so running this on a schedule only processes new or changed takes. A take
-    that fails is recorded in `folder_ingests` with the reason and does not stop the others.
-    A take without object-keypoint annotations is ingested up to its gripper poses and recorded as
-    `needs_annotation` (its episodes wait for `demoforge annotate`).
-    With `augment`, each ingested take also gets its episode database of `episodes` episodes.
-    """
-    from lib.annotate import annotation_status, not_annotated_message
-    from lib.ingest import open_take
-    import pyarrow as pa
-
-    from flows.augment import augment_take_flow
-    from flows.runners import run_flow
-    from schemas.core import write_table
-
-    logger = get_run_logger()
-    folder_abs = Path(folder).resolve()
-    takes = find_take_folders(folder_abs)
-    logger.info("%d take folder(s) under %s", len(takes), folder_abs)
-    rows = []
-    for take_dir in takes:
-        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": detector,
-               "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
-        try:
-            status = annotation_status(open_take(take_dir))
-            if augment and status.annotated:
-                out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, detector=detector,
-                               n=episodes, n_mirrored=episodes // 2, show_progress=show_progress)
-                row["episodes"] = int(out["episodes"].rows)
-            else:
-                out = run_flow(ingest_take, str(take_dir), warehouse, detector=detector, task=task,
-                               show_progress=show_progress)
-            row["gripper_rows"] = int(out["gripper_poses"].rows)
-            if out.get("object_keypoints") is None:
-                row.update(status="needs_annotation", error=not_annotated_message(take_dir, status.detail))
-        except Exception as e:  # noqa: BLE001  (one bad take must not stop the folder)
-            row.update(status="failed", error=f"{type(e).__name__}: {e}"[:2000])
-            logger.warning("take %s failed: %s", take_dir.name, row["error"])
-        write_table("folder_ingests", pa.Table.from_pylist([row]), warehouse)
-        rows.append(row)
-    failed = sum(r["status"] == "failed" for r in rows)
-    waiting = sum(r["status"] == "needs_annotation" for r in rows)
-    logger.info("ingested %d take(s), %d need annotation, %d failed (see the folder_ingests table)",
-                len(rows) - failed - waiting, waiting, failed)
-    return rows

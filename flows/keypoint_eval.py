@@ -6,11 +6,13 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
-import lib  # sets MUJOCO_GL before mujoco; SHARED_DATA
-from tasks.common import Manifest, run_stage
-from tasks.keypoint_eval import evaluate_arctic_keypoints, evaluate_real_photos, evaluate_synthetic_keypoints
+import demoforge.lib  # sets MUJOCO_GL before mujoco; SHARED_DATA
+from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.keypoint_eval import (
+    evaluate_arctic_keypoints, evaluate_real_photos, evaluate_synthetic_keypoints,
+)
 
-REAL_HANDS = lib.SHARED_DATA / "real_hands"
+REAL_HANDS = demoforge.lib.SHARED_DATA / "real_hands"
 
 
 @flow(name="evaluate-keypoints")
@@ -33,8 +35,8 @@ def evaluate_keypoints(
     holding one <seq>.parquet/.npz/.json per take), or `real_photos` (mediapipe on the labelled
     photos of ../shared/data/real_hands).
     """
-    from lib.arctic import THESIS_TAKES
-    from schemas.catalog import query
+    from demoforge.lib.evaluation.arctic import THESIS_TAKES
+    from demoforge.schemas.catalog import query
 
     logger = get_run_logger()
     out = []

@@ -6,9 +6,9 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
-from tasks.common import Manifest, run_stage
-from tasks.llm_eval import BASELINES, LLM_STRATEGIES, llm_trials
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.llm_eval import BASELINES, LLM_STRATEGIES, llm_trials
 
 ALL_STRATEGIES = LLM_STRATEGIES + BASELINES
 
@@ -30,7 +30,7 @@ def llm_eval(
     """Predict trajectories for `trials` seeded query scenes per take and strategy and judge each in
     MuJoCo. Strategies: single / random / retrieval (the thesis's three prompts, through `backend`),
     and the LLM-free baselines replay_top1 and transform_demo. Answers are cached: a re-run is free."""
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     logger = get_run_logger()
     unknown = [s for s in strategies if s not in ALL_STRATEGIES]
@@ -38,7 +38,7 @@ def llm_eval(
         raise ValueError(f"unknown strategy {unknown}; choose from {', '.join(ALL_STRATEGIES)}")
     if trials < 1:
         raise ValueError("trials must be at least 1")
-    from lib.task_library import TASK_NAMES
+    from demoforge.lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")

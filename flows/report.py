@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.csv as pacsv
 
-from lib.benchmarking import git_commit
-from lib.markdown import markdown_table
-from schemas.catalog import build_catalog, query
-from schemas.reports import REPORT_VIEWS
+from demoforge.runtime.provenance import git_commit
+from demoforge.lib.evaluation.markdown import markdown_table
+from demoforge.schemas.catalog import build_catalog, query
+from demoforge.schemas.reports import REPORT_VIEWS
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +47,7 @@ def takes_figure(warehouse: Path, out_png: Path, columns: int = 3) -> Path | Non
     """One rendered frame per task (first grasp of its first take) with GT skeletons and object keypoints."""
     import cv2
 
-    from lib.visualize import draw_hand, draw_points, montage
+    from demoforge.lib.evaluation.visualize import draw_hand, draw_points, montage
 
     takes = query(
         "SELECT task, take, path FROM takes WHERE NOT mirror "
@@ -86,7 +86,7 @@ def takes_figure(warehouse: Path, out_png: Path, columns: int = 3) -> Path | Non
 
 def keypoint_sections(warehouse: Path, reports: Path, commit: str) -> list[str]:
     """Thesis Tables 1, 2, Appendix B and the big/small comparison per dataset, plus the real photos."""
-    from lib.keypoint_eval import plot_big_vs_small, plot_per_take_bars
+    from demoforge.lib.evaluation.keypoints import plot_big_vs_small, plot_per_take_bars
 
     md = []
     rows = query("SELECT * FROM keypoint_metrics", warehouse).to_pylist()
@@ -273,7 +273,9 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "simulation's rounding. `flipping` episodes change outcome under that shift: their single "
                        "verdict is decided by numerical chaos, and `success_rate` over all repeats estimates "
                        "their success as a probability (`demoforge stability` for more episodes and repeats)."))
-    from flows.export import report_plots  # per task: trajectories before/after, coverage, success map
+    from demoforge.tasks.export import (  # per task: trajectories before/after, coverage, success map
+        report_plots,
+    )
 
     md += report_plots(str(warehouse), str(reports))
     bench = _view("report_benchmarks", warehouse)

@@ -10,14 +10,14 @@ from typing import Sequence
 import numpy as np
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
-from tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
-from tasks.sim import simulate_chunk, stability_chunk
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
+from demoforge.tasks.sim import simulate_chunk, stability_chunk
 
 
 def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Sequence[int], seed: int = 0) -> list[int]:
     """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids."""
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     t = query("SELECT episode_id FROM episodes WHERE task = ? AND take = ? AND valid "
               "ORDER BY episode_id", warehouse, [task, take])
@@ -52,9 +52,9 @@ def stability_run_name(selection: str, repeats: int, jitter_m: float, seed: int)
 
 def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str, list]:
     """The take whose episodes to check (default: the task's first) and its files (for cache keys)."""
-    from lib.task_library import TASK_NAMES
-    from schemas.catalog import query
-    from schemas.core import table_files
+    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.schemas.catalog import query
+    from demoforge.schemas.core import table_files
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
@@ -78,7 +78,7 @@ def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str
     Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
     the same episodes costs nothing. Its rows carry the run's selection (selection_name): a sample
     and a whole-database run of the same task keep their own files."""
-    from lib.robot_sim import scene_fingerprint
+    from demoforge.lib.sim import scene_fingerprint
 
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
@@ -100,7 +100,7 @@ def _run_chunks(stage, warehouse: str, common: dict, ids: list[int], chunk_size:
         for c in calls:
             c.update(workers=1, show_progress=False)
         return run_stages(stage, warehouse, calls)
-    from flows.artifacts import ProgressArtifact
+    from demoforge.runtime.artifacts import ProgressArtifact
 
     progress = ProgressArtifact(artifact[0], len(calls), artifact[1]) if artifact else None
     logger = get_run_logger()
@@ -130,8 +130,8 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
     """Execute each selected episode `repeats` times, the scene shifted rigidly along the table by
     `jitter_m` (standard deviation, metres) in every repeat but the first; rows in `sim_stability`, the
     summary in the `report_sim_stability` view. Chunks are cached stages, like simulate_episodes."""
-    from lib.robot_sim import scene_fingerprint
-    from lib.robot_sim.stability import scene_offsets
+    from demoforge.lib.sim import scene_fingerprint
+    from demoforge.lib.sim.stability import scene_offsets
 
     scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
     take, source = _episode_database(warehouse, task, take)
@@ -145,9 +145,9 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
 
 def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None) -> dict:
     """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
-    from lib.robot_sim.render import render_episode
-    from schemas.catalog import query
-    from tasks.augment import episode_actions
+    from demoforge.lib.sim.render import render_episode
+    from demoforge.schemas.catalog import query
+    from demoforge.tasks.augment import episode_actions
 
     t = query("SELECT take, object_keypoints FROM episodes WHERE task = ? AND episode_id = ? "
               "AND (? IS NULL OR take = ?) ORDER BY take LIMIT 1", warehouse, [task, int(episode_id), take, take])

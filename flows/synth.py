@@ -7,9 +7,9 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
-from tasks.common import Manifest, run_stage
-from tasks.synth import synthesize_take
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.synth import synthesize_take
 
 
 def default_takes_dir(warehouse: str | Path) -> Path:
@@ -36,7 +36,7 @@ def synthesize_takes(
     hand_style: "capsule" (default) or "skin" (palm, forearm, sleeve, nails); same ground truth.
     Takes already generated with the same parameters and code version come from the cache.
     """
-    from lib.task_library import TASK_NAMES
+    from demoforge.lib.task_library import TASK_NAMES
 
     logger = get_run_logger()
     unknown = [t for t in tasks if t not in TASK_NAMES]

@@ -7,10 +7,10 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import lib  # noqa: F401
-from flows.runners import run_flow
-from tasks.common import Manifest, run_stage
-from tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY, table3_trials
+import demoforge.lib  # noqa: F401
+from demoforge.runtime.runners import run_flow
+from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY, table3_trials
 
 NOVEL_SUFFIX = "_novel"  # database key of a take's `novel` database: <take>_novel (episodes.take)
 
@@ -54,9 +54,9 @@ def table3(
     Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped."""
     from tqdm import tqdm
 
-    from flows.synth import synthesize_takes
-    from lib.task_library import TASK_NAMES, get_task
-    from lib.trajectories.query_scenes import PROTOCOLS
+    from demoforge.flows.synth import synthesize_takes
+    from demoforge.lib.task_library import TASK_NAMES, get_task
+    from demoforge.lib.trajectories.query_scenes import PROTOCOLS
 
     logger = get_run_logger()
     if task not in TASK_NAMES:
@@ -109,12 +109,14 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
              policy_epochs: int, policy_waypoints: int, policy_threads: int, show_progress: bool):
     """The take's database for the protocol (built or from the cache), its query scenes, and the
     policy trained on it (None unless asked)."""
-    from flows.augment import augment_take_flow
-    from flows.ingest import ingest_take
-    from lib.ingest import open_take
-    from lib.trajectories.query_scenes import augmentation_queries, covering_options, placement_queries
-    from schemas.core import column_numpy, read_table
-    from tasks.augment import _demo_arrays, load_demo_source
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.trajectories.query_scenes import (
+        augmentation_queries, covering_options, placement_queries,
+    )
+    from demoforge.schemas.core import column_numpy, read_table
+    from demoforge.tasks.augment import _demo_arrays, load_demo_source
 
     take_id = open_take(path).take_id
     name = database_name(take_id, protocol)
@@ -136,7 +138,7 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
         q = placement_queries(spec, scenes, seed, init, kp_all)
     ck = None
     if policy:
-        from flows.policy import train_policy
+        from demoforge.flows.policy import train_policy
 
         # no time cap: a run that stops on a budget is not reproducible from its seed
         ck = run_flow(train_policy, warehouse, task=spec.name, take=name, seed=seed, epochs=policy_epochs,

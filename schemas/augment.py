@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, dual_pose8, keypoints3d, table
+from demoforge.schemas.core import Column, dual_pose8, keypoints3d, table
 
 _TAKE = Column("take", pa.string(), "Source take of the demonstration.")
 _TASK = Column("task", pa.string(), "Task name.")

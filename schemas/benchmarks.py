@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, table
+from demoforge.schemas.core import Column, table
 
 BENCHMARKS = table(
     "benchmarks",

@@ -19,10 +19,10 @@ from typing import Any, Sequence
 import duckdb
 import pyarrow as pa
 
-from lib.errors import UserError
+from demoforge.lib.errors import UserError
 
-from schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
-from schemas.reports import REPORT_VIEWS, TABLE_VIEWS
+from demoforge.schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
+from demoforge.schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
 CATALOG_FILE = "catalog.duckdb"
 ENV_WAREHOUSE = "DEMOFORGE_WAREHOUSE"

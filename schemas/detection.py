@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, metric_column as _m, table
+from demoforge.schemas.core import Column, metric_column as _m, table
 
 
 DETECTION_METRICS = table(

@@ -3,7 +3,7 @@ object_keypoints and the per-take accuracy table `ingest_metrics` (synthetic tak
 
 import pyarrow as pa
 
-from schemas.core import Column, keypoints2d, keypoints3d, pose8, table, vec3
+from demoforge.schemas.core import Column, keypoints2d, keypoints3d, pose8, table, vec3
 
 _TAKE = Column("take", pa.string(), "Take identifier (the take folder's name).")
 _TASK = Column("task", pa.string(), "Task name, or `unknown` for a recorded take ingested without `--task`.")
@@ -138,7 +138,7 @@ INGEST_METRICS = table(
 HAND_PRESENCE = table(
     "hand_presence",
     version=1,
-    doc=("Per take and hand: how much of the take the hand tracker (lib.perception.tracking) could follow, and "
+    doc=("Per take and hand: how much of the take the hand tracker (demoforge.lib.perception.tracking) could follow, and "
          "whether the hand's trajectory can be trusted. `demoforge augment` refuses to build episodes from an "
          "untrusted hand unless forced (`--allow-untrusted-hands`)."),
     columns=[

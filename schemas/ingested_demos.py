@@ -1,10 +1,10 @@
 """The `ingested_demo_checks` table: each take's ingested demonstration executed by the robot in MuJoCo,
 per hand detector, so the detectors' ingests are judged by what matters in the end (does the robot
-succeed), side by side (flows.ingest.ingest_side_by_side)."""
+succeed), side by side (demoforge.flows.ingest.ingest_side_by_side)."""
 
 import pyarrow as pa
 
-from schemas.core import Column, table
+from demoforge.schemas.core import Column, table
 
 INGESTED_DEMO_CHECKS = table(
     "ingested_demo_checks",

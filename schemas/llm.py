@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, keypoints3d, table
+from demoforge.schemas.core import Column, keypoints3d, table
 
 LLM_TRIALS = table(
     "llm_trials",

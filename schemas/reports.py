@@ -5,9 +5,11 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
-from schemas.ingested_demos import REPORT_INGESTED_DEMOS_SQL
-from schemas.table3 import REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL
-from schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
+from demoforge.schemas.ingested_demos import REPORT_INGESTED_DEMOS_SQL
+from demoforge.schemas.table3 import (
+    REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL,
+)
+from demoforge.schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABLE4_SQL
 
 # Views over the tables that are not report sections (the report views may use them).
 TABLE_VIEWS: dict[str, str] = {

@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from schemas.core import DATA_FILE, Column, register_migration, table, write_table
+from demoforge.schemas.core import DATA_FILE, Column, register_migration, table, write_table
 
 SIM_RESULTS = table(
     "sim_results",
@@ -49,7 +49,7 @@ SIM_STABILITY = table(
     version=1,
     doc=("Outcome stability of the robot check: each episode executed `repeats` times, repeat 0 as is and the "
          "others with the whole scene (objects and gripper poses) shifted rigidly along the table by a fraction "
-         "of a millimetre (`jitter_m`; lib/robot_sim/stability.py). Physically nothing changes; an episode whose outcome flips "
+         "of a millimetre (`jitter_m`; lib/sim/stability.py). Physically nothing changes; an episode whose outcome flips "
          "is decided by numerical chaos, and its success is a probability. One row per episode and repeat."),
     columns=[
         Column("task", pa.string(), "Task name."),

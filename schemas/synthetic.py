@@ -1,6 +1,6 @@
 """Ground-truth tables written beside a synthetic take (``<take>/ground_truth/<table>.parquet``).
 
-Written by :mod:`lib.synth.take` with :func:`schemas.core.write_table_file`. Frames of reference:
+Written by :mod:`demoforge.lib.synth.take` with :func:`demoforge.schemas.core.write_table_file`. Frames of reference:
 *world* = the table frame of docs/architecture.md (origin on the table top in front of the robot, z up,
 y away from the robot, x to the robot's right; metres); *camera* = the head camera's OpenCV frame
 (x right, y down, z forward; metres), related to the world by ``camera.json``'s ``T_world_camera``;
@@ -11,13 +11,13 @@ top-left pixel is (0, 0)). Hands: "left" = hand 0, "right" = hand 1. Frames are 
 
 import pyarrow as pa
 
-from schemas.core import Column, keypoints2d, keypoints3d, matrix4, pose8, table
+from demoforge.schemas.core import Column, keypoints2d, keypoints3d, matrix4, pose8, table
 
 N_HAND_JOINTS = 21
 N_OBJECT_KEYPOINTS = 11
 
 _TAKE = Column("take", pa.string(), "Take identifier, e.g. `synth_pouring_s0003` (`_m` suffix when mirrored).")
-_TASK = Column("task", pa.string(), "Task name from `lib.task_library.TASK_NAMES`.")
+_TASK = Column("task", pa.string(), "Task name from `demoforge.lib.task_library.TASK_NAMES`.")
 _FRAME = Column("frame", pa.int32(), "0-based frame index (the file `rgb/<frame:06d>.png`).")
 _TIME = Column("time_s", pa.float64(), "Time of the frame since the take's start, s (frame / fps).")
 _HAND = Column("hand", pa.string(), "`left` (hand/arm 0) or `right` (hand/arm 1).")

@@ -3,7 +3,7 @@ named protocol, with the LLM-free baselines and the learned policy beside the th
 
 import pyarrow as pa
 
-from schemas.core import Column, keypoints3d, table
+from demoforge.schemas.core import Column, keypoints3d, table
 
 TABLE3_TRIALS = table(
     "table3_trials",

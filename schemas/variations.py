@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from schemas.core import Column, keypoints3d, table
+from demoforge.schemas.core import Column, keypoints3d, table
 
 VARIATION_TRIALS = table(
     "variation_trials",

@@ -20,11 +20,11 @@ TASK, TAKE = "pouring", "synth_pouring_s0000"
 
 
 def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1) -> dict:
-    from lib.augmentation import DemoSource, generate_episodes
-    from lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
-    from lib.task_library import get_task
-    from schemas.core import write_table
-    from tasks.augment import episode_steps_columns, episodes_columns
+    from demoforge.lib.trajectories.augmentation import DemoSource, generate_episodes
+    from demoforge.lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
+    from demoforge.lib.task_library import get_task
+    from demoforge.schemas.core import write_table
+    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
     demo = spec.scripted_demo(0)

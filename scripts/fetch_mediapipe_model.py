@@ -11,7 +11,7 @@ zips them into the .task file.
 
 Idempotent: does nothing when the target exists and is a valid .task. Default target:
 ``<sys.prefix>/share/demoforge/hand_landmarker.task`` (the venv running this script), which
-lib/detectors/mediapipe_backend.py looks for (or set ``DEMOFORGE_HAND_LANDMARKER``).
+lib/perception/detectors/mediapipe_backend.py looks for (or set ``DEMOFORGE_HAND_LANDMARKER``).
 
     .venv/bin/python scripts/fetch_mediapipe_model.py [--out PATH] [--wheel PATH_TO_0.10.21_WHEEL]
 """

@@ -19,9 +19,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(wh: str, n: int, task: str = "pouring") -> None:
     import cv2
 
-    from flows.export import load_episodes, take_cameras
-    from lib.robot_sim.executor import SimOptions
-    from lib.robot_sim.render import _resimulate_states, episode_frames
+    from demoforge.tasks.export import load_episodes, take_cameras
+    from demoforge.lib.sim.executor import SimOptions
+    from demoforge.lib.sim.render import _resimulate_states, episode_frames
 
     sel = load_episodes(wh, task, limit=n)
     cams = take_cameras(wh, sorted(set(sel.take.tolist())))

@@ -10,8 +10,8 @@ tracked, trusted). Used for docs/results/issue-19-hand-tracking.md.
 import sys
 import time
 
-from flows.ingest import ingest_take
-from schemas.catalog import query
+from demoforge.flows.ingest import ingest_take
+from demoforge.schemas.catalog import query
 
 take, wh, det = sys.argv[1], sys.argv[2], (sys.argv[3] if len(sys.argv) > 3 else "simulated")
 t0 = time.time()

@@ -1,9 +1,9 @@
 """Measure depth alignment, swap repair, gripper mapping and open/close on synthetic takes.
 
 For each task (seed 0, not mirrored, full take; generated into ``--takes`` if missing) the
-SIMULATED detector (lib.simulated_detector, detector = "simulated") turns the ground-truth joints
-into HaMeR-like predictions; this script then runs lib.alignment, lib.gripper_mapping and
-lib.metrics and prints a Markdown table (and writes JSON with ``--json``).
+SIMULATED detector (demoforge.lib.perception.simulated_detector, detector = "simulated") turns the ground-truth joints
+into HaMeR-like predictions; this script then runs demoforge.lib.ingest.alignment, demoforge.lib.ingest.gripper_mapping and
+demoforge.lib.evaluation.metrics and prints a Markdown table (and writes JSON with ``--json``).
 
     .venv/bin/python scripts/measure_ingest_synthetic.py --takes /tmp/ingest_takes [--json out.json]
 
@@ -31,19 +31,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lib.alignment import AlignmentConfig, align_to_depth, read_depth_robust  # noqa: E402
-from lib.geometry import transform_points  # noqa: E402
-from lib.gripper_mapping import gripper_state, hand_to_gripper, to_pose8  # noqa: E402
-from lib.metrics import (  # noqa: E402
+from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, read_depth_robust  # noqa: E402
+from demoforge.lib.geometry import transform_points  # noqa: E402
+from demoforge.lib.ingest.gripper_mapping import gripper_state, hand_to_gripper, to_pose8  # noqa: E402
+from demoforge.lib.evaluation.metrics import (  # noqa: E402
     approach_axis_error_deg, gripper_orientation_error_deg, gripper_position_error_mm, mpjpe,
     open_close_accuracy, pa_mpjpe,
 )
-from lib.simulated_detector import simulate_detections  # noqa: E402
+from demoforge.lib.perception.simulated_detector import simulate_detections  # noqa: E402
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 
 
-from schemas.core import column_numpy as _col  # noqa: E402
+from demoforge.schemas.core import column_numpy as _col  # noqa: E402
 
 
 def load_take(d: Path) -> dict:
@@ -74,7 +74,7 @@ def load_take(d: Path) -> dict:
 def ensure_take(task: str, root: Path, seed: int = 0, mirror: bool = False) -> Path:
     d = root / f"{task}_s{seed}_m{int(mirror)}"
     if not (d / "take.json").exists():
-        from lib.synth.take import generate_take
+        from demoforge.lib.synth.take import generate_take
 
         t0 = time.time()
         generate_take(task, seed, mirror, d, video=False)

@@ -20,10 +20,10 @@ import numpy as np
 def handedness_rows(wh: str) -> list[dict]:
     """Per take and hand label of MediaPipe's detections: how many sit on the hand of that label and how
     many on the other hand (2D distance to each ground-truth hand), and the 2D error to the nearer one."""
-    from lib.ingest import open_take
-    from schemas.catalog import query
-    from schemas.core import read_table, read_table_file
-    from tasks.ingest import arrays
+    from demoforge.lib.takes import open_take
+    from demoforge.schemas.catalog import query
+    from demoforge.schemas.core import read_table, read_table_file
+    from demoforge.tasks.ingest import arrays
 
     out = []
     for r in query("SELECT path FROM takes ORDER BY take", wh).to_pylist():
@@ -55,11 +55,11 @@ def error_breakdown(wh: str) -> list[dict]:
     hand of its own label, one on the other hand (left/right confusion the tracker did not repair), or
     no detection (filled / held). For frames on the own hand, the error split into the camera's depth
     axis and the image plane: is it the 2D keypoints or the depth?"""
-    from lib.alignment import project
-    from lib.ingest import open_take
-    from schemas.catalog import query
-    from schemas.core import read_table, read_table_file
-    from tasks.ingest import arrays
+    from demoforge.lib.ingest.alignment import project
+    from demoforge.lib.takes import open_take
+    from demoforge.schemas.catalog import query
+    from demoforge.schemas.core import read_table, read_table_file
+    from demoforge.tasks.ingest import arrays
 
     cats: dict[str, dict[str, list]] = {}
     for r in query("SELECT path FROM takes ORDER BY take", wh).to_pylist():
@@ -116,11 +116,11 @@ def main() -> None:
     ap.add_argument("--task", action="append", help="only these tasks (default: all six)")
     args = ap.parse_args()
 
-    from flows.ingest import ingest_side_by_side, ingest_take
-    from flows.synth import synthesize_takes
-    from lib.markdown import markdown_table
-    from lib.task_library import TASK_NAMES
-    from schemas.catalog import query
+    from demoforge.flows.ingest import ingest_side_by_side, ingest_take
+    from demoforge.flows.synth import synthesize_takes
+    from demoforge.lib.evaluation.markdown import markdown_table
+    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.schemas.catalog import query
 
     wh = str(Path(args.warehouse).resolve())
     t0 = time.perf_counter()

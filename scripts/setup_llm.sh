@@ -30,4 +30,4 @@ if ! "$PY" -c "import llama_cpp, sys; sys.exit(0 if llama_cpp.__version__ == '$w
 else
     "$PY" -m pip install -q -r requirements/llm.txt
 fi
-"$PY" -c "from lib.llm.local_backend import ensure_gguf; print('[setup-llm] model:', ensure_gguf())"
+"$PY" -c "from demoforge.lib.llm.local_backend import ensure_gguf; print('[setup-llm] model:', ensure_gguf())"

@@ -7,17 +7,17 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-from schemas.core import read_table, write_table
-from tasks.common import Manifest, stage_task
-from tasks.ingest import arrays, take_task_name
+import demoforge.lib  # noqa: F401
+from demoforge.schemas.core import read_table, write_table
+from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.ingest import arrays, take_task_name
 
 AUGMENT_VERSION = "1"
 
 
 def _demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
     """The take's gripper trajectory (T, 2, 8) with undetected frames filled, and its object keypoints."""
-    from lib.segmentation import fill_invalid_poses
+    from demoforge.lib.trajectories.segmentation import fill_invalid_poses
 
     part = dict(task=task, take=take_id)
     _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "valid")
@@ -33,7 +33,7 @@ def _demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, n
 
 def _require_task(task: str, take=None):
     """The task library's Task, or for a custom task the TaskDefinition of the take's annotations.json."""
-    from lib.task_library import TASK_NAMES, get_task
+    from demoforge.lib.task_library import TASK_NAMES, get_task
 
     if task in TASK_NAMES:
         return get_task(task)
@@ -49,9 +49,11 @@ def _require_task(task: str, take=None):
 def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  manual: dict | None = None) -> Manifest:
     """Motion/skill segments per arm; on synthetic takes also the boundary error against the script."""
-    from lib.ingest import open_take
-    from lib.segmentation import Segment, boundaries, boundary_error, segment_trajectory
-    from schemas.core import read_table_file
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.trajectories.segmentation import (
+        Segment, boundaries, boundary_error, segment_trajectory,
+    )
+    from demoforge.schemas.core import read_table_file
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -87,8 +89,8 @@ def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
     keypoints and segments from the warehouse, object models from the task library (a custom task:
     its annotated first frame). The arm of each object is the one annotations.json states, else
     inferred from which hand holds it."""
-    from lib.augmentation import DemoSource
-    from lib.segmentation import Segment, infer_object_arm
+    from demoforge.lib.trajectories.augmentation import DemoSource
+    from demoforge.lib.trajectories.segmentation import Segment, infer_object_arm
 
     spec = _require_task(task, take)
     traj, kp = _demo_arrays(take_id, task, warehouse)
@@ -109,8 +111,8 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes.
     database: the key written to `episodes.take` (default: the take's id); another key keeps a second
     database of the same take (other augmentation options) beside the first."""
-    from lib.augmentation import generate_episodes
-    from lib.ingest import open_take
+    from demoforge.lib.trajectories.augmentation import generate_episodes
+    from demoforge.lib.takes import open_take
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -129,7 +131,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
         # report or query mixes them with the new database (simulate again to refill)
         from prefect import get_run_logger
 
-        from schemas.sim import drop_results
+        from demoforge.schemas.sim import drop_results
 
         gone = drop_results(warehouse, name, key)
         if gone:
@@ -140,7 +142,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
 def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str]:
     """{path: sha256} of the take's `episodes` and `episode_steps` files (empty before the first write)."""
-    from schemas.core import file_sha256, table_files
+    from demoforge.schemas.core import file_sha256, table_files
 
     files = [*table_files("episodes", warehouse, task=task, take=take),
              *table_files("episode_steps", warehouse, task=task, take=take)]
@@ -148,7 +150,7 @@ def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str
 
 
 def episodes_columns(task: str, take: str, seed: int, batch) -> dict:
-    """One `episodes` row per generated episode of ``batch`` (lib.augmentation.EpisodeBatch)."""
+    """One `episodes` row per generated episode of ``batch`` (demoforge.lib.trajectories.augmentation.EpisodeBatch)."""
     N = len(batch)
     return {
         "task": [task] * N, "take": [take] * N, "episode_id": batch.episode_id.astype(np.int64),
@@ -181,7 +183,7 @@ def episode_steps_columns(task: str, take: str, batch) -> dict:
 
 def episode_actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
     """{episode_id: (length, 2, 8) actions} of the given episodes, read from `episode_steps`."""
-    from schemas.catalog import placeholders, query
+    from demoforge.schemas.catalog import placeholders, query
 
     id_list = [int(i) for i in ids]
     t = query("SELECT episode_id, action FROM episode_steps WHERE task = ? AND take = ? "

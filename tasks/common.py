@@ -27,10 +27,13 @@ from prefect import task
 from prefect.cache_policies import CachePolicy
 from prefect.context import TaskRunContext
 
-from lib.errors import Reporting, is_user_error, one_line
-from schemas.core import WrittenFile, file_sha256
+from demoforge.lib.errors import Reporting, is_user_error, one_line
+from demoforge.schemas.core import WrittenFile, file_sha256
 
 PREFECT_DIR = "_prefect"
+# Part of every cache key: results cached before the `demoforge` package pickled other module
+# paths (tasks.common.Manifest, ...) and must not be read back.
+LAYOUT = "/pkg-demoforge"
 
 
 @dataclass(frozen=True)
@@ -196,7 +199,7 @@ def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), key
         return task(
             fn,
             name=name,
-            cache_policy=ContentHashPolicy(salt=f"{name}@{version}", ignore=tuple(key_ignore),
+            cache_policy=ContentHashPolicy(salt=f"{name}@{version}{LAYOUT}", ignore=tuple(key_ignore),
                                            optional=tuple(key_optional)),
             persist_result=True,
             **task_options,
@@ -260,7 +263,7 @@ def _intact(result: Any) -> bool:
 # --- user errors in Prefect's logs ---------------------------------------------------------------
 
 # Prefect logs every failed task and flow run with its traceback ("Task run failed with exception",
-# "Encountered exception during execution"), once per enclosing flow. For a user error (lib.errors)
+# "Encountered exception during execution"), once per enclosing flow. For a user error (demoforge.lib.errors)
 # the message is the whole story: these records keep one line, the run is still marked Failed with
 # the message as its state message. Crashes keep their tracebacks. `demoforge --debug` turns this off.
 _RUN_LOGGERS = ("prefect.flow_runs", "prefect.task_runs")
@@ -299,7 +302,7 @@ class DropUserErrorLines(logging.Filter):
 
 def quiet_user_errors() -> None:
     """Install :class:`UserErrorLogFilter` on Prefect's run loggers (idempotent); when the CLI reports
-    user errors itself (``lib.errors.Reporting.cli_reports``), also keep those lines off the console."""
+    user errors itself (``demoforge.lib.errors.Reporting.cli_reports``), also keep those lines off the console."""
     for name in _RUN_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(f, UserErrorLogFilter) for f in logger.filters):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import lib  # noqa: F401
-from tasks.common import Manifest, stage_task
-from tasks.keypoint_eval import _write_rows
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.keypoint_eval import _write_rows
 
 DETECTION_EVAL_VERSION = "1"
 
@@ -14,8 +14,8 @@ DETECTION_EVAL_VERSION = "1"
 @stage_task(name="evaluate_detection", version=DETECTION_EVAL_VERSION)
 def evaluate_detection_take(take_dir: Path, warehouse: str, detector: str = "mediapipe",
                             running_mode: str = "auto") -> Manifest:
-    """`detection_metrics` rows (subsets all, occluded) of one take (lib.evaluation.detection)."""
-    from lib.evaluation.detection import evaluate_detection
+    """`detection_metrics` rows (subsets all, occluded) of one take (demoforge.lib.evaluation.detection)."""
+    from demoforge.lib.evaluation.detection import evaluate_detection
 
     opts = {"running_mode": running_mode} if detector == "mediapipe" else {}
     rows = evaluate_detection(take_dir, detector, **opts)

@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-from lib.errors import UserError
-from schemas.core import column_numpy, read_table, write_table
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+from demoforge.lib.errors import UserError
+from demoforge.schemas.core import column_numpy, read_table, write_table
+from demoforge.tasks.common import Manifest, stage_task
 
 HANDS = ("left", "right")
 INGEST_VERSION = "1"
@@ -27,10 +27,10 @@ def take_media_key(take_dir: Path) -> str:
     """Content hash of a take folder (its name and every file) except annotations.json: the cache key
     of the stages that never read the annotation (frames, detection, alignment), so annotating a take
     after a first ingest does not redo its hand detection. Per-file digests come from the same
-    remembered records as every other folder key (tasks.common), so an unchanged take is only stat'ed."""
+    remembered records as every other folder key (demoforge.tasks.common), so an unchanged take is only stat'ed."""
     import hashlib
 
-    from tasks.common import _dir_file_digests
+    from demoforge.tasks.common import _dir_file_digests
 
     take_dir = Path(take_dir)
     h = hashlib.sha256(take_dir.name.encode())
@@ -87,7 +87,7 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
                  media_key: str) -> Manifest:
     """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
     files are reported here, per frame, instead of surfacing later."""
-    from lib.ingest import iter_depth, iter_frames, open_take
+    from demoforge.lib.takes import iter_depth, iter_frames, open_take
 
     take = open_take(take_dir)
     if verify_decode:
@@ -115,10 +115,10 @@ def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str
     """Run a detector backend over the take and keep the most confident left and right hand per frame.
 
     ``variant`` (every stage of the ingest): None writes the take's rows where every later stage reads
-    them; ``{"detector": name}`` keeps them beside those (schemas.core.variant_parts), for a second
-    detector's ingest of the same take (flows.ingest.ingest_side_by_side)."""
-    from lib.detectors import get_detector
-    from lib.ingest import open_take
+    them; ``{"detector": name}`` keeps them beside those (demoforge.schemas.core.variant_parts), for a second
+    detector's ingest of the same take (demoforge.flows.ingest.ingest_side_by_side)."""
+    from demoforge.lib.perception.detectors import get_detector
+    from demoforge.lib.takes import open_take
 
     take = open_take(take_dir)
     det = get_detector(detector, **(detector_options or {}))
@@ -174,16 +174,16 @@ class DepthError(UserError):
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                     alignment: dict | None = None, tracker: dict | None = None,
                     accept_bad_depth: bool = False, *, media_key: str, variant: dict | None = None) -> Manifest:
-    """Depth checks (lib.ingest.depth_checks), hand tracking (lib.perception.tracking), then depth
+    """Depth checks (demoforge.lib.ingest.depth_checks), hand tracking (demoforge.lib.perception.tracking), then depth
     alignment (thesis 3.1.2), outlier freeze and bounded gap filling; depth is streamed per batch.
 
     Raises :class:`DepthError` when the take's depth fails a check, unless ``accept_bad_depth``
     (then every row carries the problem in ``depth_problem`` and the tracker ignores depth)."""
-    from lib.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
-    from lib.geometry import transform_points
-    from lib.ingest import iter_depth, open_take
-    from lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
-    from lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, track_hands
+    from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
+    from demoforge.lib.geometry import transform_points
+    from demoforge.lib.takes import iter_depth, open_take
+    from demoforge.lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
+    from demoforge.lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, track_hands
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -244,8 +244,8 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
                   tracker: dict | None = None, variant: dict | None = None) -> Manifest:
     """Per hand: frames detected / accepted / rejected / filled / tracked and the trust verdict."""
-    from lib.ingest import open_take
-    from lib.perception.tracking import TrackerConfig, hand_trust
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.perception.tracking import TrackerConfig, hand_trust
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -277,10 +277,11 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
                  state_method: str = "auto", smoothing: int = 0, grasp_prior: str = "pose",
                  table_clearance: float | None = 0.010, variant: dict | None = None) -> Manifest:
     """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods,
-    then the rigid-grasp prior while a hand is closed and the table floor (see lib.gripper_mapping)."""
-    from lib.gripper_mapping import (clamp_above_table, gripper_state, hand_to_gripper, smooth_poses,
-                                     stabilize_grasps, to_pose8)
-    from lib.ingest import open_take
+    then the rigid-grasp prior while a hand is closed and the table floor (see demoforge.lib.ingest.gripper_mapping)."""
+    from demoforge.lib.ingest.gripper_mapping import (
+        clamp_above_table, gripper_state, hand_to_gripper, smooth_poses, stabilize_grasps, to_pose8,
+    )
+    from demoforge.lib.takes import open_take
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -320,10 +321,10 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
     back-projected with depth. None (nothing written) for a take not annotated yet: the stages
     before this one stand, and `demoforge annotate` is what is missing."""
-    from lib.annotate import annotation_status, not_annotated_message
-    from lib.ingest import open_take, read_frame
-    from lib.object_keypoints import backproject_keypoints_detailed
-    from schemas.core import read_table_file, unsliced_table
+    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.takes import open_take, read_frame
+    from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
+    from demoforge.schemas.core import read_table_file, unsliced_table
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
@@ -379,9 +380,9 @@ def alignment_options(config: Any) -> dict:
 def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                    aligned: Manifest, grippers: Manifest, variant: dict | None = None) -> Manifest | None:
     """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps."""
-    from lib import metrics as M
-    from lib.ingest import open_take
-    from schemas.core import read_table_file
+    from demoforge.lib.evaluation import metrics as M
+    from demoforge.lib.takes import open_take
+    from demoforge.schemas.core import read_table_file
 
     take = open_take(take_dir)
     if not take.has_ground_truth:
@@ -438,13 +439,13 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
                             variant: dict | None = None) -> Manifest | None:
     """The thesis's keypoint metrics (`keypoint_metrics`, dataset `synthetic`: Tables 1, 2, Appendix B)
     of the detections the ingest already made, so a detector that costs seconds per frame (MediaPipe)
-    is not run a second time: lib.keypoint_eval.evaluate_take on the `hand_keypoints` rows, with the
-    anchor depth read from the take's depth maps as lib.keypoint_eval.evaluate_synthetic_take does.
+    is not run a second time: demoforge.lib.evaluation.keypoints.evaluate_take on the `hand_keypoints` rows, with the
+    anchor depth read from the take's depth maps as demoforge.lib.evaluation.keypoints.evaluate_synthetic_take does.
     None for a take without ground truth."""
-    from lib.alignment import AlignmentConfig, read_depth_robust
-    from lib.ingest import iter_depth, open_take
-    from lib.keypoint_eval import _load_synth_gt, evaluate_take
-    from schemas.core import get_schema
+    from demoforge.lib.ingest.alignment import AlignmentConfig, read_depth_robust
+    from demoforge.lib.takes import iter_depth, open_take
+    from demoforge.lib.evaluation.keypoints import _load_synth_gt, evaluate_take
+    from demoforge.schemas.core import get_schema
 
     take = open_take(take_dir)
     if not take.has_ground_truth:
@@ -469,7 +470,7 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
     for r in out:
         r.update(dataset="synthetic", take=take.take_id, subject="")
     data = {c.name: [r.get(c.name) for r in out] for c in schema.columns}
-    for c in schema.columns:  # NaN-free strings; metrics stay NaN/None (as tasks.keypoint_eval writes them)
+    for c in schema.columns:  # NaN-free strings; metrics stay NaN/None (as demoforge.tasks.keypoint_eval writes them)
         if c.type == pa.string():
             data[c.name] = ["" if v is None else str(v) for v in data[c.name]]
     written = write_table("keypoint_metrics", data, warehouse, variant)
@@ -485,10 +486,10 @@ def overlay_video(take_dir: Path, task: str | None, warehouse: str, aligned: Man
     frames (like the GIFs of the thesis's public code): warehouse/videos/<take>.<detector>.mp4."""
     import cv2
 
-    from lib.alignment import project
-    from lib.ingest import iter_frames, open_take
-    from lib.visualize import draw_gripper, draw_hand
-    from schemas.core import file_sha256
+    from demoforge.lib.ingest.alignment import project
+    from demoforge.lib.takes import iter_frames, open_take
+    from demoforge.lib.evaluation.visualize import draw_gripper, draw_hand
+    from demoforge.schemas.core import file_sha256
 
     take = open_take(take_dir)
     name = take_task_name(take, task)

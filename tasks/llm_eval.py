@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-from schemas.core import write_table
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+from demoforge.schemas.core import write_table
+from demoforge.tasks.common import Manifest, stage_task
 
 LLM_EVAL_VERSION = "1"
 LLM_STRATEGIES = ("single", "random", "retrieval")
@@ -21,7 +21,7 @@ K_EXAMPLES = 3
 
 def query_scene(task: str, seed: int, trial: int) -> tuple[np.ndarray, np.ndarray]:
     """A new, seeded object placement of the task (not one of the database's samples): (poses, keypoints)."""
-    from lib.task_library import get_task
+    from demoforge.lib.task_library import get_task
 
     spec = get_task(task)
     rng = np.random.default_rng([int(seed), 7919, int(trial)])
@@ -32,7 +32,7 @@ def query_scene(task: str, seed: int, trial: int) -> tuple[np.ndarray, np.ndarra
 def upsample(waypoints: np.ndarray, n_steps: int) -> np.ndarray:
     """(n, 2, 8) waypoints spread over an episode of n_steps frames: positions cubic, rotations slerp,
     gripper state from the nearest waypoint (open/close instants stay sharp)."""
-    from lib.geometry import interpolate_poses
+    from demoforge.lib.geometry import interpolate_poses
 
     n = len(waypoints)
     t_wp = np.linspace(0.0, 1.0, n)
@@ -44,7 +44,7 @@ def upsample(waypoints: np.ndarray, n_steps: int) -> np.ndarray:
 
 
 def _episode_data(warehouse: str, task: str, take: str):
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
                "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
@@ -63,9 +63,9 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
                n_waypoints: int = 20, precision: int = 3, max_tokens: int | None = None,
                temperature: float = 0.0) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
-    from tasks.augment import episode_actions
-    from lib.retrieval import KeypointIndex, select_random
-    from lib.robot_sim import execute
+    from demoforge.tasks.augment import episode_actions
+    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
+    from demoforge.lib.sim import execute
 
     db = _episode_data(warehouse, task, take)
     index = KeypointIndex(db["keypoints"], ids=db["ids"])
@@ -74,7 +74,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     init = db["initial"][db["ids"] == original][0]
     llm = None
     if strategy in LLM_STRATEGIES:
-        from lib.llm import get_backend
+        from demoforge.lib.llm import get_backend
 
         llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
     rows = []
@@ -126,8 +126,8 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     backend's answer -> parsed actions upsampled to n_steps (None when the answer does not parse), and
     the llm_trials fields of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).
     A backend failure gives parse_status `llm_error`, never an exception."""
-    from lib.llm import Sampling
-    from lib.prompting import build_prompt, parse_actions
+    from demoforge.lib.llm import Sampling
+    from demoforge.lib.llm.prompting import build_prompt, parse_actions
 
     prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision)
     fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
@@ -150,7 +150,7 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
 
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:
     """The LLM-free baseline: the original demonstration carried to the new scene by the augmentation transform."""
-    from lib.augmentation import transform_demo
-    from tasks.augment import load_demo_source
+    from demoforge.lib.trajectories.augmentation import transform_demo
+    from demoforge.tasks.augment import load_demo_source
 
     return transform_demo(load_demo_source(take, task, warehouse), poses)

@@ -8,20 +8,20 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-from schemas.core import write_table
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+from demoforge.schemas.core import write_table
+from demoforge.tasks.common import Manifest, stage_task
 
-# 2: settle phase stopped at rest, constraint islands off (lib/robot_sim)
+# 2: settle phase stopped at rest, constraint islands off (lib/sim)
 # 3: results per selection; the key holds the episode database's content and the scene fingerprint
 SIM_VERSION = "3"
 
 
 def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     """(ids, kinds, object keypoints (n, K, 3), {id: actions (L, 2, 8)}) of episodes of a take's database."""
-    from lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
-    from schemas.catalog import placeholders, query
-    from tasks.augment import episode_actions
+    from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
+    from demoforge.schemas.catalog import placeholders, query
+    from demoforge.tasks.augment import episode_actions
 
     ids = [int(i) for i in episode_ids]
     ep = query("SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = ? AND take = ? "
@@ -36,8 +36,8 @@ def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
 
 
 def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool) -> list:
-    """lib.robot_sim.execute_many with a progress bar (closed even when a worker fails)."""
-    from lib.robot_sim import execute_many
+    """demoforge.lib.sim.execute_many with a progress bar (closed even when a worker fails)."""
+    from demoforge.lib.sim import execute_many
 
     bar = None
     if show_progress:
@@ -57,7 +57,7 @@ def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progr
 
 
 def _outcome_columns(r) -> dict:
-    """The outcome columns `sim_results` and `sim_stability` share, from a lib.robot_sim.SimResult."""
+    """The outcome columns `sim_results` and `sim_stability` share, from a demoforge.lib.sim.SimResult."""
     return {"success": bool(r.success), "failure": "" if r.success else str(r.failure or ""),
             "detail": str(r.detail or ""), "wall_s": float(r.wall_s or 0.0)}
 
@@ -67,7 +67,7 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
                    source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
     """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
 
-    `source`: the take's `episodes` and `episode_steps` files and `scene`: lib.robot_sim.scene_fingerprint,
+    `source`: the take's `episodes` and `episode_steps` files and `scene`: demoforge.lib.sim.scene_fingerprint,
     both only in the cache key, so re-augmenting a take or changing a task's objects or the robot makes
     the chunk run again instead of returning results of other episodes."""
     eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
@@ -88,9 +88,9 @@ def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: lis
                     jitter_m: float, seed: int, warehouse: str, source: list[Path], scene: str, workers: int = 2,
                     show_progress: bool = True) -> Manifest:
     """Execute each of the given episodes `repeats` times, repeat 0 as is and the others with the scene
-    shifted rigidly by lib.robot_sim.stability.scene_offsets, and write their `sim_stability` rows.
+    shifted rigidly by demoforge.lib.sim.stability.scene_offsets, and write their `sim_stability` rows.
     `source` and `scene` are in the cache key only, as for simulate_chunk."""
-    from lib.robot_sim.stability import scene_offsets, shift_scene
+    from demoforge.lib.sim.stability import scene_offsets, shift_scene
 
     eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
     offsets = scene_offsets(eids, repeats, jitter_m, seed)
@@ -124,14 +124,14 @@ def check_ingested_demo(take_dir: Path, task: str | None, warehouse: str, grippe
                         presence: Manifest, scene: str, variant: dict | None = None) -> Manifest:
     """Execute the take's ingested demonstration (its `gripper_poses` of the given variant, undetected
     frames held at the nearest valid pose like the episode database's episode 0; its object keypoints) in
-    MuJoCo and write its `ingested_demo_checks` row. `scene` (lib.robot_sim.scene_fingerprint) is in the
+    MuJoCo and write its `ingested_demo_checks` row. `scene` (demoforge.lib.sim.scene_fingerprint) is in the
     cache key only, as for simulate_chunk."""
-    from lib.errors import UserError, one_line
-    from lib.ingest import open_take
-    from lib.robot_sim import execute
-    from lib.segmentation import fill_invalid_poses
-    from schemas.core import read_table, read_table_file
-    from tasks.ingest import arrays, take_task_name
+    from demoforge.lib.errors import UserError, one_line
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.sim import execute
+    from demoforge.lib.trajectories.segmentation import fill_invalid_poses
+    from demoforge.schemas.core import read_table, read_table_file
+    from demoforge.tasks.ingest import arrays, take_task_name
 
     take = open_take(take_dir)
     name = take_task_name(take, task)

@@ -1,4 +1,4 @@
-"""Prefect tasks of the synthetic-demonstration stage: thin adapters around lib.synth and lib.task_library."""
+"""Prefect tasks of the synthetic-demonstration stage: thin adapters around demoforge.lib.synth and demoforge.lib.task_library."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pyarrow as pa
 
-import lib  # noqa: F401
-from schemas.core import read_table_file, write_table
-from schemas.synthetic import GT_TABLES
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+from demoforge.schemas.core import read_table_file, write_table
+from demoforge.schemas.synthetic import GT_TABLES
+from demoforge.tasks.common import Manifest, stage_task
 
 
 
@@ -28,8 +28,8 @@ def _replace_dir(tmp: Path, final: Path) -> None:
         shutil.rmtree(trash)
 
 
-from lib.synth.take import GENERATOR_VERSION  # noqa: E402
-from lib.task_library import TASK_LIBRARY_VERSION  # noqa: E402
+from demoforge.lib.synth.take import GENERATOR_VERSION  # noqa: E402
+from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: E402
 
 
 @stage_task(name="synthesize_take", version=f"1/gen{GENERATOR_VERSION}/tasks{TASK_LIBRARY_VERSION}")
@@ -37,8 +37,8 @@ def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehous
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
                     show_progress: bool = True, hand_style: str = "capsule") -> Manifest:
     """Script, render and write one synthetic take, replay it in physics, register it in `takes`."""
-    from lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
-    from lib.task_library import get_task
+    from demoforge.lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
+    from demoforge.lib.task_library import get_task
 
     name = take_id(task, seed, mirror)
     final = Path(takes_dir) / name

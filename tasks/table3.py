@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-from schemas.core import get_schema, write_table
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+from demoforge.schemas.core import get_schema, write_table
+from demoforge.tasks.common import Manifest, stage_task
 
 TABLE3_VERSION = "1"
 LLM_STRATEGIES = ("single", "random", "retrieval")
@@ -23,7 +23,7 @@ K_EXAMPLES = 3
 
 def _database(warehouse: str, task: str, database: str) -> dict:
     """The database's valid episodes (ids, kinds, keypoints, initial poses, lengths)."""
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
                "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, database])
@@ -41,7 +41,7 @@ def _database(warehouse: str, task: str, database: str) -> dict:
 def nearest_source(source, query_keypoints: np.ndarray):
     """The demonstration or its mirror image, whichever is nearer to the scene in keypoint MSE (the
     augmentation's two layouts), for transform_demo."""
-    from lib.augmentation import mirror_source
+    from demoforge.lib.trajectories.augmentation import mirror_source
 
     m = mirror_source(source)
     q = np.asarray(query_keypoints, float)
@@ -60,10 +60,10 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
     are cached by the backend, so a re-run after an interruption pays only the robot checks."""
     from tqdm import tqdm
 
-    from lib.retrieval import KeypointIndex, select_random
-    from lib.robot_sim import execute
-    from tasks.augment import episode_actions, load_demo_source
-    from tasks.llm_eval import llm_predict, upsample
+    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
+    from demoforge.lib.sim import execute
+    from demoforge.tasks.augment import episode_actions, load_demo_source
+    from demoforge.tasks.llm_eval import llm_predict, upsample
 
     if strategy not in ALL_STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose from {', '.join(ALL_STRATEGIES)}")
@@ -74,13 +74,13 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
     source = load_demo_source(take, task, warehouse) if strategy in ("knn_blend", "transform_demo") else None
     llm, model, policy = None, "", None
     if strategy in LLM_STRATEGIES:
-        from lib.llm import get_backend
+        from demoforge.lib.llm import get_backend
 
         llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
         model = str(getattr(llm, "model", "") or "")
     elif strategy == POLICY:
-        from lib.policy.train import load_checkpoint
-        from tasks.policy import checkpoint_row
+        from demoforge.lib.policy.train import load_checkpoint
+        from demoforge.tasks.policy import checkpoint_row
 
         if policy_checkpoint is None:
             raise ValueError("strategy `policy` needs a trained checkpoint")
@@ -127,14 +127,14 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
         elif strategy in ("replay_original", "replay_top1"):
             actions = episode_actions(warehouse, task, database, ids)[ids[0]]
         elif strategy == "knn_blend":
-            from lib.trajectories.blend import knn_blend
+            from demoforge.lib.trajectories.blend import knn_blend
 
             acts = episode_actions(warehouse, task, database, ids)
             pos = {int(i): r for r, i in enumerate(db["ids"])}
             actions = knn_blend(source, [(acts[i], db["keypoints"][pos[i]], db["kinds"][pos[i]] == "mirrored")
                                          for i in ids], poses)
         elif strategy == "transform_demo":
-            from lib.augmentation import transform_demo
+            from demoforge.lib.trajectories.augmentation import transform_demo
 
             actions = transform_demo(nearest_source(source, kp), poses)
         else:  # policy

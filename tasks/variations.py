@@ -1,5 +1,5 @@
-"""Prefect task of the Table 4 analogue: seeded varied scenes (lib.variations) -> a trajectory per strategy ->
-the robot in MuJoCo on the varied scene (lib.robot_sim.variation_scene), one call per (task, take)."""
+"""Prefect task of the Table 4 analogue: seeded varied scenes (demoforge.lib.sim.variations) -> a trajectory per strategy ->
+the robot in MuJoCo on the varied scene (demoforge.lib.sim.variation_scene), one call per (task, take)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from typing import Sequence
 import numpy as np
 import pyarrow as pa
 
-import lib  # noqa: F401
-import schemas.variations  # noqa: F401  (registers variation_trials)
-from schemas.core import table_files, write_table
-from tasks.common import Manifest, stage_task
+import demoforge.lib  # noqa: F401
+import demoforge.schemas.variations  # noqa: F401  (registers variation_trials)
+from demoforge.schemas.core import table_files, write_table
+from demoforge.tasks.common import Manifest, stage_task
 
 VARIATION_TRIALS_VERSION = "1"
 VARIATION_STRATEGIES = ("replay_top1", "transform_demo", "transform_scripted")
@@ -37,14 +37,14 @@ class _Strategies:
     """Trajectory producers for one (task, take), loading each input once."""
 
     def __init__(self, warehouse: str, task: str, take: str, strategies: Sequence[str]):
-        from lib.task_library import get_task
+        from demoforge.lib.task_library import get_task
 
         self.warehouse, self.task, self.take = warehouse, task, take
         self.base = get_task(task)
         self.index = self.source = self.scripted = None
         if "replay_top1" in strategies:
-            from lib.retrieval import KeypointIndex
-            from schemas.catalog import query
+            from demoforge.lib.trajectories.retrieval import KeypointIndex
+            from demoforge.schemas.catalog import query
 
             ep = query("SELECT episode_id, object_keypoints FROM episodes "
                        "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
@@ -53,7 +53,7 @@ class _Strategies:
             self.index = KeypointIndex(np.asarray(ep.column("object_keypoints").to_pylist(), float),
                                        ids=np.asarray(ep.column("episode_id").to_numpy()))
         if "transform_demo" in strategies:
-            from tasks.augment import load_demo_source
+            from demoforge.tasks.augment import load_demo_source
 
             self.source = load_demo_source(take, task, warehouse)
         if "transform_scripted" in strategies:
@@ -62,10 +62,10 @@ class _Strategies:
     def actions(self, strategy: str, keypoints: np.ndarray) -> tuple[np.ndarray, int, float | None]:
         """(actions (n, 2, 8), replayed episode id or -1, retrieval MSE or None) for a scene seen through
         its object keypoints (what a deployed system observes)."""
-        from lib.augmentation import estimate_object_poses, transform_demo
+        from demoforge.lib.trajectories.augmentation import estimate_object_poses, transform_demo
 
         if strategy == "replay_top1":
-            from tasks.augment import episode_actions
+            from demoforge.tasks.augment import episode_actions
 
             hit = self.index.query(keypoints, k=1)
             eid = int(hit.ids[0, 0])
@@ -77,9 +77,9 @@ class _Strategies:
 
 def _scripted_source(warehouse: str, task: str, take: str):
     """The take's scripted ground-truth demonstration (synthetic takes only) as a DemoSource."""
-    from lib.augmentation import from_scripted_demo
-    from lib.task_library import get_task
-    from schemas.catalog import query
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo
+    from demoforge.lib.task_library import get_task
+    from demoforge.schemas.catalog import query
 
     rows = query("SELECT source, seed, mirror FROM takes WHERE take = ? AND task = ?",
                  warehouse, [take, task]).to_pylist()
@@ -98,8 +98,8 @@ def variation_trials(task: str, take: str, warehouse: str, database: list[Path],
     """`trials` seeded scenes per variation kind; each strategy's trajectory executed on the varied scene.
     `database` (the episode table's files), `code` (code_files()), `library_version` and
     `variations_version` key the cache; they are not used otherwise."""
-    from lib.robot_sim.variation_scene import VariationScene
-    from lib.variations import make_variation
+    from demoforge.lib.sim.variation_scene import VariationScene
+    from demoforge.lib.sim.variations import make_variation
 
     producers = _Strategies(warehouse, task, take, strategies)
     rows = []

@@ -6,7 +6,7 @@
                                                                 frames SKIP .. T-SKIP-1 only
 
 Joints are stored in ARCTIC's MANO(+tips) order: a simple hand in the fixed (OpenPose) order is
-made first and scattered to MANO order with the inverse of lib.arctic.MANO_TO_OPENPOSE, so a correct
+made first and scattered to MANO order with the inverse of demoforge.lib.evaluation.arctic.MANO_TO_OPENPOSE, so a correct
 loader gives the hand back. ``distinct=True`` stores joint k of the MANO order as (k, 100 + k, 1000 + k)
 mm-like values instead (a direct re-indexing check).
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lib.arctic import MANO_TO_OPENPOSE
+from demoforge.lib.evaluation.arctic import MANO_TO_OPENPOSE
 
 FOCAL = 2431.5  # the thesis's egocentric focal length
 

@@ -8,10 +8,10 @@ import tempfile
 import pytest
 from hypothesis import settings
 
-import lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
-import tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
+import demoforge.lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
+import demoforge.tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
-SHARED_DATA = lib.SHARED_DATA
+SHARED_DATA = demoforge.lib.SHARED_DATA
 
 # Hypothesis: CI draws the same examples on every run (a red CI run is a real regression, not a new
 # random draw, and a rerun reproduces it); local runs keep drawing new examples and remember failing
@@ -21,7 +21,7 @@ settings.register_profile("dev", print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE")
                       or ("ci" if os.environ.get("CI", "").lower() in ("1", "true", "yes") else "dev"))
 
-# Folder digests (tasks.common) of the suite's temporary takes: remembered in the temporary directory,
+# Folder digests (demoforge.tasks.common) of the suite's temporary takes: remembered in the temporary directory,
 # not in the user's cache folder; the suite's subprocesses inherit this.
 os.environ.setdefault("DEMOFORGE_DIGEST_CACHE", os.path.join(tempfile.gettempdir(), "demoforge-test-digests"))
 
@@ -69,7 +69,7 @@ def require_mediapipe_model():
     absent; once both are there, every error of the detector is the test's to report."""
     pytest.importorskip("mediapipe", reason="mediapipe is not installed: pip install --no-deps -r "
                         "requirements/mediapipe.txt (make setup does)")
-    from lib.detectors.mediapipe_backend import MODEL_ENV, default_model_path
+    from demoforge.lib.perception.detectors.mediapipe_backend import MODEL_ENV, default_model_path
 
     path = default_model_path()
     if not path.is_file():
@@ -107,7 +107,7 @@ def warehouse(tmp_path, monkeypatch):
 @pytest.fixture(scope="session")
 def trash_take(tmp_path_factory):
     """A full synthetic trash_in_bin take (about 240 frames), rendered once per test session."""
-    from lib.synth.take import generate_take
+    from demoforge.lib.synth.take import generate_take
 
     out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
     generate_take("trash_in_bin", 0, False, out, video=False)
@@ -117,7 +117,7 @@ def trash_take(tmp_path_factory):
 @pytest.fixture(scope="session")
 def _ingested_trash(tmp_path_factory, trash_take, prefect_api):
     """trash_take ingested once (default options) into a warehouse at a fixed path, and a pristine copy."""
-    from flows.ingest import ingest_take
+    from demoforge.flows.ingest import ingest_take
 
     root = tmp_path_factory.mktemp("ingested")
     live = root / "warehouse"

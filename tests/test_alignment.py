@@ -1,4 +1,4 @@
-"""Tests of lib.alignment: robust depth read, depth alignment, swap repair, freeze and fill."""
+"""Tests of demoforge.lib.ingest.alignment: robust depth read, depth alignment, swap repair, freeze and fill."""
 
 from pathlib import Path
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib.alignment import (
+from demoforge.lib.ingest.alignment import (
     AlignmentConfig, align_to_depth, backproject, fill_gaps, freeze_outliers, nan_median, project,
     read_depth_robust, repair_swaps,
 )
-from lib.hand_model import hand_joints
+from demoforge.lib.perception.hand_model import hand_joints
 
 DEXCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbd" / "dexcap_frame_0"
 DEXCAP_K = np.array([[898.2010498046875, 0, 657.4981079101562], [0, 897.86669921875, 364.30950927734375], [0, 0, 1]])
@@ -26,8 +26,8 @@ def _trajectory(T, seed=0):
     # back of the hand towards the camera (hand-local z -> -camera z), fingers up (x -> -y), with a
     # small random tilt: no joint hides another one
     base = np.stack([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]], axis=1)
-    from lib.geometry import quat_exp
-    from lib.geometry import quat_to_matrix
+    from demoforge.lib.geometry import quat_exp
+    from demoforge.lib.geometry import quat_to_matrix
     R0 = quat_to_matrix(quat_exp(rng.normal(0, 0.1, (2, 3)))) @ base
     for h in range(2):
         Tw = np.tile(np.eye(4), (T, 1, 1))
@@ -164,8 +164,8 @@ def test_no_depth_frames_filled_and_flagged_never_nan():
 
 
 def test_simulated_detector_alignment_reduces_error():
-    from lib.simulated_detector import SimulatedDetectorConfig, simulate_detections
-    from lib.metrics import mpjpe
+    from demoforge.lib.perception.simulated_detector import SimulatedDetectorConfig, simulate_detections
+    from demoforge.lib.evaluation.metrics import mpjpe
 
     T = 60
     gt = _trajectory(T, 5)
@@ -393,7 +393,7 @@ def test_config_validation_and_thesis_preset():
 
 
 def test_nan_quantile_matches_numpy():
-    from lib.alignment import nan_quantile
+    from demoforge.lib.ingest.alignment import nan_quantile
     import warnings
 
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""Annotating a recorded take: lib.annotate, the page in a real headless Chromium, ingest and augment
+"""Annotating a recorded take: demoforge.lib.takes.annotate, the page in a real headless Chromium, ingest and augment
 of takes without annotations, custom tasks, and one-line user errors of the CLI."""
 
 from __future__ import annotations
@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lib.annotate import (annotation_status, build_annotations, custom_task, library_task, load_task_file,
-                          mask_to_ranges, not_annotated_message, parse_task_section, point_info,
-                          suggest_closed_ranges, write_annotations)
-from lib.ingest import TakeError, open_take
+from demoforge.lib.takes.annotate import (
+    annotation_status, build_annotations, custom_task, library_task, load_task_file, mask_to_ranges,
+    not_annotated_message, parse_task_section, point_info, suggest_closed_ranges, write_annotations,
+)
+from demoforge.lib.takes import TakeError, open_take
 
 ROOT = Path(__file__).resolve().parents[1]
 N_FRAMES = 40
@@ -26,7 +27,7 @@ N_FRAMES = 40
 @pytest.fixture(scope="module")
 def pouring_take(tmp_path_factory):
     """A 40-frame synthetic pouring take (with the generator's exact annotations.json)."""
-    from lib.synth.take import generate_take
+    from demoforge.lib.synth.take import generate_take
 
     out = tmp_path_factory.mktemp("annotate") / "synth_pouring_s0000"
     generate_take("pouring", 0, False, out, video=False, max_frames=N_FRAMES)
@@ -44,7 +45,7 @@ def raw_take(pouring_take, tmp_path):
 
 def _cli(*args: str, warehouse: Path, timeout: int = 600) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(warehouse), "MUJOCO_GL": "egl"}
-    return subprocess.run([sys.executable, "-m", "flows.cli", *args], cwd=ROOT, env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "demoforge.cli", *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -118,7 +119,7 @@ def test_build_annotations_validates_and_writes_atomically(tmp_path):
 
 
 def test_mask_to_ranges_and_suggestion_follow_the_automatic_method():
-    from lib.gripper_mapping import gripper_state
+    from demoforge.lib.ingest.gripper_mapping import gripper_state
 
     assert mask_to_ranges(np.array([1, 1, 0, 0, 1, 0, 1], bool)) == [[0, 2], [4, 5], [6, 7]]
     assert mask_to_ranges(np.zeros(4, bool)) == []
@@ -187,7 +188,7 @@ def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path):
 
 
 def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_path):
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     wh = tmp_path / "wh"
     r = _cli("ingest", str(raw_take), warehouse=wh)
@@ -206,8 +207,8 @@ def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_
 
 def test_annotating_after_an_ingest_keeps_its_hand_stages(prefect_api, raw_take, pouring_take, tmp_path):
     """ingest -> annotate -> ingest: detection and alignment come from the cache, the rest is redone."""
-    from flows.ingest import ingest_take
-    from schemas.catalog import query
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.schemas.catalog import query
 
     wh = tmp_path / "wh"
     first = ingest_take(str(raw_take), str(wh), task="pouring", show_progress=False)
@@ -228,8 +229,8 @@ def test_annotating_after_an_ingest_keeps_its_hand_stages(prefect_api, raw_take,
 
 
 def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api, pouring_take, tmp_path):
-    from flows.ingest import ingest_folder
-    from schemas.catalog import query
+    from demoforge.flows.ingest_folder import ingest_folder
+    from demoforge.schemas.catalog import query
 
     inbox = tmp_path / "inbox"
     shutil.copytree(pouring_take, inbox / "annotated")
@@ -256,9 +257,9 @@ def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api
 
 def test_custom_task_is_annotated_ingested_and_augmented(prefect_api, pouring_take, raw_take, tmp_path):
     """A task the library does not know: keypoints named by the user, arms stated on the page."""
-    from flows.annotate import AnnotationSession
-    from flows.augment import augment_take_flow
-    from schemas.catalog import query
+    from demoforge.flows.annotate import AnnotationSession
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.schemas.catalog import query
 
     (raw_take / "take.json").unlink()  # a real recording has no take.json
     shutil.rmtree(raw_take / "ground_truth")
@@ -303,7 +304,7 @@ def _write_gt_predictions(take: Path, out: Path) -> None:
     """Detector predictions for a take without ground truth: the synthetic take's exact joints."""
     import pyarrow.parquet as pq
 
-    from tasks.ingest import arrays
+    from demoforge.tasks.ingest import arrays
 
     T, a = arrays(pq.read_table(take / "ground_truth" / "gt_hand_joints.parquet"), "joints_camera", "joints_px",
                   "present")
@@ -321,7 +322,7 @@ def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouri
 
     import cv2
 
-    from flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
 
     take = tmp_path / "take"
     shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))
@@ -370,9 +371,9 @@ def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouri
 
 def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
     """Open the page in headless Chromium, click the 11 keypoints, edit a pre-filled range, save."""
-    from flows.annotate import AnnotationSession, server_url, start_server
-    from flows.ingest import ingest_take
-    from tasks.ingest import arrays
+    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.tasks.ingest import arrays
     from tests.cdp import Browser, chromium_path
 
     assert chromium_path() is not None, "chromium is not installed: run scripts/setup.sh (apt-get install chromium)"
@@ -444,8 +445,8 @@ def _exact_uv(take: Path) -> dict:
     """{name: [u, v]} of the generator's exact keypoint projections, kept inside the image."""
     import pyarrow.parquet as pq
 
-    from lib.alignment import project
-    from lib.geometry import transform_inverse, transform_points
+    from demoforge.lib.ingest.alignment import project
+    from demoforge.lib.geometry import transform_inverse, transform_points
 
     gt = pq.read_table(take / "ground_truth" / "gt_object_keypoints.parquet").to_pylist()
     first = next(r for r in gt if r["frame"] == 0)

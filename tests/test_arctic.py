@@ -1,11 +1,11 @@
-"""lib.arctic on a tiny fake ARCTIC tree (tests/arctic_fixture.py), no real ARCTIC data."""
+"""demoforge.lib.evaluation.arctic on a tiny fake ARCTIC tree (tests/arctic_fixture.py), no real ARCTIC data."""
 
 import json
 
 import numpy as np
 import pytest
 
-from lib.arctic import (
+from demoforge.lib.evaluation.arctic import (
     MANO_TO_OPENPOSE, THESIS_TAKES, ArcticDataset, ArcticError, mano_to_openpose, object_of,
 )
 from tests.arctic_fixture import K_ego, build_arctic_tree, openpose_hand

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib import augmentation as au
-from lib import geometry as geo
-from lib.task_library import TASK_NAMES, get_task
+from demoforge.lib.trajectories import augmentation as au
+from demoforge.lib import geometry as geo
+from demoforge.lib.task_library import TASK_NAMES, get_task
 
 _CACHE: dict = {}
 

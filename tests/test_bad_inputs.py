@@ -21,8 +21,8 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from schemas.catalog import CATALOG_FILE, query
+from demoforge.cli import app
+from demoforge.schemas.catalog import CATALOG_FILE, query
 from tests.test_llm_backends import FakeOpenAIServer
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -37,8 +37,8 @@ runner = CliRunner()
 def base(tmp_path_factory, prefect_api):
     """A synthetic pouring take (8 frames, PNGs and rgb.mp4), predictions files made from its ground
     truth (both hands / right only / none), and a warehouse where it is ingested and augmented."""
-    from flows.augment import augment_take_flow
-    from lib.synth.take import generate_take
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.lib.synth.take import generate_take
 
     root = tmp_path_factory.mktemp("bad_inputs")
     take = root / "synth_pouring_s0000"
@@ -272,8 +272,8 @@ def test_take_with_one_hand_has_no_trajectory_for_the_other(base, wh, tmp_path):
 def test_take_with_no_hands_is_refused_with_one_line(base, wh, tmp_path):
     """A hand never seen: `augment` refuses to build a database from it with a one-line message
     (issue 19: ingest may record the take, or stop it, with such a message)."""
-    from flows.augment import augment_take_flow
-    from lib.errors import is_user_error
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.lib.errors import is_user_error
 
     take = take_copy(base, tmp_path, "no_hands")
     r = cli("ingest", str(take), "-d", "precomputed", "--predictions", str(base["preds"]["none"]))
@@ -331,7 +331,7 @@ def test_two_ingests_of_the_same_take_at_once(base, wh, tmp_path):
 
     take = take_copy(base, tmp_path, "twice")
     env = {**os.environ, "PREFECT_API_URL": get_current_settings().api.url, "DEMOFORGE_WAREHOUSE": str(wh)}
-    procs = [subprocess.Popen([sys.executable, "-m", "flows.cli", "ingest", str(take)], cwd=PROJECT, env=env,
+    procs = [subprocess.Popen([sys.executable, "-m", "demoforge.cli", "ingest", str(take)], cwd=PROJECT, env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
     outs = [p.communicate(timeout=300) for p in procs]
     for p, (out, err) in zip(procs, outs):
@@ -362,7 +362,7 @@ BAD_ANSWERS = [
 
 
 def _llm_eval(wh: Path, options: dict, trials: int) -> list[dict]:
-    from flows.llm_eval import llm_eval
+    from demoforge.flows.llm_eval import llm_eval
 
     llm_eval(str(wh), task="pouring", strategies=["single"], backend="openai",
              backend_options={"model": "stub-model", **options}, trials=trials, seed=0)
@@ -435,7 +435,7 @@ def test_api_key_is_in_no_file_the_run_wrote(base, tmp_path):
                OPENAI_BASE_URL=server.url, DEMOFORGE_LLM_MODEL="stub-model",
                PYTHONPATH=os.pathsep.join([str(PROJECT), env.get("PYTHONPATH", "")]))
     try:
-        p = subprocess.run([sys.executable, "-m", "flows.cli", "llm-eval", "--task", "pouring", "--backend", "openai",
+        p = subprocess.run([sys.executable, "-m", "demoforge.cli", "llm-eval", "--task", "pouring", "--backend", "openai",
                             "-s", "single", "--trials", "2"], cwd=cwd, env=env, capture_output=True, text=True,
                            timeout=480)
     finally:

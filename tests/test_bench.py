@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from flows.bench import CASE_FACTORIES, run_benchmarks
-from lib.benchmarking import BenchCase, run_case
-from schemas.catalog import query
+from demoforge.bench.run import CASE_FACTORIES, run_benchmarks
+from demoforge.bench.timing import BenchCase, run_case
+from demoforge.schemas.catalog import query
 
 
 class FakeClock:
-    """time.perf_counter for lib.benchmarking: the benchmarked functions advance it by known amounts."""
+    """time.perf_counter for demoforge.bench.timing: the benchmarked functions advance it by known amounts."""
 
     def __init__(self):
         self.now = 0.0
@@ -24,7 +24,7 @@ class FakeClock:
 @pytest.fixture()
 def clock(monkeypatch):
     c = FakeClock()
-    monkeypatch.setattr("lib.benchmarking.time.perf_counter", c)
+    monkeypatch.setattr("demoforge.bench.timing.time.perf_counter", c)
     return c
 
 

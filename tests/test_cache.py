@@ -7,8 +7,8 @@ import pyarrow.csv as pacsv
 import pytest
 from prefect import flow
 
-from schemas.core import Column, read_table, table, write_table
-from tasks.common import ContentHashPolicy, Manifest, content_fingerprint, run_stage, stage_task
+from demoforge.schemas.core import Column, read_table, table, write_table
+from demoforge.tasks.common import ContentHashPolicy, Manifest, content_fingerprint, run_stage, stage_task
 
 table("_test_counts", 1, "word counts of a text file (cache test)", [
     Column("word", pa.string(), "a word"),
@@ -101,7 +101,7 @@ def test_unhashable_inputs_are_refused_with_advice():
 def test_folder_digests_are_remembered_across_processes_and_follow_changes(tmp_path, monkeypatch):
     """A take folder is hashed once; a later process (the in-process memo cleared) only stats it, and a
     changed file is hashed again and changes the key."""
-    import tasks.common as common
+    import demoforge.tasks.common as common
 
     monkeypatch.setenv("DEMOFORGE_DIGEST_CACHE", str(tmp_path / "digests"))
     take = tmp_path / "take"

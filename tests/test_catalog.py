@@ -11,9 +11,11 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from schemas.catalog import CATALOG_FILE, QueryRefused, build_catalog, catalog_is_current, check_read_only, query
-from schemas.core import write_table
+from demoforge.cli import app
+from demoforge.schemas.catalog import (
+    CATALOG_FILE, QueryRefused, build_catalog, catalog_is_current, check_read_only, query,
+)
+from demoforge.schemas.core import write_table
 
 from tests.test_schemas import _rows  # registers the _test_poses table
 
@@ -88,7 +90,7 @@ def test_queries_cannot_read_outside_the_warehouse_tables(warehouse, statement, 
 @pytest.mark.parametrize("statement", ["SET enable_external_access = true", "RESET lock_configuration",
                                        "SET allowed_directories = ['/']"])
 def test_confinement_cannot_be_lifted_from_a_query(warehouse, statement):
-    from schemas.catalog import confined_connection
+    from demoforge.schemas.catalog import confined_connection
 
     build_catalog(warehouse)
     con = confined_connection(warehouse)  # below the guard: the lock itself must hold
@@ -190,7 +192,7 @@ def _v1_sim_file(root: Path, task: str, chunk: int, ids: list[int]) -> Path:
     """A sim_results file as schema version 1 wrote it: no selection column, task=/take=/chunk= layout."""
     import pyarrow as pa
 
-    from schemas.core import get_schema
+    from demoforge.schemas.core import get_schema
 
     v2 = get_schema("sim_results").arrow
     fields = [f for f in v2 if f.name != "selection"]
@@ -208,7 +210,7 @@ def _v1_sim_file(root: Path, task: str, chunk: int, ids: list[int]) -> Path:
 
 
 def test_version_1_sim_results_are_moved_to_the_legacy_selection_without_losing_rows(warehouse):
-    from schemas.core import migrate_warehouse, read_table
+    from demoforge.schemas.core import migrate_warehouse, read_table
 
     old = [_v1_sim_file(warehouse, "pouring", 0, [0, 5, 9]), _v1_sim_file(warehouse, "pouring", 1, [12, 13])]
     rows = query("SELECT selection, chunk, episode_id FROM sim_results ORDER BY episode_id", warehouse).to_pylist()
@@ -272,7 +274,7 @@ def _spliced_values(path: Path) -> list[str]:
 
 
 def test_no_query_splices_a_value_into_its_sql():
-    from lib.errors import PROJECT_ROOT
+    from demoforge.lib.errors import PROJECT_ROOT
 
     files = [p for d in ("lib", "tasks", "flows", "schemas", "scripts") for p in sorted((PROJECT_ROOT / d).rglob("*.py"))]
     assert len(files) > 50

@@ -10,8 +10,8 @@ import json
 
 from typer.testing import CliRunner
 
-from flows.cli import app
-from schemas.catalog import query
+from demoforge.cli import app
+from demoforge.schemas.catalog import query
 
 
 def _run(*args: str):

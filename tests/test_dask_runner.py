@@ -34,7 +34,7 @@ def _same_rows(a: pa.Table, b: pa.Table) -> bool:
 
 
 def _table(warehouse: Path, name: str) -> pa.Table:
-    from schemas.core import read_table
+    from demoforge.schemas.core import read_table
 
     t = read_table(name, warehouse)
     t = t.drop_columns([c for c in t.column_names if c in VOLATILE])

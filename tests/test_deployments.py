@@ -54,8 +54,8 @@ def _start_and_wait_for_line(cmd: list[str], env: dict, cwd: Path, log: Path, ma
 
 
 def test_served_ingest_deployment_runs_from_the_prefect_cli(tmp_path, prefect_api_env):
-    from lib.synth.take import generate_take
-    from schemas.catalog import query
+    from demoforge.lib.synth.take import generate_take
+    from demoforge.schemas.catalog import query
 
     inbox = tmp_path / "inbox"
     generate_take("trash_in_bin", 0, False, inbox / "synth_trash_in_bin_s0000", video=False, max_frames=12)

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lib.evaluation.detection import box_size, evaluate_detection, match_frame, per_task, score_take
+from demoforge.lib.evaluation.detection import box_size, evaluate_detection, match_frame, per_task, score_take
 
 
 def _gt(T=4):
@@ -83,8 +83,8 @@ def test_per_task_pools_counts():
 @pytest.fixture
 def oracle(monkeypatch):
     """A detector that returns the ground-truth 2D joints of the take it is given, labelled correctly."""
-    import lib.detectors as D
-    from lib.evaluation.detection import load_ground_truth
+    import demoforge.lib.perception.detectors as D
+    from demoforge.lib.evaluation.detection import load_ground_truth
 
     class Oracle(D.HandDetector):
         name, version = "oracle", "1"
@@ -103,7 +103,7 @@ def oracle(monkeypatch):
 
 
 def test_end_to_end_on_a_rendered_take(tmp_path, oracle):
-    from lib.synth import take as TK
+    from demoforge.lib.synth import take as TK
     from tests.test_synth_render import STANDIN_XML, StandInDemo
 
     Oracle, load = oracle
@@ -124,7 +124,7 @@ def test_end_to_end_on_a_rendered_take(tmp_path, oracle):
 def test_cli_without_takes_says_what_to_do(tmp_path):
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
     res = CliRunner().invoke(app, ["--warehouse", str(tmp_path / "wh"), "evaluate-detection"])
     assert res.exit_code == 2 and "run `demoforge synth` first" in res.output

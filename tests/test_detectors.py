@@ -1,4 +1,4 @@
-"""lib.detectors: interface, best-hand selection, simulated and precomputed backends, registry."""
+"""demoforge.lib.perception.detectors: interface, best-hand selection, simulated and precomputed backends, registry."""
 
 import json
 import shutil
@@ -6,13 +6,15 @@ import shutil
 import numpy as np
 import pytest
 
-from lib.detectors import (
+from demoforge.lib.perception.detectors import (
     DetectorError, HandCandidate, HandDetector, HandTrack, available_detectors, fit_translation_to_2d,
     get_detector, project_points, register_detector, select_best_hands,
 )
-from lib.detectors.precomputed import PrecomputedDetector, load_predictions, write_predictions
-from lib.detectors.simulated import SimulatedDetector
-from lib.ingest import open_take
+from demoforge.lib.perception.detectors.precomputed import (
+    PrecomputedDetector, load_predictions, write_predictions,
+)
+from demoforge.lib.perception.detectors.simulated import SimulatedDetector
+from demoforge.lib.takes import open_take
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 
@@ -29,7 +31,7 @@ def _cand(side, conf, dx=0.0):
 
 @pytest.fixture(scope="module")
 def synth_take(tmp_path_factory):
-    from lib.synth.take import generate_take
+    from demoforge.lib.synth.take import generate_take
 
     out = tmp_path_factory.mktemp("take") / "t"
     generate_take("pouring", seed=3, mirror=False, out_dir=out, max_frames=60, video=False)
@@ -95,7 +97,7 @@ def test_simulated_backend_on_synthetic_take(synth_take):
     det = get_detector("simulated", config="zero_noise")
     tr = det.detect_take(take)
     assert isinstance(tr, HandTrack) and tr.detector == "simulated" and tr.n_frames == 60
-    from lib.detectors.simulated import load_gt_hand_joints
+    from demoforge.lib.perception.detectors.simulated import load_gt_hand_joints
 
     gt = load_gt_hand_joints(synth_take, 60)
     np.testing.assert_array_equal(tr.present, np.isfinite(gt).all(axis=(2, 3)))

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from flows.evaluate import detector_problem, evaluate
+from demoforge.flows.evaluate import detector_problem, evaluate
 from tests.conftest import SHARED_DATA, require_mediapipe_model
 
 HAVE_PHOTOS = (SHARED_DATA / "real_hands").is_dir()
@@ -49,8 +49,8 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
     def must_not_run(*a, **k):
         raise AssertionError("a cached stage ran again")
 
-    for target in ("lib.synth.take.generate_take", "lib.detectors.get_detector",
-                   "lib.alignment.align_to_depth", "lib.augmentation.generate_episodes"):
+    for target in ("demoforge.lib.synth.take.generate_take", "demoforge.lib.perception.detectors.get_detector",
+                   "demoforge.lib.ingest.alignment.align_to_depth", "demoforge.lib.trajectories.augmentation.generate_episodes"):
         monkeypatch.setattr(target, must_not_run)
     again = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
     assert again == out and "synth_paper_in_case_s0000" in again.read_text()

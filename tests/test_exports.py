@@ -1,7 +1,7 @@
 """Exports: LeRobot v3.0 (read back by Rerun's own LeRobot reader), robomimic hdf5, Rerun recordings.
 
 The episodes are real: the task library's scripted pouring demonstration, augmented by
-lib.augmentation into translated and mirrored episodes, written with the warehouse's contracts.
+demoforge.lib.trajectories.augmentation into translated and mirrored episodes, written with the warehouse's contracts.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib.exports import ExportError, next_poses
+from demoforge.lib.exports import ExportError, next_poses
 
 TASK = "pouring"
 TAKE = "synth_pouring_s0000"
@@ -23,10 +23,10 @@ TAKE = "synth_pouring_s0000"
 
 def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1) -> dict:
     """episodes + episode_steps of a real augmentation of the scripted pouring demo, in ``root``."""
-    from lib.augmentation import DemoSource, generate_episodes
-    from lib.task_library import get_task
-    from schemas.core import write_table
-    from tasks.augment import episode_steps_columns, episodes_columns
+    from demoforge.lib.trajectories.augmentation import DemoSource, generate_episodes
+    from demoforge.lib.task_library import get_task
+    from demoforge.schemas.core import write_table
+    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
     demo = spec.scripted_demo(0)
@@ -67,8 +67,8 @@ def build_take(root: Path, warehouse: Path, demo, frames: int = 4, width: int = 
     """A small take folder (camera.json, rgb/, depth/) and its ingested tables, frames from ``demo``."""
     import cv2
 
-    from lib.task_library import get_task
-    from schemas.core import write_table
+    from demoforge.lib.task_library import get_task
+    from demoforge.schemas.core import write_table
 
     take = root / TAKE
     (take / "rgb").mkdir(parents=True)
@@ -123,8 +123,8 @@ def test_lerobot_export_reads_back_with_rerun_lerobot_reader(episode_wh, tmp_pat
     import pyarrow.parquet as pq
     from rerun.experimental import LeRobotReader
 
-    from flows.export import export_lerobot
-    from lib.exports.lerobot import read_lerobot_episode
+    from demoforge.tasks.export import export_lerobot
+    from demoforge.lib.exports.lerobot import read_lerobot_episode
 
     wh, info = episode_wh
     out = tmp_path / "lerobot"
@@ -210,8 +210,10 @@ def _reference_episode_quantiles(x: np.ndarray) -> dict:
 
 
 def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode_wh, tmp_path):
-    from flows.export import load_episodes
-    from lib.exports.lerobot import LeRobotFormatError, validate_lerobot_dataset, write_lerobot_dataset
+    from demoforge.tasks.export import load_episodes
+    from demoforge.lib.exports.lerobot import (
+        LeRobotFormatError, validate_lerobot_dataset, write_lerobot_dataset,
+    )
 
     wh, info = episode_wh
     sel = load_episodes(str(wh), TASK, include_invalid=True, limit=5)
@@ -235,7 +237,7 @@ def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode
 
 
 def test_exports_are_atomic_and_refuse_bad_input(episode_wh, tmp_path):
-    from lib.exports.lerobot import write_lerobot_dataset
+    from demoforge.lib.exports.lerobot import write_lerobot_dataset
 
     wh, info = episode_wh
     poses = info["actions"][0]
@@ -276,8 +278,8 @@ def test_next_poses_shifts_within_episodes_only(lengths):
 def test_robomimic_export_layout_and_provenance(episode_wh, tmp_path):
     import h5py
 
-    from flows.export import export_robomimic
-    from lib.exports.robomimic import is_demoforge_robomimic, read_robomimic_demo
+    from demoforge.tasks.export import export_robomimic
+    from demoforge.lib.exports.robomimic import is_demoforge_robomimic, read_robomimic_demo
 
     wh, info = episode_wh
     out = tmp_path / "pouring.hdf5"
@@ -323,7 +325,7 @@ def test_robomimic_export_layout_and_provenance(episode_wh, tmp_path):
 def test_backprojected_points_reproject_onto_their_pixels(seed, stride):
     from scipy.spatial.transform import Rotation
 
-    from lib.exports.rerun_view import backproject
+    from demoforge.lib.exports.rerun_view import backproject
 
     rng = np.random.default_rng(seed)
     H, W = 12, 17
@@ -346,9 +348,9 @@ def test_backprojected_points_reproject_onto_their_pixels(seed, stride):
 
 
 def test_view_take_and_episode_recordings_hold_the_scene(episode_wh, tmp_path):
-    from flows.export import write_view
-    from lib.exports.rerun_view import read_recording
-    from lib.task_library import get_task
+    from demoforge.flows.export import write_view
+    from demoforge.lib.exports.rerun_view import read_recording
+    from demoforge.lib.task_library import get_task
 
     wh, info = episode_wh
     take = build_take(tmp_path / "takes", wh, info["demo"])
@@ -394,7 +396,7 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
     """User errors are caught before any Prefect run: exit code 2 and a message that says what to fix."""
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
     wh, _ = episode_wh
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(wh))
@@ -438,8 +440,8 @@ def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
     """The environment state's keypoints, rebuilt from an episode's gripper poses and its first
     scene only, equal the task library's own per-frame object keypoints for every task's scripted
     demonstration (plain and mirrored: the arms' roles swap)."""
-    from lib.exports.object_state import episode_object_keypoints
-    from lib.task_library import TASK_NAMES, get_task
+    from demoforge.lib.exports.object_state import episode_object_keypoints
+    from demoforge.lib.task_library import TASK_NAMES, get_task
 
     demos, moved = [], 0
     for name in TASK_NAMES:
@@ -464,7 +466,7 @@ def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
 def test_lerobot_stats_equal_lerobots_histogram_algorithm(seed, n_eps, length, dims):
     """The vectorised statistics equal a per-dimension transcription of LeRobot's RunningQuantileStats
     (to one histogram bin), and the aggregate is LeRobot's count-weighted one."""
-    from lib.exports.lerobot import aggregate_stats, lerobot_stats
+    from demoforge.lib.exports.lerobot import aggregate_stats, lerobot_stats
 
     rng = np.random.default_rng(seed)
     x = rng.normal(0, rng.uniform(0.01, 5), (n_eps, length, dims)).astype(np.float32)
@@ -492,7 +494,7 @@ def test_pinhole_camera_draws_points_where_k_projects_them():
     pinhole model predicts (off-centre principal point, different fx and fy)."""
     import mujoco
 
-    from lib.robot_sim.render import pinhole_gl_camera
+    from demoforge.lib.sim.render import pinhole_gl_camera
 
     pts = np.array([[0.1, 0.2, 0.05], [-0.15, 0.35, 0.0], [0.05, 0.05, 0.1]])
     colors = ["1 0 0 1", "0 1 0 1", "0 0 1 1"]
@@ -526,9 +528,9 @@ def _register_take_camera(wh: Path, takes_dir: Path) -> dict:
                                                   Path(__file__).resolve().parents[1] / "scripts/check_exports_sample.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    from schemas.core import write_table
+    from demoforge.schemas.core import write_table
 
-    from lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
+    from demoforge.lib.synth.render import HEIGHT, WIDTH, camera_K, camera_T_world_camera
 
     take = takes_dir / TAKE
     take.mkdir(parents=True, exist_ok=True)
@@ -544,8 +546,8 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
     image statistics are LeRobot's per-channel ones."""
     import cv2
 
-    from flows.export import export_lerobot, load_episodes
-    from lib.robot_sim.render import episode_frames
+    from demoforge.tasks.export import export_lerobot, load_episodes
+    from demoforge.lib.sim.render import episode_frames
 
     import shutil
 
@@ -591,11 +593,11 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
 
 def test_carried_keypoints_vectorised_equal_the_per_episode_segmentation_rule(episode_wh):
     """Over a real augmented database (translated and mirrored episodes, one call), the vectorised
-    carry equals lib.segmentation's per-episode functions (infer_object_arm + object_keypoints_over_time)."""
-    from flows.export import load_episodes
-    from lib.exports.object_state import episode_object_keypoints, object_arms
-    from lib.segmentation import infer_object_arm, object_keypoints_over_time
-    from lib.task_library import get_task
+    carry equals demoforge.lib.trajectories.segmentation's per-episode functions (infer_object_arm + object_keypoints_over_time)."""
+    from demoforge.tasks.export import load_episodes
+    from demoforge.lib.exports.object_state import episode_object_keypoints, object_arms
+    from demoforge.lib.trajectories.segmentation import infer_object_arm, object_keypoints_over_time
+    from demoforge.lib.task_library import get_task
 
     wh, _ = episode_wh
     sel = load_episodes(str(wh), TASK, include_invalid=True)

@@ -18,9 +18,9 @@ def small_wh(tmp_path):
 def test_cli_exports_through_prefect_cached_and_rewritten_when_damaged(prefect_api, small_wh, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    from flows.cli import app
-    from lib.exports.lerobot import validate_lerobot_dataset
-    from lib.exports.robomimic import read_robomimic_demo
+    from demoforge.cli import app
+    from demoforge.lib.exports.lerobot import validate_lerobot_dataset
+    from demoforge.lib.exports.robomimic import read_robomimic_demo
 
     wh, info = small_wh
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(wh))

@@ -1,4 +1,4 @@
-"""Property tests for lib.geometry (hypothesis + scipy references)."""
+"""Property tests for demoforge.lib.geometry (hypothesis + scipy references)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis.extra import numpy as hnp
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
-from lib import geometry as G
+from demoforge.lib import geometry as G
 
 FAST = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SLOW = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -1,15 +1,15 @@
-"""Tests of lib.gripper_mapping: thesis pose mapping, open/close methods, smoothing."""
+"""Tests of demoforge.lib.ingest.gripper_mapping: thesis pose mapping, open/close methods, smoothing."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib.geometry import make_transform, quat_angle, quat_to_matrix, random_rotations
-from lib.gripper_mapping import (
-    GraspStabilizationConfig, GripperStateConfig, clamp_above_table, gripper_state, hand_to_gripper, mask_to_ranges,
-    otsu_threshold, ranges_to_mask, smooth_poses, stabilize_grasps, state_auto, to_pose8,
+from demoforge.lib.geometry import make_transform, quat_angle, quat_to_matrix, random_rotations
+from demoforge.lib.ingest.gripper_mapping import (
+    GraspStabilizationConfig, GripperStateConfig, clamp_above_table, gripper_state, hand_to_gripper,
+    mask_to_ranges, otsu_threshold, ranges_to_mask, smooth_poses, stabilize_grasps, state_auto, to_pose8,
 )
-from lib.hand_model import hand_from_pinch, pinch_from_joints
+from demoforge.lib.perception.hand_model import hand_from_pinch, pinch_from_joints
 
 
 @settings(max_examples=30, deadline=None)

@@ -1,16 +1,18 @@
-"""The "hamer" detector backend (lib.hamer.backend): box sources, tracking, model cache, errors."""
+"""The "hamer" detector backend (demoforge.lib.perception.hamer.backend): box sources, tracking, model cache, errors."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lib.detectors import DetectorError, get_detector, register_detector, select_best_hands
-from lib.hamer.backend import HamerDetector, get_predictor
-from lib.hamer.camera import box_from_keypoints
-from lib.hamer.checkpoint import save_random_checkpoint
-from lib.hamer.model import HamerConfig
-from lib.hamer.synthetic import synthetic_mano, write_synthetic_mano
+from demoforge.lib.perception.detectors import (
+    DetectorError, get_detector, register_detector, select_best_hands,
+)
+from demoforge.lib.perception.hamer.backend import HamerDetector, get_predictor
+from demoforge.lib.perception.hamer.camera import box_from_keypoints
+from demoforge.lib.perception.hamer.checkpoint import save_random_checkpoint
+from demoforge.lib.perception.hamer.model import HamerConfig
+from demoforge.lib.perception.hamer.synthetic import synthetic_mano, write_synthetic_mano
 from tests.conftest import SHARED_DATA, require_mediapipe_model
 
 TINY = HamerConfig.tiny()
@@ -68,7 +70,7 @@ def test_model_is_loaded_once_and_shared(files):
 
 
 def test_registry_and_clear_errors(files, tmp_path):
-    register_detector("hamer", "lib.hamer.backend:HamerDetector")
+    register_detector("hamer", "demoforge.lib.perception.hamer.backend:HamerDetector")
     det = get_detector("hamer", **files, fallback="none", initial_boxes={"left": (10, 10, 80, 90)})
     assert det.name == "hamer" and "previous" in det.version
     with pytest.raises(DetectorError, match="--hamer-checkpoint"):
@@ -110,8 +112,8 @@ def test_mediapipe_boxes(files):
 
 
 def test_detect_take_on_a_short_synthetic_take(files, tmp_path):
-    from lib.ingest import open_take
-    from lib.synth.take import generate_take
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.synth.take import generate_take
 
     generate_take("pouring", 0, False, tmp_path / "take", video=False, max_frames=4)
     take = open_take(tmp_path / "take")
@@ -123,7 +125,7 @@ def test_detect_take_on_a_short_synthetic_take(files, tmp_path):
     assert track.n_frames == take.n_frames == 4 and track.detector == "hamer"
     assert track.present.all() and np.isfinite(track.joints_cam).all()
     # the take's own intrinsics place the hands: the wrist projects near the network's 2D wrist
-    from lib.geometry import project_points
+    from demoforge.lib.geometry import project_points
 
     uv = project_points(track.joints_cam[:, :, 0], take.camera.K)
     assert np.all(np.abs(uv - track.joints_px[:, :, 0]) < 0.1 * w)

@@ -1,4 +1,4 @@
-"""`demoforge hamer-check` and `hamer-bench` (flows/cli_hamer.py) on small random weights."""
+"""`demoforge hamer-check` and `hamer-bench` (demoforge/cli/hamer.py) on small random weights."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from lib.hamer.checkpoint import save_random_checkpoint
-from lib.hamer.model import HamerConfig
-from lib.hamer.synthetic import synthetic_mano, write_synthetic_mano
+from demoforge.cli import app
+from demoforge.lib.perception.hamer.checkpoint import save_random_checkpoint
+from demoforge.lib.perception.hamer.model import HamerConfig
+from demoforge.lib.perception.hamer.synthetic import synthetic_mano, write_synthetic_mano
 
 TINY = HamerConfig.tiny()
 SIZES = json.dumps({k: v for k, v in TINY.to_dict().items() if k != "img_size"})

@@ -1,4 +1,4 @@
-"""MANO forward kinematics in torch (lib.hamer.mano) against hand-computed cases on a synthetic model."""
+"""MANO forward kinematics in torch (demoforge.lib.perception.hamer.mano) against hand-computed cases on a synthetic model."""
 
 from __future__ import annotations
 
@@ -12,10 +12,11 @@ import torch
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from lib.hamer.mano import (MANO_TIP_VERTEX_IDS, MANO_TO_OPENPOSE, MANOError, ManoLayer, axis_angle_to_rotmat,
-                            load_mano_model)
-from lib.hamer.synthetic import synthetic_mano, write_synthetic_mano
-from lib.joints import PARENTS
+from demoforge.lib.perception.hamer.mano import (
+    MANO_TIP_VERTEX_IDS, MANO_TO_OPENPOSE, MANOError, ManoLayer, axis_angle_to_rotmat, load_mano_model,
+)
+from demoforge.lib.perception.hamer.synthetic import synthetic_mano, write_synthetic_mano
+from demoforge.lib.joints import PARENTS
 
 torch.set_default_dtype(torch.float32)
 MODEL, REST = synthetic_mano(seed=0)
@@ -45,7 +46,7 @@ def test_rest_pose_gives_template_joints_in_mediapipe_order():
     # tips are the smplx fingertip vertices, at openpose 4 / 8 / 12 / 16 / 20
     for op, vid in zip((4, 8, 12, 16, 20), MANO_TIP_VERTEX_IDS):
         np.testing.assert_allclose(j[0, op], MODEL.v_template[vid], atol=1e-12)
-    # the re-indexed skeleton follows demoforge's tree: every bone of lib.joints is a MANO bone
+    # the re-indexed skeleton follows demoforge's tree: every bone of demoforge.lib.joints is a MANO bone
     assert j.shape == (1, 21, 3)
     # index finger (openpose 5-8) = MANO joints 1, 2, 3 then the index tip
     np.testing.assert_allclose(j[0, 5:8], MODEL.v_template[1:4], atol=1e-12)

@@ -1,4 +1,4 @@
-"""The torch HaMeR (lib.hamer): checkpoint key layout, strict loading, cameras, crops, flips, determinism."""
+"""The torch HaMeR (demoforge.lib.perception.hamer): checkpoint key layout, strict loading, cameras, crops, flips, determinism."""
 
 from __future__ import annotations
 
@@ -10,13 +10,17 @@ import pytest
 import torch
 from hypothesis import given, settings, strategies as st
 
-from lib.geometry import project_points
-from lib.hamer.camera import (FOCAL_LENGTH, IMAGE_SIZE, boxes_to_crops, cam_crop_to_camera, cam_crop_to_full,
-                              crop_images, crop_points_to_image)
-from lib.hamer.checkpoint import CheckpointError, load_hamer, read_state_dict, save_random_checkpoint
-from lib.hamer.decoder import rot6d_to_rotmat
-from lib.hamer.model import HamerConfig, HamerNet, HamerPredictor
-from lib.hamer.synthetic import synthetic_mano
+from demoforge.lib.geometry import project_points
+from demoforge.lib.perception.hamer.camera import (
+    FOCAL_LENGTH, IMAGE_SIZE, boxes_to_crops, cam_crop_to_camera, cam_crop_to_full, crop_images,
+    crop_points_to_image,
+)
+from demoforge.lib.perception.hamer.checkpoint import (
+    CheckpointError, load_hamer, read_state_dict, save_random_checkpoint,
+)
+from demoforge.lib.perception.hamer.decoder import rot6d_to_rotmat
+from demoforge.lib.perception.hamer.model import HamerConfig, HamerNet, HamerPredictor
+from demoforge.lib.perception.hamer.synthetic import synthetic_mano
 
 TINY = HamerConfig.tiny()
 

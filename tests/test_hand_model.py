@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lib.hand_model import (
-    HAND_BONES, HandStyle, bone_lengths, hand_capsules, hand_from_pinch, hand_joints,
-    joint_radii, pinch_from_joints, sample_style,
+from demoforge.lib.perception.hand_model import (
+    HAND_BONES, HandStyle, bone_lengths, hand_capsules, hand_from_pinch, hand_joints, joint_radii,
+    pinch_from_joints, sample_style,
 )
 
 

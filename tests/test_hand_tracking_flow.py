@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from schemas.catalog import query
+from demoforge.cli import app
+from demoforge.schemas.catalog import query
 
 
 def _gt(take: Path):
-    from schemas.core import read_table_file
-    from tasks.ingest import arrays
+    from demoforge.schemas.core import read_table_file
+    from demoforge.tasks.ingest import arrays
 
     _, gt = arrays(read_table_file("gt_hand_joints", take / "ground_truth" / "gt_hand_joints.parquet"),
                    "joints_camera", "joints_px", "present")
@@ -70,7 +70,7 @@ def test_a_one_hand_take_yields_no_trajectory_for_the_other(prefect_api, warehou
     assert al["present"] == 0 and al["rejected"] == hp["left"]["frames_detected"]
 
     # augment refuses to build a database from it, in one line
-    from flows.augment import augment_take_flow
+    from demoforge.flows.augment import augment_take_flow
 
     with pytest.raises(ValueError, match="untrusted hand") as e:
         augment_take_flow(str(trash_take), str(warehouse), detector="precomputed", n=10, n_mirrored=0,
@@ -83,7 +83,7 @@ def test_augment_builds_from_an_untrusted_hand_only_when_forced(prefect_api, war
     present = gt["present"].astype(bool).copy()
     present[40:, 0] = False                           # the left hand seen only in the first 40 frames
     npz = _predictions(tmp_path / "short_left.npz", gt["joints_camera"], gt["joints_px"], present)
-    from flows.augment import augment_take_flow
+    from demoforge.flows.augment import augment_take_flow
 
     kw = dict(detector="precomputed", n=10, n_mirrored=0, show_progress=False,
               ingest_options={"detector_options": {"path": str(npz)}})

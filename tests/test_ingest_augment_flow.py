@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flows.augment import augment_take_flow, retrieve
-from flows.cli import app
-from flows.ingest import ingest_take
-from schemas.catalog import query
+from demoforge.flows.augment import augment_take_flow, retrieve
+from demoforge.cli import app
+from demoforge.flows.ingest import ingest_take
+from demoforge.schemas.catalog import query
 
 
 @pytest.fixture()
@@ -40,8 +40,8 @@ def test_ingest_flow_meets_the_accuracy_goals_and_is_cached(prefect_api, warehou
     def must_not_run(*a, **k):
         raise AssertionError("a cached stage ran again")
 
-    monkeypatch.setattr("lib.detectors.get_detector", must_not_run)
-    monkeypatch.setattr("lib.alignment.align_to_depth", must_not_run)
+    monkeypatch.setattr("demoforge.lib.perception.detectors.get_detector", must_not_run)
+    monkeypatch.setattr("demoforge.lib.ingest.alignment.align_to_depth", must_not_run)
     again = ingest_take(str(take_dir), str(warehouse), show_progress=False)
     assert again["aligned_keypoints"] == result["aligned_keypoints"]
 
@@ -114,7 +114,7 @@ def test_overlay_video_is_one_flag_away(prefect_api, ingested_warehouse, take_di
 
 def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_warehouse, take_dir, tmp_path, monkeypatch):
     warehouse = ingested_warehouse  # the take ingested once per session
-    from flows.sim import render_episode_video, simulate_episodes
+    from demoforge.flows.sim import render_episode_video, simulate_episodes
 
     augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
     first = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=2, show_progress=False)
@@ -123,7 +123,7 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
     assert rows[0]["episode_id"] == 0 and rows[0]["kind"] == "original"
     # the take's own demonstration, mapped to the grippers, passes the robot check
     assert rows[0]["success"] and rows[0]["failure"] == "", rows[0]["detail"]
-    from lib.robot_sim import FAILURES
+    from demoforge.lib.sim import FAILURES
 
     assert all((r["success"] and r["failure"] == "") or (not r["success"] and r["failure"] in FAILURES) for r in rows)
     assert all(r["physics_steps"] > 0 for r in rows)
@@ -131,7 +131,7 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
     # a crash lost chunk 1: only that chunk is simulated again
     Path(first[1].files[0]).unlink()
     calls = []
-    import lib.robot_sim as rs
+    import demoforge.lib.sim as rs
 
     real = rs.execute_many
     monkeypatch.setattr(rs, "execute_many", lambda task, eps, **kw: calls.append(len(eps)) or real(task, eps, **kw))
@@ -145,9 +145,9 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
 def test_sample_and_whole_runs_keep_their_own_results_and_new_episodes_are_simulated_again(
         prefect_api, ingested_warehouse, take_dir, monkeypatch):
     warehouse = ingested_warehouse  # the take ingested once per session
-    from flows.sim import simulate_episodes
-    import lib.robot_sim as rs
-    from schemas.core import column_numpy, read_table, write_table
+    from demoforge.flows.sim import simulate_episodes
+    import demoforge.lib.sim as rs
+    from demoforge.schemas.core import column_numpy, read_table, write_table
 
     augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
     sample = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=2, show_progress=False)
@@ -203,7 +203,7 @@ def test_augment_keeps_the_mapping_options_the_take_was_ingested_with(prefect_ap
 
 def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, ingested_warehouse, take_dir):
     warehouse = ingested_warehouse  # the take ingested once per session
-    from flows.sim import check_stability, simulate_episodes
+    from demoforge.flows.sim import check_stability, simulate_episodes
 
     def checked():
         return query("SELECT count(*) AS n FROM sim_results", warehouse).column("n")[0].as_py()
@@ -218,7 +218,7 @@ def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, ingested
     # the same database again (cached, or rewritten with the same bytes): the checks still describe it
     augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
     assert checked() == 2
-    from tasks.augment import augment_take
+    from demoforge.tasks.augment import augment_take
 
     augment_take.fn(take_dir.resolve(), None, str(warehouse), out["gripper_poses"], out["object_keypoints"],
                     out["segments"], n=30, n_mirrored=10, seed=2)  # executed, not served from the cache

@@ -1,15 +1,16 @@
-"""lib.keypoint_eval: metric rows against hand-computed values, the thesis tables and figures."""
+"""demoforge.lib.evaluation.keypoints: metric rows against hand-computed values, the thesis tables and figures."""
 
 import math
 
 import numpy as np
 import pytest
 
-from lib.alignment import AlignmentConfig
-from lib.keypoint_eval import (
-    APPENDIX_B_SECTIONS, BIG_OBJECTS, SMALL_OBJECTS, appendix_b, big_vs_small, common_K, evaluate_arctic_take,
-    evaluate_synthetic_take, evaluate_take, format_markdown, gt_anchor_depth, per_object, plot_big_vs_small,
-    plot_per_object_bars, plot_per_take_bars, project_per_frame, real_photo_rows, size_group, table1, table2,
+from demoforge.lib.ingest.alignment import AlignmentConfig
+from demoforge.lib.evaluation.keypoints import (
+    APPENDIX_B_SECTIONS, BIG_OBJECTS, SMALL_OBJECTS, appendix_b, big_vs_small, common_K,
+    evaluate_arctic_take, evaluate_synthetic_take, evaluate_take, format_markdown, gt_anchor_depth,
+    per_object, plot_big_vs_small, plot_per_object_bars, plot_per_take_bars, project_per_frame,
+    real_photo_rows, size_group, table1, table2,
 )
 
 K = np.array([[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 1.0]])
@@ -124,7 +125,7 @@ def test_per_frame_K_take_evaluates():
 
 
 def test_evaluate_arctic_take_on_fixture(tmp_path):
-    from lib.arctic import ArcticDataset
+    from demoforge.lib.evaluation.arctic import ArcticDataset
     from tests.arctic_fixture import build_arctic_tree
 
     root = build_arctic_tree(tmp_path / "a")
@@ -223,7 +224,7 @@ def test_png_writers(tmp_path):
 
 
 def test_real_photo_rows_by_hand():
-    from lib.detectors.real_photos_eval import DatasetResult
+    from demoforge.lib.evaluation.real_photos import DatasetResult
 
     r = DatasetResult("panoptic", images=2, hands=3, detected=2, side_known=2, side_correct=1,
                       errors=[np.array([1.0, 3.0]), np.array([2.0])],
@@ -239,7 +240,7 @@ def test_real_photo_rows_by_hand():
 
 @pytest.mark.slow
 def test_synthetic_take_rows(tmp_path):
-    from lib.synth.take import generate_take
+    from demoforge.lib.synth.take import generate_take
 
     out = tmp_path / "t"
     generate_take("pouring", seed=3, mirror=False, out_dir=out, max_frames=20, video=False)
@@ -259,8 +260,8 @@ def test_synthetic_take_rows(tmp_path):
 
 
 def test_evaluate_arctic_take_accepts_a_handtrack(tmp_path):
-    from lib.arctic import ArcticDataset
-    from lib.detectors import HandTrack
+    from demoforge.lib.evaluation.arctic import ArcticDataset
+    from demoforge.lib.perception.detectors import HandTrack
     from tests.arctic_fixture import build_arctic_tree
 
     tk = ArcticDataset(build_arctic_tree(tmp_path / "a")).load("s01", "box_grab_01")

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from flows.keypoint_eval import evaluate_keypoints
-from lib.keypoint_eval import table1, table2
-from schemas.catalog import query
+from demoforge.cli import app
+from demoforge.flows.keypoint_eval import evaluate_keypoints
+from demoforge.lib.evaluation.keypoints import table1, table2
+from demoforge.schemas.catalog import query
 from tests.arctic_fixture import build_arctic_tree
 from tests.conftest import SHARED_DATA, require_mediapipe_model
 

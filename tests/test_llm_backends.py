@@ -13,11 +13,13 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 
-from lib.llm import (Completion, FakeBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError,
-                     Sampling, get_backend)
-from lib.llm.cache import CachedBackend
-from lib.llm.openai_backend import OpenAIBackend
-from lib.prompting import PARSE_STATUSES, build_prompt, count_tokens, parse_actions
+from demoforge.lib.llm import (
+    Completion, FakeBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError, Sampling,
+    get_backend,
+)
+from demoforge.lib.llm.cache import CachedBackend
+from demoforge.lib.llm.openai_backend import OpenAIBackend
+from demoforge.lib.llm.prompting import PARSE_STATUSES, build_prompt, count_tokens, parse_actions
 
 SECRET = "sk-test-DO-NOT-LEAK-4242"
 
@@ -327,7 +329,7 @@ _HAVE_LLAMA = importlib.util.find_spec("llama_cpp") is not None
 @pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
                     "install requirements/llm.txt (scripts/setup_llm.sh)")
 def test_local_backend_generates_a_real_answer(tmp_path):
-    from lib.llm.local_backend import LocalBackend, ensure_gguf
+    from demoforge.lib.llm.local_backend import LocalBackend, ensure_gguf
 
     path = ensure_gguf()
     assert path.exists() and path.stat().st_size > 200e6
@@ -367,7 +369,7 @@ def test_local_windowed_cache_answer_does_not_depend_on_the_previous_prompt():
     default. llama-cpp-python would resume a prompt from the previous prompt's shared prefix even when
     a long answer pushed that prefix's window out of the cache; the backend must answer exactly as on
     an empty cache. n_batch=64 keeps the window cache small (512 + 64) so a 700-token answer is enough."""
-    from lib.llm.local_backend import LocalBackend
+    from demoforge.lib.llm.local_backend import LocalBackend
 
     b = LocalBackend(n_ctx=4096, n_batch=64)
     assert not b.swa_full and b.cache_identity()["kv"] == "swa-window"

@@ -1,7 +1,7 @@
 """Table 3 machinery end to end: episode database -> prompts -> backend -> parser -> MuJoCo check."""
 
-from flows.augment import augment_take_flow
-from schemas.catalog import query
+from demoforge.flows.augment import augment_take_flow
+from demoforge.schemas.catalog import query
 
 
 def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse, trash_take, monkeypatch):
@@ -10,12 +10,12 @@ def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse
     Trial 0's query scene is the take's own scene, so the demonstration itself is a known-good answer
     there (and the LLM-free baselines replay it); trial 1 is a new scene."""
     warehouse = ingested_warehouse  # the take ingested once per session
-    import tasks.llm_eval as te
-    from flows.llm_eval import llm_eval
-    from lib.prompting import format_actions, resample_actions
-    from lib.robot_sim import FAILURES
-    from lib.task_library import get_task
-    from tasks.augment import episode_actions
+    import demoforge.tasks.llm_eval as te
+    from demoforge.flows.llm_eval import llm_eval
+    from demoforge.lib.llm.prompting import format_actions, resample_actions
+    from demoforge.lib.sim import FAILURES
+    from demoforge.lib.task_library import get_task
+    from demoforge.tasks.augment import episode_actions
 
     spec = get_task("trash_in_bin")
     take_poses = spec.scripted_demo(0).placement.object_poses  # the synthetic take's scene (seed 0)

@@ -27,7 +27,7 @@ mediapipe = pytest.importorskip("mediapipe", reason="mediapipe is not installed:
 
 @pytest.fixture(scope="module")
 def detector():
-    from lib.detectors.mediapipe_backend import MediaPipeDetector
+    from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
 
     require_mediapipe_model()  # absent model: a skip; any error of the detector itself: a failure
     det = MediaPipeDetector()
@@ -37,7 +37,7 @@ def detector():
 
 @pytest.fixture(scope="module")
 def results(detector):
-    from lib.detectors.real_photos_eval import evaluate, format_table
+    from demoforge.lib.evaluation.real_photos import evaluate, format_table
 
     res = {r.dataset: r for r in evaluate(detector, REAL)}
     print("\n" + format_table(list(res.values())))
@@ -67,7 +67,7 @@ def test_handedness_on_real_photos(results):
 def test_candidates_are_well_formed(detector):
     import cv2
 
-    from lib.detectors import project_points
+    from demoforge.lib.perception.detectors import project_points
 
     rgb = cv2.cvtColor(cv2.imread(str(REAL / "onehand10k" / "9.jpg")), cv2.COLOR_BGR2RGB)
     h, w = rgb.shape[:2]
@@ -87,7 +87,7 @@ def test_candidates_are_well_formed(detector):
 def test_mirrored_flag_swaps_handedness(detector):
     import cv2
 
-    from lib.detectors.mediapipe_backend import MediaPipeDetector
+    from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
 
     rgb = cv2.cvtColor(cv2.imread(str(REAL / "onehand10k" / "9.jpg")), cv2.COLOR_BGR2RGB)
     a = detector.detect_image(rgb)
@@ -138,7 +138,7 @@ def test_auto_mode_tracks_takes_and_leaves_single_images_alone(detector):
     start_take/end_take (video mode: the same photo repeated stays detected, with the same hand)."""
     import cv2
 
-    from lib.detectors.mediapipe_backend import MediaPipeDetector
+    from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
 
     rgb = cv2.cvtColor(cv2.imread(str(REAL / "onehand10k" / "9.jpg")), cv2.COLOR_BGR2RGB)
     assert detector.running_mode == "auto" and not detector.tracking

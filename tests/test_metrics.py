@@ -1,11 +1,11 @@
-"""Tests of lib.metrics against values computed by hand."""
+"""Tests of demoforge.lib.evaluation.metrics against values computed by hand."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib.geometry import quat_to_matrix, random_quaternions, random_rotations
-from lib.metrics import (
+from demoforge.lib.geometry import quat_to_matrix, random_quaternions, random_rotations
+from demoforge.lib.evaluation.metrics import (
     approach_axis_error_deg, bbox_size, gripper_metrics, gripper_orientation_error_deg,
     gripper_position_error_mm, keypoint_metrics, mpjpe, mpjpe_2d, mpjpe_2d_from_3d, open_close_accuracy,
     pa_mpjpe, pck, root_relative_mpjpe,

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lib.plots import coverage_grid, plot_success_map, plot_trajectories, plot_workspace_coverage
+from demoforge.lib.evaluation.plots import (
+    coverage_grid, plot_success_map, plot_trajectories, plot_workspace_coverage,
+)
 
 
 def _png(path) -> np.ndarray:
@@ -93,8 +95,8 @@ def test_success_map_rates_per_cell(tmp_path):
 
 def test_report_plots_on_real_episodes(tmp_path):
     """The report's section from a warehouse with real augmented episodes and physics results."""
-    from flows.export import report_plots
-    from schemas.core import write_table
+    from demoforge.tasks.export import report_plots
+    from demoforge.schemas.core import write_table
     from tests.test_exports import TAKE, TASK, build_episode_warehouse
 
     wh = tmp_path / "warehouse"

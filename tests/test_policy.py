@@ -9,13 +9,18 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lib.geometry import quat_angle
-from lib.policy.data import PolicyData, Normalizer, resample_batch, split_by_placement, waypoint_times
-from lib.policy.model import KeypointPolicy, PolicyConfig
-from lib.policy.rotation6d import matrix_from_6d, quat_from_6d, quat_to_6d, torch_geodesic, torch_matrix_from_6d
-from lib.policy.train import (TrainConfig, checkpoint_id, evaluate, load_checkpoint, save_checkpoint, train_policy,
-                              weights_digest)
-from lib.prompting import resample_actions
+from demoforge.lib.geometry import quat_angle
+from demoforge.lib.policy.data import (
+    PolicyData, Normalizer, resample_batch, split_by_placement, waypoint_times,
+)
+from demoforge.lib.policy.model import KeypointPolicy, PolicyConfig
+from demoforge.lib.policy.rotation6d import (
+    matrix_from_6d, quat_from_6d, quat_to_6d, torch_geodesic, torch_matrix_from_6d,
+)
+from demoforge.lib.policy.train import (
+    TrainConfig, checkpoint_id, evaluate, load_checkpoint, save_checkpoint, train_policy, weights_digest,
+)
+from demoforge.lib.llm.prompting import resample_actions
 
 finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
 quats = st.lists(finite, min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1).map(
@@ -83,8 +88,8 @@ def test_resample_batch_equals_the_prompts_resampling_per_episode():
 
 
 def _scripted_data(n: int = 40, n_mirrored: int = 20, seed: int = 1, n_wp: int = 8) -> PolicyData:
-    from lib.augmentation import from_scripted_demo, generate_episodes
-    from lib.task_library import get_task
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+    from demoforge.lib.task_library import get_task
 
     spec = get_task("pouring")
     batch = generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n, n_mirrored=n_mirrored,
@@ -166,9 +171,9 @@ def test_model_rejects_wrong_shapes_and_config_mismatch(scripted):
 
 
 def test_out_of_distribution_placements_leave_the_translation_box_and_stay_on_the_table(scripted):
-    from lib.policy.scenes import in_box, ood_placement, placement_offsets, translation_box
-    from lib.robot_sim.executor import object_poses_from_keypoints
-    from lib.task_library import get_task
+    from demoforge.lib.policy.scenes import in_box, ood_placement, placement_offsets, translation_box
+    from demoforge.lib.sim.executor import object_poses_from_keypoints
+    from demoforge.lib.task_library import get_task
 
     spec = get_task("pouring")
     box = translation_box(scripted.placement[1:])

@@ -9,17 +9,17 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from schemas.catalog import query
-from schemas.core import write_table
+from demoforge.schemas.catalog import query
+from demoforge.schemas.core import write_table
 
 TAKE = "scripted_pouring_s0000"
 
 
 def _tiny_database(warehouse: Path, n: int = 48) -> None:
     """A pouring database from the task library's scripted demonstration (no rendering needed)."""
-    from lib.augmentation import from_scripted_demo, generate_episodes
-    from lib.task_library import get_task
-    from tasks.augment import episode_steps_columns, episodes_columns
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+    from demoforge.lib.task_library import get_task
+    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task("pouring")
     batch = generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n, n_mirrored=n // 2, seed=1,
@@ -29,8 +29,8 @@ def _tiny_database(warehouse: Path, n: int = 48) -> None:
 
 
 def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
-    from flows.policy import evaluate_policy, train_policy
-    from tasks.policy import load_policy_data
+    from demoforge.flows.policy import evaluate_policy, train_policy
+    from demoforge.tasks.policy import load_policy_data
 
     _tiny_database(warehouse)
     wh = str(warehouse)
@@ -64,8 +64,8 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
         assert np.asarray(t["predicted_waypoints"]).shape == (20, 2, 8)
     held, ind, _, ood = trials
     # each verdict is the simulator's verdict on the predicted waypoints, spread over the original's length
-    from lib.robot_sim import FAILURES, execute
-    from tasks.llm_eval import upsample
+    from demoforge.lib.sim import FAILURES, execute
+    from demoforge.tasks.llm_eval import upsample
 
     n_steps = query("SELECT length FROM episodes WHERE kind = 'original'", warehouse).column(0)[0].as_py()
     for t in (ind, ood):
@@ -81,7 +81,7 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     match = [r["episode_id"] for r in db if np.allclose(r["object_keypoints"], held["query_keypoints"])]
     assert match and match[0] not in trained
     # the in-distribution scene is the prompting evaluation's query scene
-    from tasks.llm_eval import query_scene
+    from demoforge.tasks.llm_eval import query_scene
 
     np.testing.assert_allclose(ind["query_keypoints"], query_scene("pouring", 0, 0)[1])
     llm = query("SELECT * FROM llm_trials", warehouse).to_pylist()
@@ -93,7 +93,7 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
 
 
 def test_policy_flows_explain_missing_inputs(prefect_api, warehouse):
-    from flows.policy import evaluate_policy, train_policy
+    from demoforge.flows.policy import evaluate_policy, train_policy
 
     with pytest.raises(ValueError, match="augment"):
         train_policy(str(warehouse), task="pouring", epochs=1)
@@ -109,7 +109,7 @@ def test_policy_flows_explain_missing_inputs(prefect_api, warehouse):
 def test_policy_commands_reject_bad_options_with_one_line_errors(warehouse):
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
     runner = CliRunner()
     r = runner.invoke(app, ["--warehouse", str(warehouse), "eval-policy", "--kind", "sideways"])

@@ -11,8 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from lib.prompting import (ANSWER_PREFIX, PARSE_STATUSES, Example, approx_token_count, build_prompt,
-                           count_tokens, format_actions, format_number, parse_actions, resample_actions)
+from demoforge.lib.llm.prompting import (
+    ANSWER_PREFIX, PARSE_STATUSES, Example, approx_token_count, build_prompt, count_tokens, format_actions,
+    format_number, parse_actions, resample_actions,
+)
 
 GOLDEN = Path(__file__).parent / "golden" / "prompt_3demos.txt"
 

@@ -9,9 +9,10 @@ import pyarrow as pa
 import pytest
 from prefect import flow
 
-from schemas.core import (ALL_VARIANTS, Column, SchemaError, file_sha256, read_table, table, table_files,
-                          write_table)
-from tasks.common import Manifest, run_stage, stage_task
+from demoforge.schemas.core import (
+    ALL_VARIANTS, Column, SchemaError, file_sha256, read_table, table, table_files, write_table,
+)
+from demoforge.tasks.common import Manifest, run_stage, stage_task
 from tests.conftest import require_mediapipe_model
 
 table("_test_variant", 1, "per-detector rows of one partition (variant test)", [
@@ -26,7 +27,7 @@ def _rows(detector: str, value: float) -> dict:
 
 
 def test_a_variant_is_kept_beside_the_default_rows_and_sql_sees_both(tmp_path):
-    from schemas.catalog import query
+    from demoforge.schemas.catalog import query
 
     wh = tmp_path / "wh"
     default = write_table("_test_variant", _rows("simulated", 1.0), wh)
@@ -94,8 +95,8 @@ def test_a_take_ingested_with_both_detectors_has_rows_for_both(prefect_api, inge
     with MediaPipe: the simulated rows stay as they were (same files), every side-by-side table holds rows
     of both detectors with the right labels, and the values differ between them."""
     require_mediapipe_model()
-    from flows.ingest import ingest_side_by_side
-    from schemas.catalog import query
+    from demoforge.flows.ingest import ingest_side_by_side
+    from demoforge.schemas.catalog import query
 
     wh = str(ingested_warehouse)
     before = {str(f): file_sha256(f) for name in ("hand_keypoints", "aligned_keypoints", "gripper_poses",
@@ -139,9 +140,9 @@ def _flow_must_not_run(*a, **k):
 def test_evaluate_refuses_a_detector_it_does_not_run(warehouse, monkeypatch):
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
-    monkeypatch.setattr("flows.evaluate.evaluate", _flow_must_not_run)
+    monkeypatch.setattr("demoforge.flows.evaluate.evaluate", _flow_must_not_run)
 
     r = CliRunner().invoke(app, ["evaluate", "--detector", "simulated", "--detector", "precomputed"])
     assert r.exit_code == 2
@@ -153,10 +154,10 @@ def test_evaluate_stops_when_a_detector_asked_for_cannot_run(warehouse, monkeypa
     """Asked for by name, a detector that cannot run here stops the command before any work."""
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
     pytest.importorskip("mediapipe", reason="mediapipe is not installed: the message is then about the package")
-    monkeypatch.setattr("flows.evaluate.evaluate", _flow_must_not_run)
+    monkeypatch.setattr("demoforge.flows.evaluate.evaluate", _flow_must_not_run)
     monkeypatch.setenv("DEMOFORGE_HAND_LANDMARKER", str(warehouse / "no_such_model.task"))
     r = CliRunner().invoke(app, ["evaluate", "--detector", "mediapipe"])
     assert r.exit_code == 2 and "no_such_model.task" in r.stderr and "fetch_mediapipe_model.py" in r.stderr

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from lib import retrieval as rt
-from lib.augmentation import mirror_permutation
-from lib.task_library import get_task
+from demoforge.lib.trajectories import retrieval as rt
+from demoforge.lib.trajectories.augmentation import mirror_permutation
+from demoforge.lib.task_library import get_task
 
 
 @settings(max_examples=40, deadline=None)

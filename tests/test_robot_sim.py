@@ -1,11 +1,11 @@
-"""Robot execution with physical parallel-jaw grippers (lib/robot_sim)."""
+"""Robot execution with physical parallel-jaw grippers (lib/sim)."""
 
 import numpy as np
 import pytest
 
-import lib  # noqa: F401
-from lib.robot_sim import SimOptions, execute, execute_many, validate_actions
-from lib.task_library import get_task
+import demoforge.lib  # noqa: F401
+from demoforge.lib.sim import SimOptions, execute, execute_many, validate_actions
+from demoforge.lib.task_library import get_task
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 SEEDS = (0, 1, 2, 3)
@@ -175,7 +175,7 @@ def test_settle_stop_keeps_the_outcome():
 
 
 def test_physics_options_are_checked():
-    from lib.robot_sim import PhysicsOptions, get_scene
+    from demoforge.lib.sim import PhysicsOptions, get_scene
 
     with pytest.raises(ValueError, match="integrator"):
         get_scene("open_container", physics=PhysicsOptions(integrator="leapfrog"))

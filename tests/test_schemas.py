@@ -5,19 +5,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from schemas.core import (
-    Column,
-    SchemaError,
-    TableSchema,
-    dual_pose8,
-    get_schema,
-    keypoints3d,
-    read_table,
-    registry,
-    table,
-    table_files,
-    validate,
-    write_table,
+from demoforge.schemas.core import (
+    Column, SchemaError, TableSchema, dual_pose8, get_schema, keypoints3d, read_table, registry, table,
+    table_files, validate, write_table,
 )
 
 POSES = table(
@@ -166,7 +156,7 @@ def test_partitioned_write_of_a_sliced_nested_list_table_keeps_the_right_rows(tm
     import numpy as np
     import pyarrow as pa
 
-    from schemas.core import read_table, write_table
+    from demoforge.schemas.core import read_table, write_table
 
     n = 12
     action = np.arange(n * 16, dtype=np.float32).reshape(n, 2, 8)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lib import segmentation as sg
-from lib.task_library import TASK_NAMES, get_task
+from demoforge.lib.trajectories import segmentation as sg
+from demoforge.lib.task_library import TASK_NAMES, get_task
 
 
 @pytest.mark.parametrize("name", TASK_NAMES)

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner
 
-from lib.robot_sim.stability import scene_offsets, shift_scene, stability_summary
+from demoforge.lib.sim.stability import scene_offsets, shift_scene, stability_summary
 
 finite = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 
@@ -66,8 +66,8 @@ def test_stability_summary_counts_flipping_episodes():
 def test_a_shifted_scripted_demo_still_succeeds():
     """Physics is translation-invariant: the scripted demonstration, shifted by 0.1 mm, is still a success
     (a stable episode: the grasp and the placement have margins far above the shift)."""
-    from lib.robot_sim import execute
-    from lib.task_library import get_task
+    from demoforge.lib.sim import execute
+    from demoforge.lib.task_library import get_task
 
     demo = get_task("trash_in_bin").scripted_demo(0, False)
     kp, actions = demo.keypoints()[0], demo.gripper_actions()
@@ -79,11 +79,11 @@ def test_a_shifted_scripted_demo_still_succeeds():
 def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simulate(
         prefect_api, ingested_warehouse, trash_take, monkeypatch):
     warehouse = ingested_warehouse  # the take ingested once per session
-    from flows.augment import augment_take_flow
-    from flows.cli import app
-    from flows.sim import check_stability, simulate_episodes
-    import lib.robot_sim as rs
-    from schemas.catalog import query
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.cli import app
+    from demoforge.flows.sim import check_stability, simulate_episodes
+    import demoforge.lib.sim as rs
+    from demoforge.schemas.catalog import query
 
     augment_take_flow(str(trash_take), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=3, show_progress=False)

@@ -1,4 +1,4 @@
-"""Tests of lib/simulated_detector.py (SIMULATED HaMeR-like detections from ground truth)."""
+"""Tests of lib/perception/simulated_detector.py (SIMULATED HaMeR-like detections from ground truth)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from lib.simulated_detector import (
-    DETECTOR_NAME,
-    SimulatedDetectorConfig,
-    project_points,
-    simulate_detections,
+from demoforge.lib.perception.simulated_detector import (
+    DETECTOR_NAME, SimulatedDetectorConfig, project_points, simulate_detections,
 )
 
 K = np.array([[615.0, 0.0, 320.0], [0.0, 615.0, 240.0], [0.0, 0.0, 1.0]])

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flows.synth import synthesize_takes
-from schemas.catalog import query
-from schemas.core import read_table
+from demoforge.flows.synth import synthesize_takes
+from demoforge.schemas.catalog import query
+from demoforge.schemas.core import read_table
 
 
 def test_flow_registers_take_and_ground_truth_and_serves_second_run_from_cache(prefect_api, warehouse, monkeypatch):
@@ -32,7 +32,7 @@ def test_flow_registers_take_and_ground_truth_and_serves_second_run_from_cache(p
     def must_not_run(*a, **k):
         raise AssertionError("cached take was regenerated")
 
-    monkeypatch.setattr("lib.synth.take.generate_take", must_not_run)
+    monkeypatch.setattr("demoforge.lib.synth.take.generate_take", must_not_run)
     (m2,) = synthesize_takes(str(warehouse), tasks=["trash_in_bin"], takes=1, seed=3, mirror="yes",
                              max_frames=12, video=False, show_progress=False)
     assert m2 == m
@@ -40,7 +40,7 @@ def test_flow_registers_take_and_ground_truth_and_serves_second_run_from_cache(p
 
 def test_partial_take_from_a_crash_is_discarded_and_regenerated(prefect_api, warehouse, monkeypatch):
     calls = {"n": 0}
-    from lib.synth.take import generate_take as real
+    from demoforge.lib.synth.take import generate_take as real
 
     def crash_after_writing_some(task, seed, mirror, out_dir, **kw):
         calls["n"] += 1
@@ -48,14 +48,14 @@ def test_partial_take_from_a_crash_is_discarded_and_regenerated(prefect_api, war
         Path(out_dir, "rgb", "000000.png").write_bytes(b"half")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("lib.synth.take.generate_take", crash_after_writing_some)
+    monkeypatch.setattr("demoforge.lib.synth.take.generate_take", crash_after_writing_some)
     with pytest.raises(BaseException):
         synthesize_takes(str(warehouse), tasks=["pouring"], takes=1, seed=1, max_frames=5, video=False,
                          show_progress=False)
     synthetic = warehouse / "synthetic"
     assert not (synthetic / "synth_pouring_s0001").exists()  # no half take under the real name
     assert query("SELECT count(*) AS n FROM takes").column("n")[0].as_py() == 0
-    monkeypatch.setattr("lib.synth.take.generate_take", real)
+    monkeypatch.setattr("demoforge.lib.synth.take.generate_take", real)
     (m,) = synthesize_takes(str(warehouse), tasks=["pouring"], takes=1, seed=1, max_frames=5, video=False,
                             show_progress=False)
     assert len(list(Path(m.path, "rgb").glob("*.png"))) == 5

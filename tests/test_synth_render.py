@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import lib  # noqa: F401  (EGL before mujoco)
-import schemas.synthetic  # noqa: F401
-from lib.hand_model import HandStyle, hand_from_pinch
-from lib.synth import render as R
-from lib.synth import take as TK
-from schemas.core import read_table_file, validate
+import demoforge.lib  # noqa: F401  (EGL before mujoco)
+import demoforge.schemas.synthetic  # noqa: F401
+from demoforge.lib.perception.hand_model import HandStyle, hand_from_pinch
+from demoforge.lib.synth import render as R
+from demoforge.lib.synth import take as TK
+from demoforge.schemas.core import read_table_file, validate
 
 Segment = namedtuple("Segment", "arm kind start end object")
 
@@ -78,7 +78,7 @@ class StandInDemo:
 
 
 def _real_task():
-    from lib.task_library import TASK_NAMES  # a broken task library is an error here, not a skip
+    from demoforge.lib.task_library import TASK_NAMES  # a broken task library is an error here, not a skip
 
     return "pouring" if "pouring" in TASK_NAMES else TASK_NAMES[0]
 
@@ -208,7 +208,7 @@ def _check_take(out: Path, summary, n_check: int = 4):
     assert (cam["width"], cam["height"], cam["fps"], cam["depth_unit"]) == (640, 480, 30.0, "m")
 
     tables = {}
-    for name in schemas.synthetic.GT_TABLES:
+    for name in demoforge.schemas.synthetic.GT_TABLES:
         t = read_table_file(name, out / "ground_truth" / f"{name}.parquet")
         validate(name, t)
         tables[name] = t.to_pydict()
@@ -228,8 +228,8 @@ def _check_take(out: Path, summary, n_check: int = 4):
         assert ann["gripper_closed_ranges"][side] == TK.closed_ranges(closed)
 
     # the thesis mapping of the GT joints gives back the GT gripper pose
-    from lib.geometry import transform_to_pose8
-    from lib.hand_model import pinch_from_joints
+    from demoforge.lib.geometry import transform_to_pose8
+    from demoforge.lib.perception.hand_model import pinch_from_joints
 
     Tp, ap = pinch_from_joints(np.array(hj["joints_world"]))
     p8 = transform_to_pose8(Tp, np.array(gr["pose"])[:, 7])
@@ -241,7 +241,7 @@ def _check_take(out: Path, summary, n_check: int = 4):
 
     # visible joints on skin-coloured pixels of the PNGs; noisy depth there near the flesh
     styles = _styles_of(out)
-    from lib.hand_model import joint_radii
+    from demoforge.lib.perception.hand_model import joint_radii
 
     skin_hits = depth_hits = n_vis = n_all = 0
     check = set(np.linspace(0, n - 1, n_check).round().astype(int).tolist())
@@ -256,7 +256,7 @@ def _check_take(out: Path, summary, n_check: int = 4):
         zc = np.array(hj["joints_camera"][i])[:, 2]
         radii = joint_radii(styles[h])
         skin = np.array(styles[h].skin_rgba[:3])
-        from lib.synth.hand_skin import nail_rgba
+        from demoforge.lib.synth.hand_skin import nail_rgba
 
         nail = np.array(nail_rgba(styles[h].skin_rgba)[:3])      # a fingertip joint may be seen on its nail
         n_all += 21
@@ -325,7 +325,9 @@ def test_skinned_hand_is_bound_to_the_kinematic_joints():
     forearm starts at the wrist joint."""
     import mujoco
 
-    from lib.hand_model import PALM_JOINTS, capsule_segments, hand_capsules, palm_local, sample_style
+    from demoforge.lib.perception.hand_model import (
+        PALM_JOINTS, capsule_segments, hand_capsules, palm_local, sample_style,
+    )
 
     demo = StandInDemo(4)
     rng = np.random.default_rng(5)
@@ -350,7 +352,7 @@ def test_skinned_hand_is_bound_to_the_kinematic_joints():
                 assert np.allclose(d.geom_xpos[g] - half * axis, seg[:, 0], atol=1e-9)
                 assert np.allclose(d.geom_xpos[g] + half * axis, seg[:, 1], atol=1e-9)
                 # each nail lies on the back of its distal phalanx, just outside the flesh
-                from lib.synth.hand_skin import NAIL_JOINTS
+                from demoforge.lib.synth.hand_skin import NAIL_JOINTS
 
                 for k, (a, b) in enumerate(NAIL_JOINTS):
                     nid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{R.HAND_PREFIX}_{side}_nail{k}")

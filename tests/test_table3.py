@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from lib.augmentation import from_scripted_demo, generate_episodes
-from lib.task_library import get_task
-from lib.trajectories.query_scenes import (SAME_SCENE_MSE, augmentation_queries, covering_options, nearest_mse,
-                                           placement_queries)
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.query_scenes import (
+    SAME_SCENE_MSE, augmentation_queries, covering_options, nearest_mse, placement_queries,
+)
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +57,7 @@ def test_novel_database_covers_the_placement_sampler(pouring_db):
     wide = generate_episodes(src, n=300, n_mirrored=0, seed=0, **opts)
     q = placement_queries(spec, 20, seed=0, initial=db.initial[0], database_keypoints=wide.keypoints)
     # every placement's per-object offset from the demo lies inside the covering ranges
-    from lib.augmentation import estimate_object_poses
+    from demoforge.lib.trajectories.augmentation import estimate_object_poses
 
     P0 = estimate_object_poses(src.keypoints, spec.keypoints_local, spec.keypoint_object)
     for poses, kp in zip(q.object_poses, q.keypoints):
@@ -72,8 +73,8 @@ def test_novel_database_covers_the_placement_sampler(pouring_db):
 def test_knn_blend_of_one_neighbour_carries_it_exactly(pouring_db):
     """An episode carried to its own scene is itself; carried to another episode's scene it is that
     episode (both are the same demo moved by planar transforms), up to the motion blends' rounding."""
-    from lib.augmentation import estimate_object_poses
-    from lib.trajectories.blend import average_trajectories, knn_blend
+    from demoforge.lib.trajectories.augmentation import estimate_object_poses
+    from demoforge.lib.trajectories.blend import average_trajectories, knn_blend
 
     spec, src, db = pouring_db
     a, b = [i for i in np.flatnonzero(db.valid & (db.kind == "translated"))[:2]]
@@ -93,8 +94,8 @@ def test_knn_blend_of_one_neighbour_carries_it_exactly(pouring_db):
 def test_table3_grid_end_to_end(prefect_api, warehouse, trash_take):
     """One take, two thesis scenes, the LLM-free strategies and a scripted LLM answer: rows for every
     cell, the report views in the thesis's layout, and the nearest episode replayed succeeds."""
-    from flows.table3 import table3
-    from schemas.catalog import query
+    from demoforge.flows.table3 import table3
+    from demoforge.schemas.catalog import query
 
     table3(str(warehouse), task="trash_in_bin", protocols=["thesis"], takes=1, scenes=2, llm_scenes=1,
            strategies=["single", "replay_original", "replay_top1", "knn_blend", "transform_demo"],
@@ -130,7 +131,7 @@ def test_table3_grid_end_to_end(prefect_api, warehouse, trash_take):
 def test_table3_command_refuses_bad_options_in_one_line(warehouse, args):
     from typer.testing import CliRunner
 
-    from flows.cli import app
+    from demoforge.cli import app
 
     r = CliRunner().invoke(app, ["table3", *args])
     assert r.exit_code == 2 and "Traceback" not in r.output

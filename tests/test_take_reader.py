@@ -1,4 +1,4 @@
-"""lib.ingest.take_reader: a synthetic take read back, and every kind of bad input."""
+"""demoforge.lib.takes.reader: a synthetic take read back, and every kind of bad input."""
 
 import json
 import shutil
@@ -7,14 +7,14 @@ import cv2
 import numpy as np
 import pytest
 
-from lib.ingest import (
+from demoforge.lib.takes import (
     FRAME_STATUSES, TakeError, iter_frames, open_take, read_frame, read_thesis_keypoints_json,
 )
 
 
 @pytest.fixture(scope="module")
 def synth_take(tmp_path_factory):
-    from lib.synth.take import generate_take
+    from demoforge.lib.synth.take import generate_take
 
     out = tmp_path_factory.mktemp("take") / "t"
     generate_take("pouring", seed=0, mirror=False, out_dir=out, max_frames=12, video=True)

@@ -5,11 +5,11 @@ import re
 import numpy as np
 import pytest
 
-import lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 import mujoco
 
-from lib.task_library import TASK_NAMES, Demo, Placement, Segment, get_task
-from lib.task_library.base import MIRROR
+from demoforge.lib.task_library import TASK_NAMES, Demo, Placement, Segment, get_task
+from demoforge.lib.task_library.base import MIRROR
 
 SEEDS = (0, 1)
 

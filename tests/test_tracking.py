@@ -1,12 +1,13 @@
-"""The temporal hand tracker (lib.perception.tracking) on synthetic detection sequences with injected
+"""The temporal hand tracker (demoforge.lib.perception.tracking) on synthetic detection sequences with injected
 swaps, drop-outs, spurious single-frame detections, duplicates and detections off their depth."""
 
 import numpy as np
 import pytest
 
-from lib.geometry import backproject
-from lib.perception.tracking import (TrackerConfig, bounded_fill_mask, depth_size_ratio, hand_size_px,
-                                     hand_trust, track_hands)
+from demoforge.lib.geometry import backproject
+from demoforge.lib.perception.tracking import (
+    TrackerConfig, bounded_fill_mask, depth_size_ratio, hand_size_px, hand_trust, track_hands,
+)
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 # a flat 21-point "hand" template, metres, about 18 cm across (wrist at the origin)

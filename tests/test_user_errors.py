@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from flows.cli import app
-from lib.errors import UserError, is_user_error
-from lib.ingest import TakeError
+from demoforge.cli import app
+from demoforge.lib.errors import UserError, is_user_error
+from demoforge.lib.takes import TakeError
 
 PROJECT = Path(__file__).resolve().parents[1]
 runner = CliRunner()
@@ -29,8 +29,8 @@ def _raised(fn):
 
 
 def test_which_errors_are_the_users():
-    from flows.augment import retrieve
-    from lib.llm import LLMError
+    from demoforge.flows.augment import retrieve
+    from demoforge.lib.llm import LLMError
 
     assert is_user_error(TakeError("camera.json: bad"))
     assert is_user_error(LLMError("server down"))
@@ -43,20 +43,20 @@ def test_which_errors_are_the_users():
 
 
 def test_a_user_error_from_any_command_is_one_line_exit_2(warehouse, monkeypatch):
-    import schemas.catalog
+    import demoforge.schemas.catalog
 
     def broken(root=None):
         raise TakeError("/data/take/camera.json: camera.json is missing; write it with K")
 
-    monkeypatch.setattr(schemas.catalog, "build_catalog", broken)  # `catalog` has no handler of its own
+    monkeypatch.setattr(demoforge.schemas.catalog, "build_catalog", broken)  # `catalog` has no handler of its own
     r = runner.invoke(app, ["catalog"])
     assert r.exit_code == 2 and r.stderr == "error: /data/take/camera.json: camera.json is missing; write it with K\n"
 
 
 def test_a_crash_is_summarised_with_the_debug_hint_and_debug_shows_it(warehouse, monkeypatch):
-    import schemas.catalog
-    from flows.cli import State
-    from lib.errors import Reporting
+    import demoforge.schemas.catalog
+    from demoforge.cli import State
+    from demoforge.lib.errors import Reporting
 
     # --debug switches process-wide settings (one command per process); restore them for later tests
     monkeypatch.setattr(Reporting, "show_tracebacks", False)
@@ -65,7 +65,7 @@ def test_a_crash_is_summarised_with_the_debug_hint_and_debug_shows_it(warehouse,
     def broken(root=None):
         return {}["no such key"]
 
-    monkeypatch.setattr(schemas.catalog, "build_catalog", broken)
+    monkeypatch.setattr(demoforge.schemas.catalog, "build_catalog", broken)
     r = runner.invoke(app, ["catalog"])
     assert r.exit_code == 1
     lines = r.stderr.strip().splitlines()
@@ -77,7 +77,7 @@ def test_a_crash_is_summarised_with_the_debug_hint_and_debug_shows_it(warehouse,
 def test_prefect_logs_a_user_error_without_traceback_and_a_crash_with_one(prefect_api, tmp_path, caplog):
     from prefect import flow
 
-    from flows.ingest import ingest_take
+    from demoforge.flows.ingest import ingest_take
 
     take = tmp_path / "take"
     take.mkdir()
@@ -109,7 +109,7 @@ def test_console_shows_one_line_for_a_bad_camera_json(prefect_api, tmp_path):
     (take / "camera.json").write_text("{not json")
     env = {**os.environ, "PREFECT_API_URL": get_current_settings().api.url,
            "DEMOFORGE_WAREHOUSE": str(tmp_path / "warehouse")}
-    p = subprocess.run([sys.executable, "-m", "flows.cli", "ingest", str(take)], cwd=PROJECT, env=env,
+    p = subprocess.run([sys.executable, "-m", "demoforge.cli", "ingest", str(take)], cwd=PROJECT, env=env,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 2
     assert p.stderr.splitlines() == [f"error: {take / 'camera.json'}: camera.json is not valid JSON (Expecting "

@@ -8,10 +8,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from lib.task_library import get_task
-from lib.task_library import objects as ob
-from lib.variations import (TABLE4_TASKS, VARIATION_KINDS, Distractor, VariationRanges, footprint_groups,
-                            make_variation, object_footprints)
+from demoforge.lib.task_library import get_task
+from demoforge.lib.task_library import objects as ob
+from demoforge.lib.sim.variations import (
+    TABLE4_TASKS, VARIATION_KINDS, Distractor, VariationRanges, footprint_groups, make_variation,
+    object_footprints,
+)
 
 SLOW = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 RESIZABLE = [(t, o) for t in TABLE4_TASKS for o in get_task(t).resizable]
@@ -22,7 +24,7 @@ def _object_geometry(task, obj: str):
     object placed upright at the origin), from MuJoCo's per-geom bounding boxes."""
     import mujoco
 
-    from lib.task_library import Placement
+    from demoforge.lib.task_library import Placement
 
     poses = np.tile(np.eye(4), (len(task.objects), 1, 1))
     poses[:, 0, 3] = np.arange(len(task.objects)) * 0.5  # apart; `obj` at its own origin below
@@ -137,7 +139,7 @@ def _sweep_actions(x0, x1, y, z, n=90):
 
 
 def test_distractor_is_a_solid_body_the_gripper_pushes():
-    from lib.robot_sim.variation_scene import VariationScene
+    from demoforge.lib.sim.variation_scene import VariationScene
 
     box = Distractor("distractor_0", "box", (0.03, 0.03, 0.04), -0.05, 0.02, 0.0, 0.15, "1 0 0 1")
     v = replace(make_variation("trash_in_bin", "clutter", 0, 0), distractors=(box,))
@@ -164,8 +166,10 @@ def test_distractor_is_a_solid_body_the_gripper_pushes():
 def test_scripted_demo_transformed_to_a_moved_placement_succeeds(task_name):
     """The transform keeps the scripted demonstration valid on a shifted and turned placement (so the
     spatial column measures the strategies, not a broken scene)."""
-    from lib.augmentation import estimate_object_poses, from_scripted_demo, transform_demo
-    from lib.robot_sim.variation_scene import VariationScene
+    from demoforge.lib.trajectories.augmentation import (
+        estimate_object_poses, from_scripted_demo, transform_demo,
+    )
+    from demoforge.lib.sim.variation_scene import VariationScene
 
     task = get_task(task_name)
     src = from_scripted_demo(task, task.scripted_demo(0))
@@ -186,9 +190,9 @@ def tiny_trash_db(warehouse):
     the take's `takes` row: the flow's inputs without rendering and ingesting a take (47 s here)."""
     import pyarrow as pa
 
-    from lib.augmentation import from_scripted_demo, generate_episodes
-    from schemas.core import get_schema, write_table
-    from tasks.augment import episode_steps_columns, episodes_columns
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+    from demoforge.schemas.core import get_schema, write_table
+    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     task = get_task("trash_in_bin")
     demo = task.scripted_demo(0)
@@ -207,9 +211,9 @@ def tiny_trash_db(warehouse):
 
 
 def test_flow_writes_variation_trials_and_table4(prefect_api, warehouse, tiny_trash_db):
-    import schemas.variations as sv
-    from flows.variations import evaluate_variations
-    from schemas.catalog import query
+    import demoforge.schemas.variations as sv
+    from demoforge.flows.variations import evaluate_variations
+    from demoforge.schemas.catalog import query
 
     kinds = ("nominal", "clutter", "object")
     ms = evaluate_variations(str(warehouse), tasks=["trash_in_bin"], trials=1, kinds=kinds,

@@ -1,3 +1,4 @@
-"""Evaluation of demoforge's stages against ground truth: code that measures how well a stage did
-(detection of hands on synthetic takes, ...) and returns plain rows for the warehouse tables of
-``schemas/``. The older keypoint evaluation (thesis Tables 1-2) lives in lib/keypoint_eval.py."""
+"""Measuring the stages against ground truth: the thesis's keypoint metrics and tables (``metrics``,
+``keypoints``), ARCTIC (``arctic``), the labelled real photos (``real_photos``), hand detection on
+synthetic takes (``detection``), and what people look at: report tables (``markdown``), plots
+(``plots``) and skeleton overlays (``visualize``). Plain rows for the tables of ``schemas/``."""

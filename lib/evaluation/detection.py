@@ -1,6 +1,6 @@
 """Hand DETECTION measured against a synthetic take's ground truth (2D, per frame, before tracking).
 
-For every frame the detector's raw candidates (:meth:`lib.detectors.HandDetector.detect`, no
+For every frame the detector's raw candidates (:meth:`demoforge.lib.perception.detectors.HandDetector.detect`, no
 selection, no filling) are matched to the ground-truth hands, and each hand-frame counts where
 the hand is worth detecting: at least ``min_visible`` (default 80 %) of its 21 joints project into
 the image ("in view"). ``gt_hand_joints.visible`` -- additionally not hidden behind any surface, by
@@ -18,7 +18,7 @@ Per row (take x subset): ``hand_frames`` eligible, ``detected`` (matched), ``det
 ``handedness_acc`` over the matched ones (candidate's ``handedness`` equals the hand's side),
 ``mpjpe_2d_px`` (mean over the in-view joints of matched hands), ``pck05``/``pck15`` (fraction of
 those joints within 0.05/0.15 of the box size: the normalisation of the real-photos evaluation,
-lib.keypoint_eval.real_photo_rows, there the labelled box) and ``spurious_per_frame``
+demoforge.lib.evaluation.keypoints.real_photo_rows, there the labelled box) and ``spurious_per_frame``
 (unmatched candidates per frame). Subsets: ``all`` and ``occluded`` -- hand-frames where the hand
 holds an object (``gt_gripper.held_object``) and at least one of its in-view joints is hidden
 by the depth test (the held object, the other hand, or its own palm covers part of it).
@@ -154,8 +154,8 @@ def detect_candidates(take_dir: str | os.PathLike, detector: Any, batch_size: in
                       progress: Callable[[int, int], None] | None = None) -> tuple[list[list[Any]], float]:
     """Raw candidates per frame of a take (frames in order; a detector with ``start_take`` -- MediaPipe
     -- is told a take starts, so its video mode tracks) and the seconds the detector itself took."""
-    from lib.ingest import open_take
-    from lib.ingest.take_reader import iter_frames
+    from demoforge.lib.takes import open_take
+    from demoforge.lib.takes.reader import iter_frames
 
     take = open_take(take_dir)
     per_frame: list[list[Any]] = [[] for _ in range(take.n_frames)]
@@ -184,7 +184,7 @@ def evaluate_detection(take_dir: str | os.PathLike, detector: str = "mediapipe",
     take, so a video-mode tracker starts clean)."""
     import json
 
-    from lib.detectors import get_detector
+    from demoforge.lib.perception.detectors import get_detector
 
     take_dir = Path(take_dir)
     meta = json.loads((take_dir / "take.json").read_text())

@@ -1,8 +1,8 @@
 """Exports of demoforge episodes to the formats robot-learning code reads, and Rerun recordings.
 
-- :mod:`lib.exports.lerobot`: a LeRobotDataset v3.0 folder (parquet + JSON metadata).
-- :mod:`lib.exports.robomimic`: a robomimic hdf5 file.
-- :mod:`lib.exports.rerun_view`: an offline Rerun recording (.rrd) of a take or an episode.
+- :mod:`demoforge.lib.exports.lerobot`: a LeRobotDataset v3.0 folder (parquet + JSON metadata).
+- :mod:`demoforge.lib.exports.robomimic`: a robomimic hdf5 file.
+- :mod:`demoforge.lib.exports.rerun_view`: an offline Rerun recording (.rrd) of a take or an episode.
 
 Pure functions over arrays: reading the warehouse is the flows' job (flows/export.py). Every writer
 publishes its output atomically (:func:`atomic_dir`, :func:`atomic_file`): a crash or a refused
@@ -20,7 +20,7 @@ from typing import Iterator
 
 import numpy as np
 
-from lib.errors import UserError
+from demoforge.lib.errors import UserError
 
 ARMS = ("left", "right")
 POSE_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")

@@ -46,9 +46,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from lib.exports import (
-    POSE16_NAMES, STEPS_PER_SECOND, ExportError, atomic_dir, check_episodes, episode_starts, frame_in_episode,
-    next_poses,
+from demoforge.lib.exports import (
+    POSE16_NAMES, STEPS_PER_SECOND, ExportError, atomic_dir, check_episodes, episode_starts,
+    frame_in_episode, next_poses,
 )
 
 CODEBASE_VERSION = "v3.0"

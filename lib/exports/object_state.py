@@ -2,7 +2,7 @@
 
 An episode stores its scene only at its start (episodes.object_keypoints, 11 x 3). A policy needs
 to see where the objects are while they move, so every step gets the keypoints carried by the
-grippers: each object is handled by one arm (the rule of :func:`lib.segmentation.infer_object_arm`
+grippers: each object is handled by one arm (the rule of :func:`demoforge.lib.trajectories.segmentation.infer_object_arm`
 applied to the episode itself: the arm that holds it for the most frames, holding = closed on the
 object nearest the pinch point when the gripper closed; an object never held goes to the arm that
 holds nothing else), so mirrored episodes swap the arms by themselves. While that arm's gripper is
@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lib import geometry as geo
-from lib.exports import ExportError, episode_starts
+from demoforge.lib import geometry as geo
+from demoforge.lib.exports import ExportError, episode_starts
 
 
 def _grasps(closed: np.ndarray, ep: np.ndarray, first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +38,7 @@ def _grasps(closed: np.ndarray, ep: np.ndarray, first: np.ndarray) -> tuple[np.n
 def object_arms(poses: np.ndarray, lengths: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray
                 ) -> np.ndarray:
     """(N, n_objects) the arm (0 left, 1 right) handling each object of each episode
-    (:func:`lib.segmentation.infer_object_arm`'s rule, vectorised over the episodes)."""
+    (:func:`demoforge.lib.trajectories.segmentation.infer_object_arm`'s rule, vectorised over the episodes)."""
     ko = np.asarray(keypoint_object, int)
     n, n_obj = len(lengths), int(ko.max()) + 1
     starts = episode_starts(lengths)

@@ -23,8 +23,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from lib.exports import ARMS, ExportError, atomic_file
-from lib.joints import FINGER_JOINTS
+from demoforge.lib.exports import ARMS, ExportError, atomic_file
+from demoforge.lib.joints import FINGER_JOINTS
 
 # Bones as line strips: wrist to each fingertip, and the palm across the MCPs.
 HAND_STRIPS = tuple((0,) + f for f in FINGER_JOINTS) + ((5, 9, 13, 17),)

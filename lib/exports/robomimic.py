@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from lib.exports import ExportError, atomic_file, check_episodes, episode_starts, next_poses
+from demoforge.lib.exports import ExportError, atomic_file, check_episodes, episode_starts, next_poses
 
 FORMAT_VERSION = "demoforge-robomimic-1"
 

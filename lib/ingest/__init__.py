@@ -1,13 +1,4 @@
-"""Reading takes (real RGB-D recordings and synthetic takes) and external keypoint files."""
-
-from lib.ingest.take_reader import (  # noqa: F401
-    FRAME_STATUSES, Annotations, CameraInfo, FrameBatch, FrameInfo, Take, TakeError, ThesisHand,
-    frame_number, iter_depth, iter_frames, open_take, parse_annotations, parse_camera, read_frame,
-    read_thesis_keypoints_json,
-)
-
-__all__ = [
-    "FRAME_STATUSES", "Annotations", "CameraInfo", "FrameBatch", "FrameInfo", "Take", "TakeError",
-    "ThesisHand", "frame_number", "iter_depth", "iter_frames", "open_take", "parse_annotations", "parse_camera",
-    "read_frame", "read_thesis_keypoints_json",
-]
+"""Ingest, after detection: the thesis's depth correction at anchor joints (``alignment``), the
+checks that stop a take whose depth cannot be trusted (``depth_checks``), the hand-to-gripper
+mapping with open/close (``gripper_mapping``), and object keypoints from annotated pixels and depth
+(``object_keypoints``). Reading the take itself is :mod:`demoforge.lib.takes`."""

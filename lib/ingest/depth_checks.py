@@ -12,7 +12,7 @@ and names the first problem it finds, with how to fix it:
    metres, or a wrong ``T_world_camera``).
 3. **Hands** (when a detector found hands): the fraction of detected hands with a valid depth reading
    at their anchors (``min_anchor_fraction``), and the depth-to-size ratio ``s = z_read /
-   z_implied`` of :func:`lib.perception.tracking.depth_size_ratio`: a median near 1000 is millimetres
+   z_implied`` of :func:`demoforge.lib.perception.tracking.depth_size_ratio`: a median near 1000 is millimetres
    read as metres, near 0.001 the reverse; otherwise a median outside ``[1/ratio_tol, ratio_tol]``
    or too few consistent hands means the depth does not lie under the hands (misaligned streams or
    wrong intrinsics).
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lib.geometry import backproject
+from demoforge.lib.geometry import backproject
 
 __all__ = ["DepthCheckConfig", "DepthFrameStats", "DepthReport", "frame_depth_stats", "check_depth",
            "DEPTH_PROBLEMS"]

@@ -6,7 +6,7 @@
     c = backend.complete(prompt, Sampling(temperature=0.0, max_tokens=2048, seed=0))
     c.text, c.prompt_tokens, c.completion_tokens, c.latency_s, c.finish_reason, c.cached
 
-A backend gets a :class:`lib.prompting.Prompt` and uses ``prompt.messages`` (chat endpoints) or
+A backend gets a :class:`demoforge.lib.llm.prompting.Prompt` and uses ``prompt.messages`` (chat endpoints) or
 ``prompt.text`` (completion / base models).  Backends: ``local`` (embedded default), ``openai``,
 ``fake`` (scripted answers, for tests and dry runs).
 """
@@ -121,7 +121,7 @@ class LLMBackend(ABC):
 
     def count_tokens(self, text: str) -> int | None:
         """Real token count if the backend has a tokenizer, else None (callers fall back to
-        ``lib.prompting.approx_token_count``)."""
+        ``demoforge.lib.llm.prompting.approx_token_count``)."""
         return None
 
     def cache_identity(self) -> dict:
@@ -144,7 +144,7 @@ class FakeBackend(LLMBackend):
         self.calls = 0
 
     def complete(self, prompt: Any, sampling: Sampling) -> Completion:
-        from lib.prompting import approx_token_count
+        from demoforge.lib.llm.prompting import approx_token_count
 
         if callable(self._responses):
             text = self._responses(prompt, sampling)
@@ -160,15 +160,15 @@ class FakeBackend(LLMBackend):
 
 
 BACKENDS: dict[str, str] = {
-    "local": "lib.llm.local_backend:LocalBackend",
-    "openai": "lib.llm.openai_backend:OpenAIBackend",
-    "fake": "lib.llm:FakeBackend",
+    "local": "demoforge.lib.llm.local_backend:LocalBackend",
+    "openai": "demoforge.lib.llm.openai_backend:OpenAIBackend",
+    "fake": "demoforge.lib.llm:FakeBackend",
 }
 
 
 def get_backend(name: str = DEFAULT_BACKEND, cache_dir: Any = None, **options: Any) -> LLMBackend:
     """A backend by registry name, built with ``options``; with ``cache_dir`` wrapped in
-    :class:`lib.llm.cache.CachedBackend`.  Unknown names raise ValueError listing the choices."""
+    :class:`demoforge.lib.llm.cache.CachedBackend`.  Unknown names raise ValueError listing the choices."""
     key = (name or "").strip().lower()
     if key not in BACKENDS:
         raise ValueError(f"unknown LLM backend {name!r}; choices: {', '.join(sorted(BACKENDS))}")
@@ -176,7 +176,7 @@ def get_backend(name: str = DEFAULT_BACKEND, cache_dir: Any = None, **options: A
     cls = getattr(importlib.import_module(mod_name), cls_name)
     backend = cls(**options)
     if cache_dir is not None:
-        from lib.llm.cache import CachedBackend
+        from demoforge.lib.llm.cache import CachedBackend
 
         backend = CachedBackend(backend, cache_dir)
     return backend

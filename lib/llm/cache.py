@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from lib.llm import Completion, LLMBackend, Sampling
+from demoforge.lib.llm import Completion, LLMBackend, Sampling
 
 CACHE_FORMAT = 1
 

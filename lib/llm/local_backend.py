@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from lib.llm import Completion, LLMBackend, LLMError, Sampling
+from demoforge.lib.llm import Completion, LLMBackend, LLMError, Sampling
 
 GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
 MODEL_ID = "gemma-3-270m-q4_k_m"

@@ -29,8 +29,9 @@ import urllib.parse
 import urllib.request
 from typing import Any
 
-from lib.llm import (Completion, LLMBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError,
-                     Sampling)
+from demoforge.lib.llm import (
+    Completion, LLMBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError, Sampling,
+)
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +193,7 @@ class OpenAIBackend(LLMBackend):
         raise err from None
 
     def _completion(self, raw: bytes, latency: float, prompt: Any) -> Completion:
-        from lib.prompting import approx_token_count
+        from demoforge.lib.llm.prompting import approx_token_count
 
         try:
             resp = json.loads(raw.decode("utf-8"))

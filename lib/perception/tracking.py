@@ -14,7 +14,7 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
 2. **Duplicates**: both labels on the same physical hand (mean 2D joint distance under
    ``duplicate_sizes`` hand sizes): the less confident one is dropped.
 3. **Identity**: left/right swaps and handedness flips are repaired from 2D continuity
-   (:func:`lib.alignment.repair_swaps`: each detection goes to the physical hand whose last
+   (:func:`demoforge.lib.ingest.alignment.repair_swaps`: each detection goes to the physical hand whose last
    position is closer; positions older than ``max_gap_frames`` are forgotten, so sparse
    detections are not re-labelled against where a hand was seconds ago).
 4. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
@@ -26,7 +26,7 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
 5. **Trust**: :func:`hand_trust` says whether a hand's trajectory covers enough of the take to
    build episodes from (``min_trusted_fraction`` of the frames and ``min_trusted_frames``).
 
-Gap filling itself stays in lib.alignment (bounded by ``max_gap_frames`` through
+Gap filling itself stays in demoforge.lib.ingest.alignment (bounded by ``max_gap_frames`` through
 ``AlignmentConfig.max_gap_frames``; every filled frame is flagged there). Everything here is
 vectorised over the take except the identity repair's scalar loop (microseconds per frame).
 """
@@ -132,7 +132,7 @@ def depth_size_ratio(joints_cam: np.ndarray, joints_px: np.ndarray, anchor_depth
     """
     X = np.asarray(joints_cam, dtype=np.float64)
     P = np.asarray(joints_px, dtype=np.float64)
-    from lib.alignment import nan_median
+    from demoforge.lib.ingest.alignment import nan_median
 
     z, _ = nan_median(np.where(np.isfinite(anchor_depth), anchor_depth, np.nan), axis=-1)
     f = 0.5 * (float(K[0, 0]) + float(K[1, 1]))
@@ -220,7 +220,7 @@ def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarr
 
     cen = np.where(det[..., None], np.nanmean(np.where(det[..., None, None], P, 0.0), axis=2), np.nan)
     if cfg.repair_identity:
-        from lib.alignment import repair_swaps
+        from demoforge.lib.ingest.alignment import repair_swaps
 
         swapped = repair_swaps(cen, det, cfg.swap_margin_px, max_age=cfg.max_gap_frames)
     else:

@@ -1,7 +1,7 @@
 """Episodes of a task database -> fixed-size training arrays for the policy.
 
 Every episode's action sequence is time-resampled to the prompts' waypoint count with the prompts'
-own rule (lib.prompting.resample_actions: first/last step and gripper-change steps kept exactly,
+own rule (demoforge.lib.llm.prompting.resample_actions: first/last step and gripper-change steps kept exactly,
 the rest spread proportionally, linear positions, slerp rotations).  :func:`resample_batch` gives
 the same result for a whole batch at once: episodes that share a length and gripper-change steps
 (all translated episodes of a database do, all mirrored ones do) share the waypoint times, so the
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lib.geometry import interpolate_poses, quat_normalize
-from lib.prompting import waypoint_times
-from lib.policy.rotation6d import quat_to_6d
+from demoforge.lib.geometry import interpolate_poses, quat_normalize
+from demoforge.lib.llm.prompting import waypoint_times
+from demoforge.lib.policy.rotation6d import quat_to_6d
 
 POS_STD_FLOOR = 0.01  # m: features that hardly vary (table-height z) must not blow up when normalised
 

@@ -20,8 +20,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from lib.policy.data import Normalizer, pose_features
-from lib.policy.rotation6d import quat_from_6d
+from demoforge.lib.policy.data import Normalizer, pose_features
+from demoforge.lib.policy.rotation6d import quat_from_6d
 
 OUT_PER_ARM = 10  # xyz, 6D rotation, gripper logit
 

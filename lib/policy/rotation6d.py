@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lib.geometry import matrix_to_quat, quat_to_matrix
+from demoforge.lib.geometry import matrix_to_quat, quat_to_matrix
 
 _EPS = 1e-8
 

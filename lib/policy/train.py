@@ -20,9 +20,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from lib.policy.data import Normalizer, PolicyData, pose_features
-from lib.policy.model import KeypointPolicy, PolicyConfig
-from lib.policy.rotation6d import torch_geodesic
+from demoforge.lib.policy.data import Normalizer, PolicyData, pose_features
+from demoforge.lib.policy.model import KeypointPolicy, PolicyConfig
+from demoforge.lib.policy.rotation6d import torch_geodesic
 
 CHECKPOINT_FORMAT = "demoforge-policy-v1"
 

@@ -1,9 +1,9 @@
 """The "skin" look of the synthetic hands: a palm, a forearm and a sleeve around the kinematic hand.
 
-The capsule hand of :mod:`lib.hand_model` (fingers and palm rays) stays as it is; this module adds
+The capsule hand of :mod:`demoforge.lib.perception.hand_model` (fingers and palm rays) stays as it is; this module adds
 three closed, smoothly shaded surfaces that are rigid in the hand-local frame (wrist at the origin,
 x towards the fingers, z out of the back of the hand), so they ride on ONE body whose pose is the
-exact rigid fit of the palm joints (:func:`lib.hand_model.wrist_pose_from_joints`). Nothing here
+exact rigid fit of the palm joints (:func:`demoforge.lib.perception.hand_model.wrist_pose_from_joints`). Nothing here
 moves a joint: the 21 ground-truth joints are the kinematic hand's, the surfaces are only drawn.
 
 * palm: the convex hull of spheres around the wrist (widened to a real wrist's ~5 cm), the thumb's
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lib.hand_model import HandStyle, palm_local
+from demoforge.lib.perception.hand_model import HandStyle, palm_local
 
 #: Parts of the skin look: (name, colour from the style: "skin" or "sleeve", body: "hand" or "forearm").
 PARTS: tuple[tuple[str, str, str], ...] = (("palm", "skin", "hand"), ("forearm", "skin", "forearm"),
@@ -166,7 +166,7 @@ def nail_poses(joints: np.ndarray, wrist_T: np.ndarray, side, style: HandStyle |
     """(5, 4, 4) poses of the nails (x along the distal phalanx towards the tip, z out of the nail)
     of one hand's joints (21, 3) with its wrist pose (4, 4): on the back of each distal phalanx,
     centred a third of its length from the tip, at the phalanx's flesh radius."""
-    from lib.hand_model import _thumb_frame, hand_capsules
+    from demoforge.lib.perception.hand_model import _thumb_frame, hand_capsules
 
     style = style or HandStyle()
     J = np.asarray(joints, float)

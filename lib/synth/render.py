@@ -15,10 +15,10 @@ Depth: MuJoCo's depth buffer (reversed-Z, ``mjDEPTH_ZEROFAR``) is converted exac
 not the ray length; :func:`add_depth_noise` adds a realistic sensor model on top (0.0 = invalid).
 
 Hands: ``hand_style="capsule"`` (default) draws the kinematic hand's capsules; ``"skin"`` adds a
-palm, a forearm, a sleeve and nails (:mod:`lib.synth.hand_skin`) on extra mocap bodies, the palm's
+palm, a forearm, a sleeve and nails (:mod:`demoforge.lib.synth.hand_skin`) on extra mocap bodies, the palm's
 placed at the exact rigid fit of the palm joints. The joints, and so the ground truth, are the same
 in both. (Skin is not the default: under its palm and forearm the depth at the wrist and thumb-base
-anchors differs from what lib.alignment's surface offset assumes; docs/results/issue-19-detection.md.)
+anchors differs from what demoforge.lib.ingest.alignment's surface offset assumes; docs/results/issue-19-detection.md.)
 
 Quaternions are scalar-first (MuJoCo's order) only inside this module, at the simulator boundary.
 """
@@ -30,11 +30,13 @@ from typing import Sequence
 
 import numpy as np
 
-import lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
 import mujoco
 
-from lib.geometry import project_points
-from lib.hand_model import HandStyle, capsule_segments, hand_capsules, joint_radii, wrist_pose_from_joints
+from demoforge.lib.geometry import project_points
+from demoforge.lib.perception.hand_model import (
+    HandStyle, capsule_segments, hand_capsules, joint_radii, wrist_pose_from_joints,
+)
 
 WIDTH, HEIGHT = 640, 480
 FX = FY = 570.3422
@@ -121,8 +123,8 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
     """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody; with
     ``hand_style="skin"`` also one mocap body per hand carrying the palm, forearm and sleeve meshes
     (:func:`hands_assets_xml` defines them)."""
-    from lib.synth import hand_skin
-    from lib.synth.hand_skin import NAIL_SIZE, PARTS, mesh_name, nail_rgba
+    from demoforge.lib.synth import hand_skin
+    from demoforge.lib.synth.hand_skin import NAIL_SIZE, PARTS, mesh_name, nail_rgba
 
     _check_hand_style(hand_style)
     out = []
@@ -155,7 +157,7 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
 def hands_assets_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
                      hand_style: str = DEFAULT_HAND_STYLE) -> str:
     """The hands' materials and (skin look) meshes, for the scene's ``<asset>``."""
-    from lib.synth.hand_skin import mesh_asset_xml, mesh_name, skin_meshes
+    from demoforge.lib.synth.hand_skin import mesh_asset_xml, mesh_name, skin_meshes
 
     _check_hand_style(hand_style)
     out = [f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" reflectance="0"/>']
@@ -339,7 +341,7 @@ class SceneRenderer:
 
         self._renderer = mujoco.Renderer(self.model, height=height, width=width)
         self._option = mujoco.MjvOption()
-        from lib.task_library.objects import SIM_ONLY_GROUP
+        from demoforge.lib.task_library.objects import SIM_ONLY_GROUP
 
         self._option.geomgroup[SIM_ONLY_GROUP] = 0  # the un-simulated liquid is not drawn
         scn = self._renderer.scene
@@ -371,7 +373,7 @@ class SceneRenderer:
                         d.mocap_pos[self._nail_mocap[h]] = [0.0, 0.0, -5.0]
                     continue
                 if self._wrist_mocap:
-                    from lib.synth.hand_skin import forearm_pose, nail_poses
+                    from demoforge.lib.synth.hand_skin import forearm_pose, nail_poses
 
                     W = wrist_pose_from_joints(np.asarray(hand_joints[h], float), SIDES[h], self.styles[h])
                     F = forearm_pose(W, h)

@@ -1,8 +1,8 @@
 """Synthetic RGB-D takes with exact ground truth, in the layout of a real recording.
 
 :func:`generate_take` scripts a demo with the task library, poses two human hands on its pinch
-trajectory (:func:`lib.hand_model.hand_from_pinch`), renders the scene from the head camera
-(:mod:`lib.synth.render`) and writes::
+trajectory (:func:`demoforge.lib.perception.hand_model.hand_from_pinch`), renders the scene from the head camera
+(:mod:`demoforge.lib.synth.render`) and writes::
 
     <out_dir>/
       rgb/000000.png ...      RGB frames (8-bit PNG)
@@ -50,15 +50,16 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-import lib  # noqa: F401  (MUJOCO_GL before mujoco)
-import schemas.synthetic  # noqa: F401  (registers the gt_* tables)
-from lib.geometry import transform_to_pose8
-from lib.hand_model import HandStyle, hand_from_pinch, sample_style
-from lib.synth.render import (
-    DEFAULT_HAND_STYLE, HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K, camera_T_world_camera,
-    extra_worldbody_xml, hands_assets_xml, joint_visibility, project, world_to_camera,
+import demoforge.lib  # noqa: F401  (MUJOCO_GL before mujoco)
+import demoforge.schemas.synthetic  # noqa: F401  (registers the gt_* tables)
+from demoforge.lib.geometry import transform_to_pose8
+from demoforge.lib.perception.hand_model import HandStyle, hand_from_pinch, sample_style
+from demoforge.lib.synth.render import (
+    DEFAULT_HAND_STYLE, HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K,
+    camera_T_world_camera, extra_worldbody_xml, hands_assets_xml, joint_visibility, project,
+    world_to_camera,
 )
-from schemas.core import write_table_file
+from demoforge.schemas.core import write_table_file
 
 GENERATOR = "demoforge.synth"
 GENERATOR_VERSION = "1.2.0"  # 1.2: skinned hands with forearm and sleeve (hand_style)
@@ -161,7 +162,7 @@ def write_take(
     are added unless present. ``progress(done, total)`` is called after every frame written.
     ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
     (0: each frame is written before the next renders, the serial baseline of ``make bench``).
-    ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (lib.synth.render.HAND_STYLES).
+    ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (demoforge.lib.synth.render.HAND_STYLES).
     """
     import cv2
 
@@ -338,7 +339,7 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
 
     ``max_frames`` keeps only the first frames (tests, previews). See :func:`write_take`.
     """
-    from lib.task_library import get_task
+    from demoforge.lib.task_library import get_task
 
     task = get_task(task_name)
     demo = task.scripted_demo(seed, mirror=mirror)

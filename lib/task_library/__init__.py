@@ -1,6 +1,6 @@
 """Task library: the thesis's six dual-arm tasks as MuJoCo scenes with scripted human takes.
 
-    from lib.task_library import TASK_NAMES, get_task, Demo, Segment, Placement
+    from demoforge.lib.task_library import TASK_NAMES, get_task, Demo, Segment, Placement
     task = get_task("pouring")
     demo = task.scripted_demo(seed=0, mirror=False)
     result = task.replay(demo)        # physics replay, result.success / result.reason

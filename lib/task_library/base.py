@@ -25,8 +25,8 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
-from lib.geometry import transform_inverse
-from lib.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
+from demoforge.lib.geometry import transform_inverse
+from demoforge.lib.trajectories.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
 
 MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
 HAND_FLIP = np.diag([1.0, -1.0, 1.0, 1.0])
@@ -313,11 +313,11 @@ class Task:
         """A copy of this task with other object dimensions and / or extra bodies in its scene.
 
         `dims`: {object name: its full dimension dict} for objects in `resizable` (e.g. a wider, shorter
-        bottle: lib.task_library.objects.scale_dims); the copy's geometry, keypoints, grasp widths,
+        bottle: demoforge.lib.task_library.objects.scale_dims); the copy's geometry, keypoints, grasp widths,
         scripts and success predicate all use the new dimensions.  `extra_bodies`: MJCF bodies appended
         to every scene of the copy (with _extra_bodies, so free bodies among them are reset with each
         placement by the robot simulator), e.g. distractor objects.  The copy keeps this task's name;
-        register it with lib.task_library.register_variant to reach it by a name of its own.
+        register it with demoforge.lib.task_library.register_variant to reach it by a name of its own.
         With no arguments the copy behaves exactly like this task."""
         import copy
         import functools

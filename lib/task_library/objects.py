@@ -117,7 +117,7 @@ LID = dict(hx=0.076, hy=0.056, t=0.006, skirt=0.015, skirt_t=0.003, knob=(0.02, 
 VASE = dict(R=0.045, t=0.004, h=0.20, mass=0.50)
 FLOWERS = dict(base=0.015, base_h=0.012, top=0.30, side=0.025, side_top=0.28, blossom_r=0.02, stem_r=0.003, mass=0.05)
 
-# How each dimension of the resizable objects follows a resize (Task.variant / lib.variations): "r" scales
+# How each dimension of the resizable objects follows a resize (Task.variant / demoforge.lib.sim.variations): "r" scales
 # with the horizontal factor (radii, half-widths), "z" with the vertical one (heights), "m" with the
 # volume (mass), "t" stays (wall and neck thickness: a bigger cup of the same kind has the same walls).
 # Extra keys: side_z, center_z, grasp_z are the heights of a keypoint / grasp point on the object.

@@ -1,4 +1,6 @@
-"""Trajectory pieces: segmentation, augmentation, retrieval, keyframe encoding, query scenes.
+"""Trajectory pieces: motion/skill segmentation (``segmentation``), the 10,000-episode augmentation
+(``augmentation``), top-k retrieval by object-keypoint MSE (``retrieval``), query scenes drawn like
+the database (``query_scenes``) and the top-k blend (``blend``).
 
 Pure numpy over whole demonstrations and episode batches; no Prefect, no file layout.
 """

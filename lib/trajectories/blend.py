@@ -3,7 +3,7 @@ frames, then averaged.
 
 Carrying an episode: the episode (actions (L, 2, 8), keypoints (K, 3)) is treated as a demonstration
 of its own scene and re-targeted to the query scene by the augmentation's transform
-(lib.augmentation.transform_demo, mode "object"): every skill segment follows its object exactly
+(demoforge.lib.trajectories.augmentation.transform_demo, mode "object"): every skill segment follows its object exactly
 (the gripper pose relative to that object is kept), motion segments blend between the objects they
 leave and approach. Segments are the demonstration's (arms swapped for a mirrored episode; mode
 "object" keeps the timing, so the frames are the same).
@@ -22,7 +22,7 @@ import numpy as np
 def carry_episode(source, actions: np.ndarray, keypoints: np.ndarray, mirrored: bool,
                   query_object_poses: np.ndarray) -> np.ndarray:
     """One episode of source's database carried to a scene with object poses (n_obj, 4, 4)."""
-    from lib.augmentation import DemoSource, mirror_source, transform_demo
+    from demoforge.lib.trajectories.augmentation import DemoSource, mirror_source, transform_demo
 
     base = mirror_source(source) if mirrored else source
     ep = DemoSource(task=base.task, trajectory=np.asarray(actions, float), keypoints=np.asarray(keypoints, float),

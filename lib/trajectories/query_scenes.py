@@ -2,7 +2,7 @@
 
 `thesis` (the thesis's 5.3.1: new scenes made "by using the same data augmentation method"): a query
 scene is drawn from the very sampler that built the take's episode database
-(lib.augmentation.generate_episodes with the database's options and mirrored fraction), with a
+(demoforge.lib.trajectories.augmentation.generate_episodes with the database's options and mirrored fraction), with a
 held-out seed stream, so it is in the database's distribution but never one of its episodes.
 Drawn scenes the augmentation itself would reject (robot leaves the workspace, grippers too close,
 objects overlapping) are skipped, as the database marks such episodes invalid; so is a draw whose
@@ -59,7 +59,7 @@ class QueryScenes:
 def nearest_mse(query_keypoints: np.ndarray, database_keypoints: np.ndarray) -> np.ndarray:
     """(n,) keypoint MSE of each query (n, K, 3) to its nearest database scene (N, K, 3) (the thesis's
     retrieval metric)."""
-    from lib.retrieval import KeypointIndex
+    from demoforge.lib.trajectories.retrieval import KeypointIndex
 
     q = np.asarray(query_keypoints, float)
     if len(q) == 0:
@@ -75,7 +75,7 @@ def augmentation_queries(source, n: int, seed: int, database_keypoints: np.ndarr
     scene within SAME_SCENE_MSE of a database episode (database_keypoints: (N, K, 3), all of them,
     valid or not). Plain and mirrored draws are shuffled together; the result depends only on the
     arguments."""
-    from lib.augmentation import estimate_object_poses, generate_episodes
+    from demoforge.lib.trajectories.augmentation import estimate_object_poses, generate_episodes
 
     if n < 0:
         raise ValueError(f"need n >= 0 query scenes, got {n}")
@@ -137,7 +137,7 @@ def covering_options(task, source_keypoints: np.ndarray, n_draws: int = 4000, se
     centroid), with translation and yaw ranges spanning the offsets of n_draws sampled placements
     (plus a margin). Each range is shared by all objects (the augmentation draws every group from one
     box), so it is the union of the objects' ranges."""
-    from lib.augmentation import estimate_object_poses
+    from demoforge.lib.trajectories.augmentation import estimate_object_poses
 
     kl, ko = task.keypoints_local, task.keypoint_object
     src_kp = np.asarray(source_keypoints, float)

@@ -3,7 +3,7 @@ test starts (it puts this folder first on their PYTHONPATH). Without $DEMOFORGE_
 
 $DEMOFORGE_TEST_HOLD names where the process parks itself, so the test interrupts it at exactly that
 point instead of racing it:
-  robot_check       before the first robot check (lib.robot_sim.execute_many): the episode database
+  robot_check       before the first robot check (demoforge.lib.sim.execute_many): the episode database
                     is written, no sim_results yet;
   after_sim_chunk   right after the first `sim_results` file is written.
 On reaching it the process writes the point's name to the FIFO $DEMOFORGE_TEST_HOLD_FIFO (the test
@@ -24,7 +24,7 @@ if _POINT:
             time.sleep(3600)
 
     if _POINT == "robot_check":
-        import lib.robot_sim as _rs
+        import demoforge.lib.sim as _rs
 
         _execute_many = _rs.execute_many
 
@@ -35,7 +35,7 @@ if _POINT:
 
         _rs.execute_many = _held_execute_many
     elif _POINT == "after_sim_chunk":
-        import schemas.core as _core
+        import demoforge.schemas.core as _core
 
         _write_table = _core.write_table
 

@@ -1,0 +1,5 @@
+"""`python -m demoforge`: the command line."""
+
+from demoforge.cli import main
+
+main()

@@ -1,0 +1,77 @@
+"""Benchmark cases for augmentation and retrieval (registered by the lead in demoforge/bench/run.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demoforge.bench.timing import BenchCase
+
+
+def _source():
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo
+    from demoforge.lib.task_library import get_task
+
+    t = get_task("empty_vase")  # a 317-step two-arm take
+    return from_scripted_demo(t, t.scripted_demo(0))
+
+
+def cases(quick: bool) -> list[BenchCase]:
+    from demoforge.lib.trajectories import augmentation as au
+    from demoforge.lib.trajectories import retrieval as rt
+
+    n_aug = 2_000 if quick else 10_000
+
+    def aug_setup(n):
+        src = _source()
+        b = au.generate_episodes(src, n=n - 1, n_mirrored=(n - 1) // 2, seed=0, materialize=False)
+
+        def fast():  # parameters, keypoints, validity and all actions (materialised, float64)
+            out = au.generate_episodes(src, n=n - 1, n_mirrored=(n - 1) // 2, seed=0, materialize=True)
+            return out.actions
+
+        def baseline():  # per-episode, per-step, per-arm 4x4 matrix loop on the same parameters
+            acts = []
+            for i in range(len(b)):
+                g = b.groups[0] if i < b.groups[0].row1 else b.groups[-1]
+                acts.append(au.transform_demo_loop(g.src, g.plan, b.params[i], b.pivots[i]))
+            return np.stack(acts)
+
+        return fast, baseline
+
+    def aug_check(a, b):
+        np.testing.assert_allclose(a[..., :3], b[..., :3], atol=1e-9)
+
+    def ret_setup(n_db, n_q=20):
+        def setup(n):
+            rng = np.random.default_rng(0)
+            kp = rng.uniform(-0.3, 0.5, size=(n, 11, 3))
+            idx = rt.KeypointIndex(kp)
+            qs = rng.uniform(-0.3, 0.5, size=(n_q, 11, 3))
+
+            def fast():
+                return np.stack([idx.query(q, 3).ids[0] for q in qs])
+
+            def baseline():
+                return np.stack([rt.mse_brute_force(kp, idx.ids, q, 3)[0] for q in qs])
+
+            return fast, baseline
+        return setup
+
+    def ret_check(a, b):
+        np.testing.assert_array_equal(a, b)
+
+    n_q = 20
+    out = [
+        BenchCase("augmentation", "10k episodes of a 317-step two-arm demo (generate + validate + materialise)",
+                  n_aug + 1 if not quick else n_aug, "episodes",
+                  "per-episode, per-step Python loop of 4x4 matrix products", aug_setup, aug_check,
+                  repeats=1 if quick else 2, baseline_size=21),
+        BenchCase("retrieval", f"top-3 keypoint MSE over 10k episodes ({n_q} queries)", 10_000, "episodes",
+                  "Python loop over episodes, sorted", ret_setup(10_000, n_q), ret_check, repeats=3,
+                  baseline_size=1_000),
+    ]
+    if not quick:
+        out.append(BenchCase("retrieval", f"top-3 keypoint MSE over 1M episodes ({n_q} queries)", 1_000_000,
+                             "episodes", "Python loop over episodes, sorted", ret_setup(1_000_000, n_q), ret_check,
+                             repeats=2, baseline_size=10_000))
+    return out

@@ -1,0 +1,30 @@
+"""`demoforge`: the command line. Each command is a thin call into a flow or the catalog.
+
+The root app (:mod:`demoforge.cli.root`: global options, the error boundary) composes one sub-app per
+area with ``add_typer``; the areas import the root, never each other or this module.
+"""
+
+from __future__ import annotations
+
+from demoforge.cli import warehouse
+from demoforge.cli import benchmarks
+from demoforge.cli import takes
+from demoforge.cli import pipeline
+from demoforge.cli import evaluation
+from demoforge.cli import export
+from demoforge.cli import hamer
+from demoforge.cli import policy
+from demoforge.cli import table3
+from demoforge.cli import variations
+from demoforge.cli.root import EXIT_USER_ERROR, State, app, current_warehouse, fail  # noqa: F401
+
+for _area in (warehouse, benchmarks, takes, pipeline, evaluation, export, hamer, policy, table3, variations):
+    app.add_typer(_area.app)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+"""`demoforge bench`: every stage's benchmark against its baseline."""
+
+from __future__ import annotations
+
+from typing import List, Optional
+import typer
+
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.cli.root import current_warehouse, fail
+
+app = typer.Typer()
+
+
+@app.command()
+def bench(
+    stage: Optional[List[str]] = typer.Option(None, "--stage", "-s", help="Only these stages (repeatable)."),
+    quick: bool = typer.Option(False, help="Smaller inputs, for a fast smoke run."),
+) -> None:
+    """Benchmark every stage against a straightforward baseline; rows go to the `benchmarks` table."""
+    from demoforge.bench.run import run_benchmarks
+
+    try:
+        rows = run_benchmarks(str(current_warehouse()), stages=stage, quick=quick)
+    except ValueError as e:
+        raise fail(str(e))
+    header = f"{'stage':<12} {'case':<44} {'size':>9} {'unit':<9} {'seconds':>9} {'baseline s':>10} {'ratio':>8}"
+    typer.echo(header)
+    typer.echo("-" * len(header))
+    for r in rows:
+        typer.echo(
+            f"{r['stage']:<12} {r['case_name'][:44]:<44} {r['size']:>9} {r['unit']:<9} "
+            f"{r['seconds']:>9.4f} {r['baseline_seconds']:>10.4f} {r['ratio']:>7.1f}x"
+        )
+    if rows:
+        typer.echo(f"machine: {rows[0]['machine']}; commit {rows[0]['git_commit']}; run {rows[0]['run_id']}")

@@ -1,0 +1,108 @@
+"""`demoforge evaluate-keypoints`, `evaluate-detection`, `llm-eval`: measuring the stages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+import typer
+
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.runtime.runners import run_flow
+from demoforge.cli.warehouse import OutputFormat, _emit
+from demoforge.cli.root import current_warehouse, fail
+
+app = typer.Typer()
+
+
+@app.command("evaluate-keypoints")
+def evaluate_keypoints_cmd(
+    dataset: str = typer.Option("synthetic", "--dataset", help="synthetic (the warehouse's synthetic takes), arctic, or real_photos."),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Default: simulated (synthetic/ARCTIC), mediapipe (real photos)."),
+    arctic_root: Optional[Path] = typer.Option(None, "--arctic-root", envvar="ARCTIC_ROOT", help="Where ARCTIC was downloaded."),
+    take: Optional[List[str]] = typer.Option(None, "--take", help="Only these takes/sequences (default: the thesis's 18 ARCTIC takes)."),
+    subject: Optional[str] = typer.Option(None, help="ARCTIC subject (default: the first that has the sequence)."),
+    predictions_dir: Optional[Path] = typer.Option(None, help="For --detector precomputed: one <seq>.parquet/.npz/.json per take."),
+    stride: int = typer.Option(1, min=1, help="Evaluate every n-th ARCTIC frame."),
+) -> None:
+    """Hand-keypoint accuracy as the thesis reports it: Tables 1 and 2, Appendix B, big vs small objects.
+
+    Rows go to `keypoint_metrics` (or `real_photo_metrics`); the tables are the SQL views report_table1,
+    report_table2, report_appendix_b, report_big_vs_small and report_real_photos.
+    """
+    from demoforge.flows.keypoint_eval import evaluate_keypoints
+    from demoforge.lib.evaluation.arctic import ArcticError
+
+    try:
+        run_flow(evaluate_keypoints, str(current_warehouse()), dataset=dataset, detector=detector,
+                           arctic_root=str(arctic_root) if arctic_root else None, takes=take or None,
+                           subject=subject, predictions_dir=str(predictions_dir) if predictions_dir else None,
+                           stride=stride)
+    except (ArcticError, ValueError, FileNotFoundError) as e:
+        raise fail(str(e))
+    from demoforge.schemas.catalog import query
+
+    view = "report_real_photos" if dataset == "real_photos" else "report_table1"
+    _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
+
+
+@app.command("evaluate-detection")
+def evaluate_detection_cmd(
+    detector: str = typer.Option("mediapipe", "--detector", "-d", help="A real detector: mediapipe."),
+    mode: Optional[List[str]] = typer.Option(None, "--mode", help="MediaPipe running mode(s), repeatable: auto (video mode for takes; default) or image."),
+    take: Optional[List[str]] = typer.Option(None, "--take", help="Only these synthetic takes (default: all in the warehouse)."),
+) -> None:
+    """Hand detection against the synthetic takes' ground truth, per task: detection rate over
+    hand-frames with >= 80 % of the joints in view, handedness accuracy, 2D MPJPE (px), PCK@0.05/0.15,
+    and the same where a held object hides part of the hand. Rows go to `detection_metrics`."""
+    from demoforge.flows.detection_eval import evaluate_detection
+    from demoforge.lib.perception.detectors import DetectorError
+    from demoforge.lib.evaluation.detection import per_task
+    from demoforge.schemas.catalog import query
+
+    modes = mode or ["auto"]
+    bad = [m for m in modes if m not in ("auto", "image", "video")]
+    if bad:
+        raise fail(f"--mode must be auto, image or video, got {bad[0]!r}")
+    try:
+        have = query("SELECT count(*) AS n FROM takes WHERE source = 'synthetic'", current_warehouse()).to_pylist()
+    except Exception:  # noqa: BLE001 - no takes table yet
+        have = [{"n": 0}]
+    if not have or not have[0]["n"]:
+        raise fail("no synthetic takes in the warehouse: run `demoforge synth` first")
+    try:
+        run_flow(evaluate_detection, str(current_warehouse()), detector=detector, running_modes=modes,
+                 takes=take or None)
+    except (DetectorError, ValueError, FileNotFoundError) as e:
+        raise fail(str(e))
+    rows = query("SELECT * FROM detection_metrics", current_warehouse()).to_pylist()
+    wanted = {"video" if m == "auto" else m for m in modes}
+    rows = [r for r in rows if r["detector"] == detector and r["running_mode"] in wanted
+            and (not take or r["take"] in take)]
+    from demoforge.lib.evaluation.detection import format_markdown
+
+    typer.echo(format_markdown(per_task(rows)))
+
+
+@app.command("llm-eval")
+def llm_eval_cmd(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples."),
+    strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval, replay_top1, transform_demo (repeatable; default all)."),
+    backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL)."),
+    model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model name for the openai backend."),
+    trials: int = typer.Option(3, envvar="TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
+    seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),
+    waypoints: int = typer.Option(20, help="Waypoints per example action sequence in the prompt."),
+    precision: int = typer.Option(3, help="Decimals of the numbers in the prompt."),
+) -> None:
+    """Predict trajectories with an LLM for new scenes and judge them in MuJoCo (thesis Table 3)."""
+    from demoforge.flows.llm_eval import ALL_STRATEGIES, llm_eval
+
+    options = {"model": model} if model else {}
+    try:
+        run_flow(llm_eval, str(current_warehouse()), task=task, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
+                 backend_options=options, trials=trials, seed=seed, n_waypoints=waypoints, precision=precision)
+    except ValueError as e:
+        raise fail(str(e))
+    from demoforge.schemas.catalog import query
+
+    _emit(query("SELECT * FROM report_table3 WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)

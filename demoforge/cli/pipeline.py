@@ -1,0 +1,265 @@
+"""`demoforge evaluate` (the main job), `augment`, `retrieve`, `simulate`, `stability`,
+`render-episode`, `serve`."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import List, Optional
+import typer
+
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.runtime.runners import run_flow
+from demoforge.cli.warehouse import OutputFormat, _emit
+from demoforge.cli.takes import _open_take_or_fail
+from demoforge.cli.root import current_warehouse, fail
+
+app = typer.Typer()
+
+
+@app.command()
+def evaluate(
+    reports: Path = typer.Option(Path("reports"), "--reports", help="Folder for REPORT.md, CSVs and figures."),
+    task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six)."),
+    takes: int = typer.Option(1, "--takes", min=1, envvar="TAKES", help="Synthetic takes per task and mirror flag."),
+    seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
+    mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
+    episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
+    sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
+    stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
+    stability_repeats: int = typer.Option(3, envvar="STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
+    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them). `make table3` runs the full grid."),
+    grid_scenes: int = typer.Option(5, envvar="GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
+    llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
+    llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
+    llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
+    variation_trials: int = typer.Option(2, "--variation-trials", envvar="VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
+    policy_epochs: int = typer.Option(6, envvar="POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
+    policy_trials: int = typer.Option(5, envvar="POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
+    fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
+    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
+) -> None:
+    """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
+
+    A second run with nothing changed (parameters, code, warehouse files) returns at once; after a
+    change, each stage is served from the cache unless its inputs changed.
+    """
+    from demoforge.runtime import run_cache
+    from demoforge.lib.task_library import TASK_NAMES
+
+    unknown = [t for t in (task or []) if t not in TASK_NAMES]
+    if unknown:
+        raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
+    if mirror not in ("both", "no", "yes"):
+        raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
+    from demoforge.flows.evaluate import DETECTORS, detector_problem
+
+    detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
+    bad = [d for d in detectors if d not in DETECTORS]
+    if bad:
+        raise fail(f"--detector {bad[0]!r} is not one the main job runs; choose from {', '.join(DETECTORS)}")
+    for d in detectors if detector else ():  # asked for by name: it must run (the default only warns)
+        if detector_problem(d):
+            raise fail(f"--detector {d}: {detector_problem(d)}")
+    params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
+                  sim_episodes=sim_episodes, stability_episodes=stability_episodes,
+                  stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials, grid_scenes=grid_scenes,
+                  llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
+                  variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials,
+                  detectors=list(dict.fromkeys(detectors)))
+    warehouse, reports_dir = current_warehouse(), reports.resolve()
+    key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
+                            {"real_hands": str(demoforge.lib.SHARED_DATA / "real_hands"),
+                             "arctic": os.environ.get("ARCTIC_ROOT")})
+    if not fresh:
+        cached = run_cache.lookup(warehouse, key)
+        if cached is not None:
+            typer.echo(f"nothing changed since the last complete run (same parameters, code and warehouse): {cached}")
+            typer.echo("report: " + str(cached))
+            return
+    from demoforge.flows.evaluate import evaluate as evaluate_flow
+
+    report = run_flow(evaluate_flow, str(warehouse), str(reports_dir), **params)
+    run_cache.remember(warehouse, key, report)
+    typer.echo(f"report: {report}")
+
+
+@app.command()
+def augment(
+    path: Path = typer.Argument(..., help="Take folder of the demonstration."),
+    task: Optional[str] = typer.Option(None, help="Task of the take (synthetic takes know theirs)."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector used to ingest it."),
+    episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes to generate."),
+    mirrored: int = typer.Option(5_000, help="How many of them are mirrored (arms' roles swapped)."),
+    seed: int = typer.Option(0, help="Sampling seed."),
+    mode: str = typer.Option("object", help="object (timing kept, segments follow their objects) or thesis (the thesis's 3.2 schedule)."),
+    independent: bool = typer.Option(False, help="Place the two objects independently (each arm follows its own)."),
+    yaw: float = typer.Option(0.0, help="Max rotation about the vertical, rad (the thesis translates only: 0)."),
+    state_method: str = typer.Option("auto", help="As for `demoforge ingest`: the episodes come from the take's ingest with these mapping options."),
+    smoothing: int = typer.Option(0, help="As for `demoforge ingest` (pose smoothing window, 0 = off)."),
+    grasp_prior: str = typer.Option("pose", "--grasp-prior", help="As for `demoforge ingest`: pose, twist or off."),
+    table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
+    allow_untrusted_hands: bool = typer.Option(False, "--allow-untrusted-hands", help="Build the database even from a hand tracked in too few frames (see the hand_presence table)."),
+    accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="As for `demoforge ingest`."),
+) -> None:
+    """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).
+
+    The episodes come from the take's ingest with the mapping options given here (the same defaults as
+    `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.takes import TakeError
+
+    status = annotation_status(_open_take_or_fail(path))
+    if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
+        raise fail(not_annotated_message(path, status.detail))
+    options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
+    ingest_options = {"state_method": state_method, "smoothing": smoothing, "grasp_prior": grasp_prior,
+                      "table_clearance": None if table_clearance < 0 else table_clearance,
+                      "accept_bad_depth": accept_bad_depth}
+    try:
+        result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, detector=detector,
+                          n=episodes, n_mirrored=mirrored, seed=seed, options=options, ingest_options=ingest_options,
+                          allow_untrusted_hands=allow_untrusted_hands)
+    except (TakeError, ValueError) as e:
+        raise fail(str(e))
+    typer.echo(f"episodes: {result['episodes'].path}")
+    from demoforge.schemas.catalog import query
+
+    t = query("SELECT kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid FROM episodes "
+              "WHERE take = ? GROUP BY kind ORDER BY kind", current_warehouse(), [Path(path).resolve().name])
+    _emit(t, OutputFormat.table, None, 10)
+
+
+@app.command()
+def retrieve(
+    task: str = typer.Option(..., "--task", "-t", help="Task whose episodes to search."),
+    scene: Path = typer.Option(..., "--scene", exists=True, dir_okay=False, help='JSON {"object_keypoints": 11 x 3 world m}.'),
+    k: int = typer.Option(3, "-k", min=1, help="How many episodes."),
+    strategy: str = typer.Option("retrieval", help="retrieval (top-k keypoint MSE), random, or single (the original demo)."),
+    metric: str = typer.Option("mse", help="mse, mse_mirrored (against the mirror image) or min (of both)."),
+    take: Optional[str] = typer.Option(None, help="Only episodes generated from this take."),
+    seed: int = typer.Option(0, help="Seed of the random strategy."),
+    format: OutputFormat = typer.Option(OutputFormat.table, "--format", "-f"),
+) -> None:
+    """Pick episodes for a new scene: the thesis's top-k by object-keypoint MSE, or a baseline."""
+    import pyarrow as pa
+
+    from demoforge.flows.augment import read_scene, retrieve as run_retrieve
+
+    try:
+        sc = read_scene(scene)
+        rows = run_retrieve(str(current_warehouse()), task, sc["object_keypoints"], k=k, strategy=strategy,
+                            metric=metric, take=take, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    _emit(pa.Table.from_pylist(rows), format, None, k)
+
+
+def _episodes_option(episodes: str) -> int | str:
+    """--episodes of simulate / stability: a count or `all`."""
+    if episodes == "all":
+        return episodes
+    if not episodes.isdigit():
+        raise fail(f"--episodes must be a number or 'all', got {episodes!r}")
+    return int(episodes)
+
+
+@app.command()
+def simulate(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    episodes: str = typer.Option("100", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take); default: the task's first."),
+    workers: int = typer.Option(2, min=1, help="Worker processes."),
+    chunk_size: int = typer.Option(100, min=1, help="Episodes per cached chunk (a crash loses at most one chunk)."),
+    seed: int = typer.Option(0, help="Seed of the episode sample."),
+) -> None:
+    """Execute episodes with two parallel-jaw grippers in MuJoCo physics and record success and failure reasons."""
+    from demoforge.flows.sim import simulate_episodes
+
+    n = _episodes_option(episodes)
+    try:
+        run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
+                          workers=workers, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    from demoforge.schemas.catalog import query
+
+    wh = current_warehouse()
+    result = query("SELECT * FROM report_sim WHERE task = ?", wh, [task])
+    _emit(result, OutputFormat.table, None, 40)
+    if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
+        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}'\". Whether a "
+                   f"failure is the trajectory's or chance: demoforge stability --task {task}")
+
+
+@app.command()
+def stability(
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    episodes: str = typer.Option("40", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
+    repeats: int = typer.Option(5, min=2, help="Executions per episode: the scene as it is, then repeats - 1 shifted copies."),
+    jitter: float = typer.Option(1e-4, help="Standard deviation of the rigid shift of the whole scene along the table, in metres "
+                                 "(default 0.1 mm: physically nothing; only the simulation's rounding changes)."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take); default: the task's first."),
+    workers: int = typer.Option(2, min=1, help="Worker processes."),
+    chunk_size: int = typer.Option(20, min=1, help="Episodes per cached chunk (each executed `repeats` times)."),
+    seed: int = typer.Option(0, help="Seed of the episode sample and of the shifts."),
+) -> None:
+    """Check how stable the robot check's verdicts are: execute each episode several times with the whole
+    scene shifted by a fraction of a millimetre. An episode whose outcome flips is decided by numerical chaos, not by its
+    trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
+    from demoforge.flows.sim import check_stability
+
+    n = _episodes_option(episodes)
+    try:
+        run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
+                 take=take, chunk_size=chunk_size, workers=workers, seed=seed)
+    except ValueError as e:
+        raise fail(str(e))
+    from demoforge.schemas.catalog import query
+
+    _emit(query("SELECT * FROM report_sim_stability WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)
+
+
+@app.command("render-episode")
+def render_episode_cmd(
+    task: str = typer.Option(..., "--task", "-t"),
+    episode: int = typer.Option(..., "--episode", "-e", help="Episode id (see the `episodes` table)."),
+    out: Path = typer.Option(Path("episode.mp4"), "--out", "-o", help="Output MP4."),
+    take: Optional[str] = typer.Option(None, help="Episode database (source take)."),
+) -> None:
+    """Render an offscreen video of the robot executing one episode."""
+    from demoforge.flows.sim import render_episode_video
+
+    try:
+        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take)
+    except ValueError as e:
+        raise fail(str(e))
+    typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
+
+
+@app.command()
+def serve(
+    inbox: Path = typer.Option(Path("takes/inbox"), help="Folder the scheduled deployment ingests takes from (created if missing)."),
+    every: float = typer.Option(10.0, "--every", help="Minutes between scheduled ingests of the inbox."),
+    reports: Path = typer.Option(Path("reports"), "--reports", help="Report folder of the evaluate deployment."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector of the scheduled ingest."),
+    augment: bool = typer.Option(False, "--augment", help="Scheduled ingest also generates episode databases."),
+    limit: int = typer.Option(1, min=1, help="Flow runs executed at the same time."),
+) -> None:
+    """Serve the Prefect deployments `ingest-folder/scheduled` and `evaluate/default` until Ctrl-C.
+
+    Needs a Prefect server: `prefect server start` in another shell and PREFECT_API_URL pointing at it.
+    Then trigger runs with `prefect deployment run 'evaluate/default' --watch`."""
+    import os
+
+    from demoforge.flows.deployments import serve_deployments
+
+    if not os.environ.get("PREFECT_API_URL"):
+        raise fail("PREFECT_API_URL is not set: start a server (`prefect server start --host 127.0.0.1 --port 4200`) "
+                   "and export PREFECT_API_URL=http://127.0.0.1:4200/api, so the deployments outlive this process")
+    try:
+        serve_deployments(str(current_warehouse()), str(inbox), str(reports), interval_minutes=every,
+                          detector=detector, augment=augment, limit=limit)
+    except ValueError as e:
+        raise fail(str(e))

@@ -1,0 +1,120 @@
+"""The root `demoforge` command: global options, the error boundary (one line for a user's
+mistake, a short summary for a crash), the warehouse in use."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Optional
+import click
+import typer
+from typer.core import TyperGroup
+
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+
+
+# Click's own exits and usage errors (typer vendors click: both its copy's classes and click's)
+_tclick = getattr(typer.core, "_click", click)
+_CLICK_OWN = (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort, click.ClickException,
+              _tclick.ClickException)
+
+
+class _ErrorsAtTheBoundary(TyperGroup):
+    """Every command's errors end here: a user error (demoforge.lib.errors) is one line on stderr and exit code 2,
+    whichever command or flow raised it; a crash is a short summary with the hint to rerun with
+    --debug (exit code 1); with --debug both keep their full traceback."""
+
+    def invoke(self, ctx: click.Context):
+        from demoforge.lib.errors import is_user_error, one_line
+
+        try:
+            return super().invoke(ctx)
+        except _CLICK_OWN:
+            raise
+        except Exception as e:
+            if State.debug:
+                raise
+            if is_user_error(e):
+                raise fail(one_line(e))
+            import traceback
+
+            where = traceback.extract_tb(e.__traceback__)[-1]
+            typer.echo(f"error: demoforge crashed: {type(e).__name__}: {one_line(e, 300)} "
+                       f"(at {where.filename}:{where.lineno}); this is a bug, not your input: rerun with "
+                       f"--debug (demoforge --debug COMMAND ...) for the full traceback and report it", err=True)
+            raise typer.Exit(1)
+
+
+app = typer.Typer(
+    cls=_ErrorsAtTheBoundary,
+    name="demoforge",
+    help=(
+        "Turn one RGB-D video of a two-handed human demonstration into thousands of dual-arm robot "
+        "episodes, and measure how good they are. All results are Parquet tables in the warehouse "
+        "(default ./warehouse, or $DEMOFORGE_WAREHOUSE, or --warehouse), queryable with `demoforge sql`."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+EXIT_USER_ERROR = 2
+
+
+def fail(message: str) -> "typer.Exit":
+    """Print a one-line error to stderr and return the exit to raise (code 2)."""
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(EXIT_USER_ERROR)
+
+
+class State:
+    warehouse: Optional[Path] = None
+    debug: bool = False
+
+
+def current_warehouse() -> Path:
+    from demoforge.schemas.catalog import warehouse_root
+
+    return warehouse_root(State.warehouse)
+
+
+@app.callback()
+def _main(
+    warehouse: Optional[Path] = typer.Option(
+        None, "--warehouse", "-w", envvar="DEMOFORGE_WAREHOUSE",
+        help="Warehouse folder (Parquet tables + catalog.duckdb). Default: ./warehouse of the project.",
+    ),
+    task_runner: Optional[str] = typer.Option(
+        None, "--task-runner", envvar="DEMOFORGE_TASK_RUNNER",
+        help="Where tasks run: threads (default, this process) or dask (a Dask cluster, see --dask-address).",
+    ),
+    dask_address: Optional[str] = typer.Option(
+        None, "--dask-address", envvar="DEMOFORGE_DASK_ADDRESS",
+        help="Scheduler of an existing Dask cluster (tcp://host:8786); without it, --task-runner dask starts "
+             "a local cluster of $DEMOFORGE_DASK_WORKERS (default 2) worker processes.",
+    ),
+    debug: bool = typer.Option(
+        False, "--debug", envvar="DEMOFORGE_DEBUG",
+        help="Show full tracebacks: of crashes, and of user errors too (normally one line, exit code 2).",
+    ),
+) -> None:
+    from demoforge.runtime import runners
+    from demoforge.lib.errors import Reporting
+
+    State.warehouse = warehouse
+    State.debug = debug
+    Reporting.cli_reports, Reporting.show_tracebacks = True, debug
+    if "demoforge.tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
+        sys.modules["demoforge.tasks.common"].quiet_user_errors()
+    runners.install_interrupt_handler()
+    if task_runner:
+        os.environ[runners.ENV_RUNNER] = task_runner
+    if dask_address:
+        os.environ[runners.ENV_ADDRESS] = dask_address
+    try:
+        kind = runners.runner_kind()
+        if kind == "dask" and not dask_address:
+            runners.dask_workers()
+    except ValueError as e:
+        raise fail(str(e))

@@ -1,0 +1,218 @@
+"""`demoforge synth`, `annotate`, `ingest`, `ingest-folder`: takes in, gripper trajectories out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+import click
+import typer
+
+import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.runtime.runners import run_flow
+from demoforge.cli.root import current_warehouse, fail
+
+app = typer.Typer()
+
+
+@app.command()
+def synth(
+    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Task(s) to generate (repeatable), or `all`."),
+    takes: int = typer.Option(1, "--takes", "-n", min=1, help="Takes per task (seeds seed, seed+1, ...)."),
+    seed: int = typer.Option(0, help="First seed; a take is fully determined by (task, seed, mirror)."),
+    mirror: bool = typer.Option(False, "--mirror", help="Write the mirrored variant (hands' roles swapped)."),
+    both: bool = typer.Option(False, "--both", help="Write the original and the mirrored variant."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for the take folders. Default: <warehouse>/synthetic."),
+    depth_noise: bool = typer.Option(True, help="Add realistic depth noise and holes (0 = invalid)."),
+    video: bool = typer.Option(True, help="Also write rgb.mp4 per take."),
+    max_frames: Optional[int] = typer.Option(None, help="Keep only the first N frames (previews)."),
+    hand_style: str = typer.Option("capsule", "--hand-style", help="Look of the hands: capsule (default) or skin (palm, forearm, sleeve, nails: what a real detector finds far more often; the depth at the wrist and thumb base differs from what the ingest's alignment assumes, see README). The ground truth is the same."),
+) -> None:
+    """Generate synthetic RGB-D demonstrations with exact ground truth (MuJoCo renders).
+
+    Each take folder has the layout of a real recording (rgb/, depth/, camera.json,
+    annotations.json, rgb.mp4) plus ground_truth/ tables; takes are registered in the `takes`
+    table and their ground truth in the gt_* tables of the warehouse.
+    """
+    from demoforge.flows.synth import synthesize_takes
+    from demoforge.lib.task_library import TASK_NAMES
+
+    tasks = list(TASK_NAMES) if "all" in task else task
+    unknown = [t for t in tasks if t not in TASK_NAMES]
+    if unknown:
+        raise fail(f"unknown task(s) {unknown}; choose from: all, {', '.join(TASK_NAMES)}")
+    if hand_style not in ("skin", "capsule"):
+        raise fail(f"--hand-style must be skin or capsule, got {hand_style!r}")
+    manifests = run_flow(
+        synthesize_takes,
+        str(current_warehouse()), tasks=tasks, takes=takes, seed=seed,
+        mirror="both" if both else ("yes" if mirror else "no"),
+        takes_dir=str(out) if out else None, depth_noise=depth_noise, video=video, max_frames=max_frames,
+        hand_style=hand_style,
+    )
+    for m in manifests:
+        typer.echo(m.path)
+
+
+def _open_take_or_fail(path: Path):
+    """The opened take, or a one-line error (exit 2) before any flow starts: missing folder, missing or
+    malformed camera.json / annotations.json."""
+    from demoforge.lib.takes import TakeError, open_take
+
+    if not path.is_dir():
+        raise fail(f"{path}: no such take folder" if not path.exists() else f"{path}: is a file, not a take folder")
+    try:
+        return open_take(path)
+    except (TakeError, FileNotFoundError) as e:
+        raise fail(str(e))
+
+
+@app.command()
+def annotate(
+    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    task: Optional[str] = typer.Option(None, "--task", "-t", help="Task of the take (pouring, ...), or `custom` / "
+                                       "`custom:NAME` (with --keypoints) for a task of your own. Default: what "
+                                       "annotations.json says."),
+    keypoints: Optional[str] = typer.Option(None, "--keypoints", help="For --task custom: 11 keypoint names, comma "
+                                            "separated; `object:name` puts a keypoint on an object (at most two objects)."),
+    task_file: Optional[Path] = typer.Option(None, "--task-file", help='A task of your own as JSON: {"name": ..., '
+                                             '"objects": [{"name": ..., "arm": "left"|"right", "keypoints": [...]}]}.'),
+    port: int = typer.Option(8765, "--port", "-p", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port)."),
+    open_browser: bool = typer.Option(False, "--open", help="Also open the page in the default browser."),
+) -> None:
+    """Annotate a take in the browser: click the object keypoints, mark gripper open/close ranges, save.
+
+    Serves a page on 127.0.0.1 (printed) until Ctrl-C. It shows the frames (scrub with the slider or
+    the arrow keys), asks for the task's keypoints one by one and shows each click's depth and world
+    position, and plots the fingertip distance of an earlier `demoforge ingest` with the automatic
+    method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited).
+    """
+    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.lib.takes import TakeError
+
+    _open_take_or_fail(path)
+    try:
+        session = AnnotationSession(path, current_warehouse(), task=task, keypoints=keypoints, task_file=task_file)
+    except TakeError as e:
+        raise fail(str(e))
+    try:
+        server = start_server(session, port=port)
+    except OSError as e:
+        raise fail(f"cannot listen on 127.0.0.1:{port} ({e.strerror or e}); choose another --port")
+    url = server_url(server)
+    typer.echo(f"annotating {session.take.path} (task {session.task.name}): open {url}  (Ctrl-C to stop)", err=True)
+    typer.echo(url)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+
+
+@app.command()
+def ingest(
+    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed, hamer (local checkpoint)."),
+    predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
+    task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
+    state_method: str = typer.Option("auto", help="Open/close when the take has no labelled ranges: auto, otsu or threshold."),
+    smoothing: int = typer.Option(0, help="Segment-wise pose smoothing window in frames (0 = off)."),
+    video: bool = typer.Option(False, "--video", help="Also write an MP4 with the skeletons and gripper frames drawn on the frames."),
+    hamer_checkpoint: Optional[Path] = typer.Option(None, "--hamer-checkpoint", help="For --detector hamer: local hamer.ckpt (licensed; never downloaded)."),
+    mano_model: Optional[Path] = typer.Option(None, "--mano-model", help="For --detector hamer: local MANO_RIGHT.pkl (licensed; never downloaded)."),
+    grasp_prior: str = typer.Option("pose", "--grasp-prior", help="While a hand is closed the grasp is rigid: 'pose' takes the pinch pose (position and rotation) from the whole hand's motion (default), 'twist' only the twist about the approach axis, 'off' keeps the thesis's mapping."),
+    table_clearance: float = typer.Option(0.010, "--table-clearance", help="Lowest pinch height above the table top, m (fingertips cannot go below the table); negative = off."),
+    box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
+    accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="Go on when the take's depth fails a check (empty, wrong unit, misaligned): every row is flagged in `depth_problem` instead of stopping."),
+    mediapipe_mode: str = typer.Option("auto", "--mediapipe-mode", help="For --detector mediapipe: auto (video mode: landmark tracking between palm detections; default) or image (every frame on its own)."),
+) -> None:
+    """Ingest one take: frames, hand keypoints, depth checks, hand tracking, depth alignment, gripper
+    poses, object keypoints.
+
+    Results go to the warehouse tables frames, hand_keypoints, aligned_keypoints, hand_presence,
+    gripper_poses, object_keypoints (and ingest_metrics for synthetic takes, against their ground
+    truth). Depth that cannot be trusted stops the take (exit 2) unless --accept-bad-depth; a hand
+    tracked in too few frames is reported as not trusted (and `augment` refuses it).
+    """
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.lib.perception.detectors import DetectorError
+    from demoforge.lib.takes import TakeError
+
+    options = {}
+    if detector == "mediapipe" and mediapipe_mode != "auto":
+        if mediapipe_mode not in ("image", "video"):
+            raise fail(f"--mediapipe-mode must be auto, image or video, got {mediapipe_mode!r}")
+        options["running_mode"] = mediapipe_mode
+    if detector == "precomputed":
+        if predictions is None:
+            raise fail("--detector precomputed needs --predictions FILE")
+        options["path"] = str(predictions)
+    if detector == "hamer":
+        if hamer_checkpoint is None or mano_model is None:
+            raise fail("--detector hamer needs --hamer-checkpoint PATH and --mano-model PATH (both licensed, not downloaded by demoforge)")
+        if box_source not in ("previous", "mediapipe"):
+            raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
+        options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
+    take = _open_take_or_fail(path)
+    try:
+        result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
+                             detector_options=options, state_method=state_method, smoothing=smoothing,
+                             video=video, grasp_prior=grasp_prior,
+                             table_clearance=None if table_clearance < 0 else table_clearance,
+                             accept_bad_depth=accept_bad_depth)
+    except (TakeError, ValueError, DetectorError) as e:
+        raise fail(str(e))
+    for name, m in result.items():
+        if m is not None:
+            typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
+    _echo_hand_presence(result["hand_presence"])
+    if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
+        from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+
+        typer.echo(f"warning: object_keypoints: {not_annotated_message(path, annotation_status(take).detail)}", err=True)
+
+
+def _echo_hand_presence(presence) -> None:
+    """The take's per-hand tracking summary (the `hand_presence` table), untrusted hands on stderr."""
+    from demoforge.schemas.core import read_table_file
+
+    for r in [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]:
+        line = (f"{r['hand']} hand: detected in {r['frames_detected']} of {r['frames']} frames, "
+                f"{r['frames_accepted']} in {r['tracks']} track(s), {r['frames_filled']} filled, "
+                f"trajectory on {r['frames_tracked']} frames")
+        if r["depth_problem"]:
+            line += f"; depth accepted despite `{r['depth_problem']}`"
+        if r["trusted"]:
+            typer.echo(line + " -- trusted")
+        else:
+            typer.echo(f"warning: {line} -- NOT TRUSTED: {r['reason']}", err=True)
+
+
+@app.command("ingest-folder")
+def ingest_folder_cmd(
+    folder: Path = typer.Argument(..., help="Folder whose take folders (any folder with camera.json) to ingest."),
+    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
+    task: Optional[str] = typer.Option(None, help="Task of the takes (synthetic takes know theirs)."),
+    augment: bool = typer.Option(False, "--augment", help="Also generate each take's episode database."),
+    episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes per take with --augment."),
+) -> None:
+    """Ingest every take under a folder; a take that fails is recorded in `folder_ingests` and skipped.
+
+    This is the flow of the scheduled deployment (`demoforge serve`)."""
+    from demoforge.flows.ingest_folder import ingest_folder
+
+    if not folder.is_dir():  # before the flow starts: one line, no flow-run traceback
+        raise fail(f"{folder}: no such folder to ingest takes from")
+    try:
+        rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), detector=detector, task=task,
+                        augment=augment, episodes=episodes)
+    except ValueError as e:
+        raise fail(str(e))
+    for r in rows:
+        typer.echo(f"{r['status']:<16} {r['take']}  {r['error']}")
+    if not rows:
+        typer.echo(f"no take folders (folders with camera.json) under {folder}")

@@ -1,0 +1,78 @@
+"""The `ingest-folder` flow: every take under a folder, each ingested (and augmented on request) on its
+own, failures recorded per take (`folder_ingests`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from prefect import flow, get_run_logger
+
+import demoforge.lib  # noqa: F401
+from demoforge.tasks.ingest import object_keypoints
+from demoforge.flows.ingest import ingest_take
+
+
+def find_take_folders(folder: str | Path) -> list[Path]:
+    """Take folders under ``folder`` (any depth): folders holding a camera.json, sorted by path."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f"{root}: no such folder to ingest takes from")
+    return sorted(p.parent for p in root.rglob("camera.json"))
+
+
+@flow(name="ingest-folder")
+def ingest_folder(
+    folder: str,
+    warehouse: str,
+    detector: str = "simulated",
+    task: str | None = None,
+    augment: bool = False,
+    episodes: int = 10_000,
+    show_progress: bool = False,
+) -> list[dict]:
+    """Ingest every take folder under `folder` (the scheduled deployment's flow).
+
+    A take is a folder with camera.json (layout: README 'Take folders'). Takes already ingested are
+    served from the cache, so running this on a schedule only processes new or changed takes. A take
+    that fails is recorded in `folder_ingests` with the reason and does not stop the others.
+    A take without object-keypoint annotations is ingested up to its gripper poses and recorded as
+    `needs_annotation` (its episodes wait for `demoforge annotate`).
+    With `augment`, each ingested take also gets its episode database of `episodes` episodes.
+    """
+    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.takes import open_take
+    import pyarrow as pa
+
+    from demoforge.flows.augment import augment_take_flow
+    from demoforge.runtime.runners import run_flow
+    from demoforge.schemas.core import write_table
+
+    logger = get_run_logger()
+    folder_abs = Path(folder).resolve()
+    takes = find_take_folders(folder_abs)
+    logger.info("%d take folder(s) under %s", len(takes), folder_abs)
+    rows = []
+    for take_dir in takes:
+        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": detector,
+               "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
+        try:
+            status = annotation_status(open_take(take_dir))
+            if augment and status.annotated:
+                out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, detector=detector,
+                               n=episodes, n_mirrored=episodes // 2, show_progress=show_progress)
+                row["episodes"] = int(out["episodes"].rows)
+            else:
+                out = run_flow(ingest_take, str(take_dir), warehouse, detector=detector, task=task,
+                               show_progress=show_progress)
+            row["gripper_rows"] = int(out["gripper_poses"].rows)
+            if out.get("object_keypoints") is None:
+                row.update(status="needs_annotation", error=not_annotated_message(take_dir, status.detail))
+        except Exception as e:  # noqa: BLE001  (one bad take must not stop the folder)
+            row.update(status="failed", error=f"{type(e).__name__}: {e}"[:2000])
+            logger.warning("take %s failed: %s", take_dir.name, row["error"])
+        write_table("folder_ingests", pa.Table.from_pylist([row]), warehouse)
+        rows.append(row)
+    failed = sum(r["status"] == "failed" for r in rows)
+    waiting = sum(r["status"] == "needs_annotation" for r in rows)
+    logger.info("ingested %d take(s), %d need annotation, %d failed (see the folder_ingests table)",
+                len(rows) - failed - waiting, waiting, failed)
+    return rows

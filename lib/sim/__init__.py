@@ -1,0 +1,26 @@
+"""Robot execution of gripper action sequences: two physical parallel-jaw grippers in MuJoCo.
+
+    from demoforge.lib.sim import execute, execute_many, render_episode, SimOptions, GripperSpec
+    r = execute("pouring", object_poses_or_keypoints, actions)   # actions (n, 2, 8), 30 fps
+    r.success, r.failure, r.detail
+
+gripper.py: the embodiment (MJCF, parameters, g -> finger command mapping); scene.py: compiled scene
+cache; executor.py: execute / execute_many; failures.py: failure classification; render.py: MP4;
+stability.py: verdicts under micrometre shifts; variations.py, variation_scene.py: the Table 4
+analogue's varied scenes.
+"""
+
+from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_many, scene_fingerprint,
+                       validate_actions)
+from .failures import FAILURES
+from .gripper import GripperSpec
+from .scene import PhysicsOptions, get_scene
+
+
+def render_episode(*args, **kwargs):
+    from .render import render_episode as _r
+    return _r(*args, **kwargs)
+
+
+__all__ = ["execute", "execute_many", "render_episode", "SimOptions", "SimResult", "GripperSpec",
+           "PhysicsOptions", "FAILURES", "as_object_poses", "validate_actions", "get_scene", "scene_fingerprint"]

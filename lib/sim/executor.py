@@ -1,0 +1,504 @@
+"""Execute (n, 2, 8) gripper action sequences with the two physical grippers in MuJoCo.
+
+    from demoforge.lib.sim import execute, execute_many, SimOptions
+    r = execute("pouring", demo.placement.object_poses, demo.gripper_actions())
+    r.success, r.failure, r.detail
+
+Pipeline per episode: validate actions -> object poses (given, or estimated from the 11 object
+keypoints by Kabsch against the task's local keypoints) -> reset the cached model's MjData ->
+pre-roll (`preroll_s`, grippers held at the first pose, objects settle) -> for each action frame,
+`ctrl_per_frame` control steps: mocap targets interpolated (positions linear or cubic, rotations
+slerp: demoforge.lib.geometry.interpolate_poses), finger commands rate-limited to the gripper's speed, physics
+substeps, contacts summarised (which finger touches which object, gripper-gripper, gripper-table
+normal force) -> `settle_s` more seconds holding the last pose -> task predicate on the final state
+and the per-frame object history -> failure classification (failures.py).  With
+`stop_on_hard_failure` (default) the simulation stops at the first frame with an arm collision, a table
+collision or a workspace exit: the episode has failed whatever follows, so the remaining physics is
+skipped (the per-frame records end there and the predicate is not evaluated).  With
+`stop_when_settled` (default) the settle phase ends once the scene is at rest under constant
+commands (the state cannot change any more); the predicate is evaluated on that state.
+
+Where the time goes (scripted demos, 1/480 s, mjData.timer; lib/bench_cases_sim.breakdown): about
+80-85 % in mj_step (per step: collision detection ~20 %, constraint construction ~15 %, the Newton
+solver 25-45 %, the rest of the pipeline the remainder; ~1-2 solver iterations per step, 8-25
+contacts) and 15-20 % in this module's Python (4 control updates, 4 contact scans and one record per
+30 fps frame).  The per-step cost is set by the scenes (multi-geom containers, pouring's liquid
+spheres), so the remaining levers are fewer steps (timestep: rejected, see PhysicsOptions), shorter
+episodes (the early stops) and the Python share.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+import demoforge.lib  # noqa: F401
+from demoforge.lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
+
+from .failures import FAILURES, classify
+from .gripper import GripperSpec
+from .scene import PAIR_ARMS, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    gripper: GripperSpec = GripperSpec()
+    physics: PhysicsOptions = PhysicsOptions()
+    ctrl_per_frame: int = 4  # control (mocap / finger command) updates per action frame: 120 Hz at 30 fps
+    position_interp: str = "linear"  # "linear" | "cubic"
+    preroll_s: float = 0.3
+    settle_s: float = 0.8  # after the last action, like Task.replay
+    quat_tol: float = 1e-2  # | |q| - 1 | beyond this is an invalid action
+    workspace_margin: float = 0.05  # m around task.workspace
+    table_force_limit: float = 15.0  # N gripper-table normal force -> "table_collision"
+    keep_trajectory: bool = True  # keep per-frame arrays in SimResult
+    # stop simulating at the first frame with a hard failure (arm / table collision, left workspace):
+    # the episode has failed whatever follows (failures.py); the per-frame records end there, events
+    # list only what happened up to then, and predicate_ok is None (not evaluated)
+    stop_on_hard_failure: bool = True
+    # stop the settle phase (after the last action) once the scene is at rest: every free body's and
+    # finger's translation speed below rest_speed (m/s) and every object's and gripper's rotation speed
+    # below rest_spin (rad/s) for rest_frames consecutive frames, with the finger commands at their
+    # goals. A scene at rest under constant commands stays at rest, so the predicate on that state is
+    # the predicate at the end of settle_s (A/B on the scripted demos: identical outcomes and predicate
+    # details, final object positions within 0.01 mm)
+    stop_when_settled: bool = True
+    rest_speed: float = 2e-3
+    rest_spin: float = 0.05
+    rest_frames: int = 3
+
+
+@dataclass
+class SimResult:
+    task: str
+    success: bool
+    failure: str | None  # None on success, else one of failures.FAILURES
+    detail: str
+    predicate_ok: bool | None
+    predicate_detail: str
+    duration_s: float  # simulated seconds (pre-roll + actions + settle)
+    physics_steps: int
+    wall_s: float
+    n_frames: int
+    events: list = field(default_factory=list)  # [(time_s, failure, detail)] all detected, earliest first
+    # per recorded frame (action frames + settle frames), when keep_trajectory:
+    gripper_poses: np.ndarray | None = None  # (T, 2, 8) actual pinch pose [x y z qx qy qz qw width_m]
+    object_poses: np.ndarray | None = None  # (T, n_obj, 4, 4)
+    touch: np.ndarray | None = None  # (T, 2 arms, 3 parts (left finger, right finger, palm), n_obj) bool
+    arm_contact: np.ndarray | None = None  # (T,) bool
+    table_force: np.ndarray | None = None  # (T, 2) max gripper-table normal force, N
+    command_g: np.ndarray | None = None  # (T, 2) commanded g per frame
+
+    def row(self) -> dict:
+        """Flat summary (no arrays), e.g. for a table."""
+        return {"task": self.task, "success": self.success, "failure": self.failure, "detail": self.detail,
+                "predicate_ok": self.predicate_ok, "predicate_detail": self.predicate_detail,
+                "duration_s": self.duration_s, "physics_steps": self.physics_steps, "wall_s": self.wall_s,
+                "n_frames": self.n_frames}
+
+    def strip(self) -> "SimResult":
+        return replace(self, gripper_poses=None, object_poses=None, touch=None, arm_contact=None,
+                       table_force=None, command_g=None)
+
+
+# ------------------------------------------------------------------ validation and inputs
+def validate_actions(actions, quat_tol: float = 1e-2) -> str | None:
+    """None if valid, else a human-readable reason."""
+    try:
+        a = np.asarray(actions, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        return f"actions not numeric: {e}"
+    if a.ndim != 3 or a.shape[1:] != (2, 8):
+        return f"actions must have shape (n, 2, 8), got {a.shape}"
+    if a.shape[0] < 1:
+        return "empty action sequence"
+    bad = ~np.isfinite(a)
+    if bad.any():
+        t, arm, c = np.argwhere(bad)[0]
+        return f"non-finite value in {int(bad.sum())} entries (first: step {t}, arm {arm}, column {c})"
+    n = np.linalg.norm(a[..., 3:7], axis=-1)
+    off = np.abs(n - 1.0)
+    if (off > quat_tol).any():
+        t, arm = np.argwhere(off > quat_tol)[0]
+        return (f"non-unit quaternion in {int((off > quat_tol).sum())} poses (first: step {t}, arm {arm}, "
+                f"|q| = {n[t, arm]:.4f}, tolerance {quat_tol})")
+    g = a[..., 7]
+    if ((g < -0.01) | (g > 1.01)).any():
+        return f"gripper state g outside [0, 1] (min {g.min():.3f}, max {g.max():.3f})"
+    return None
+
+
+def object_poses_from_keypoints(task, keypoints: np.ndarray) -> np.ndarray:
+    """(n_obj, 4, 4) object poses from the task's (k, 3) world keypoints (Kabsch, no scale)."""
+    kp = np.asarray(keypoints, float)
+    local = task.keypoints_local
+    owner = task.keypoint_object
+    out = np.tile(np.eye(4), (len(task.objects), 1, 1))
+    for k in range(len(task.objects)):
+        idx = owner == k
+        _, R, t = umeyama(local[idx], kp[idx], with_scale=False)
+        out[k, :3, :3] = R
+        out[k, :3, 3] = t
+    return out
+
+
+def as_object_poses(task, poses_or_keypoints) -> np.ndarray:
+    x = np.asarray(poses_or_keypoints, float)
+    n_obj = len(task.objects)
+    if x.shape == (n_obj, 4, 4):
+        return x
+    if x.shape == (len(task.keypoint_names), 3):
+        return object_poses_from_keypoints(task, x)
+    raise ValueError(f"expected object poses ({n_obj}, 4, 4) or keypoints ({len(task.keypoint_names)}, 3), "
+                     f"got {x.shape}")
+
+
+def _invalid(task_name: str, detail: str, t0: float) -> SimResult:
+    return SimResult(task_name, False, "invalid_action", detail, None, "", 0.0, 0, time.perf_counter() - t0, 0,
+                     events=[(0.0, "invalid_action", detail)])
+
+
+# ------------------------------------------------------------------ finger command (the g mapping)
+class _FingerCommand:
+    """Aperture command per arm from the binary g (documented mapping, gripper.py):
+    closed (g < 0.5) -> -squeeze (force-limited squeeze); open -> `opening`, except that a release
+    (closed -> open) opens only to the measured held width + release_margin until the pinch target
+    has moved reopen_distance away (so releasing near the table does not ram a finger into it);
+    the command moves at most `speed` m/s (the gripper's closing speed)."""
+
+    def __init__(self, spec: GripperSpec, closed0: np.ndarray, dt_ctrl: float):
+        self.spec = spec
+        self.w = np.where(closed0, 0.0, spec.opening).astype(float)
+        self.closed = [bool(x) for x in closed0]  # Python bools: compared every control step
+        self.goal_open = np.full(2, spec.opening)
+        self.release_pos: list = [None, None]
+        self.wmax = spec.speed * dt_ctrl
+        self.steady = False
+        self.out = spec.stroke - self.w
+
+    def update(self, closed, target_pos: np.ndarray, qpos: np.ndarray, finger_qadr: np.ndarray) -> np.ndarray:
+        """closed: per-arm bools; qpos / finger_qadr: MjData.qpos and the (2, 2) finger joint addresses
+        (read only on a release, so the steady fast path does no indexing)."""
+        if self.steady and closed[0] == self.closed[0] and closed[1] == self.closed[1]:
+            return self.out  # nothing can change: same g, commands at their goals, no release pending
+        sp = self.spec
+        finger_q = qpos[finger_qadr]
+        steady = True
+        for a in range(2):
+            if closed[a]:
+                goal = -sp.squeeze
+                self.release_pos[a] = None
+                self.goal_open[a] = sp.opening
+            else:
+                if self.closed[a]:  # release now
+                    width = max(sp.stroke - float(finger_q[a, 0] + finger_q[a, 1]), 0.0)
+                    self.goal_open[a] = min(sp.opening, width + sp.release_margin)
+                    self.release_pos[a] = np.array(target_pos[a], float)
+                rp = self.release_pos[a]
+                if rp is not None and np.linalg.norm(target_pos[a] - rp) > sp.reopen_distance:
+                    self.goal_open[a] = sp.opening
+                    self.release_pos[a] = None
+                goal = self.goal_open[a]
+            self.closed[a] = closed[a]
+            dw = goal - self.w[a]
+            self.w[a] = goal if abs(dw) <= self.wmax else self.w[a] + math.copysign(self.wmax, dw)
+            steady = steady and self.w[a] == goal and self.release_pos[a] is None
+        self.steady = steady
+        self.out = sp.stroke - self.w
+        return self.out
+
+
+# ------------------------------------------------------------------ one episode
+def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
+            options: SimOptions | None = None) -> SimResult:
+    """Run one episode; never raises for bad actions or object input (-> failure "invalid_action")."""
+    t_wall = time.perf_counter()
+    opt = options or SimOptions()
+    reason = validate_actions(actions, opt.quat_tol)
+    if reason is None and not (np.isfinite(fps) and fps > 0):
+        reason = f"fps must be positive, got {fps}"
+    sc = get_scene(task_name, opt.gripper, opt.physics)
+    if reason is None:
+        try:
+            obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
+            if not np.isfinite(obj0).all():
+                raise ValueError("object poses contain non-finite values")
+        except ValueError as e:
+            reason = f"bad object input: {e}"
+    if reason is not None:
+        return _invalid(task_name, reason, t_wall)
+    return _run(sc, obj0, np.asarray(actions, float), float(fps), opt, t_wall)
+
+
+def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float) -> SimResult:
+    mj, m, d = sc.mj, sc.model, sc.data
+    spec = sc.spec
+    n = actions.shape[0]
+    steps_per_frame = max(1, int(round(1.0 / (fps * opt.physics.timestep))))
+    m.opt.timestep = 1.0 / (fps * steps_per_frame)
+    cpf = max(1, min(opt.ctrl_per_frame, steps_per_frame))
+    sub = np.diff(np.round(np.linspace(0, steps_per_frame, cpf + 1)).astype(int))
+    dt_ctrl = 1.0 / (fps * cpf)
+
+    # ---- targets at control rate
+    pos = actions[..., :3]
+    quat = actions[..., 3:7] / np.linalg.norm(actions[..., 3:7], axis=-1, keepdims=True)
+    closed_cmd = actions[..., 7] < 0.5  # (n, 2)
+    lead = int(round(spec.close_lead_s * fps))
+    if lead > 0 and n > 1:  # issue each close `lead` frames early (gripper.py, mapping)
+        early = closed_cmd.copy()
+        for a in range(2):
+            onsets = np.flatnonzero(closed_cmd[1:, a] & ~closed_cmd[:-1, a]) + 1
+            for o in onsets:
+                early[max(0, o - lead):o, a] = True
+        closed_cmd = early
+    K = (n - 1) * cpf
+    if n > 1:
+        tq = (np.arange(1, K + 1)) / cpf  # in frames
+        tp, tqu = interpolate_poses(np.arange(n, dtype=float), pos, quat, tq, rotation="slerp",
+                                    position=opt.position_interp)
+    else:
+        tp, tqu = pos[:0], quat[:0]
+    tqu_wxyz = xyzw_to_wxyz(tqu)
+    # finger command: g of the frame being driven to; see _FingerCommand
+    frame_of_ctrl = np.minimum(np.ceil(np.arange(1, K + 1) / cpf).astype(int), n - 1)
+    settle_frames = int(round(opt.settle_s * fps))
+    fc = _FingerCommand(spec, closed_cmd[0], dt_ctrl)
+
+    pose0 = np.concatenate([pos[0], quat[0]], axis=-1)
+    sc.reset(obj0, pose0, np.where(closed_cmd[0], 0.0, spec.opening))
+    steps = 0
+    pre = int(round(opt.preroll_s / m.opt.timestep))
+    if pre:
+        mj.mj_step(m, d, nstep=pre)
+        steps += pre
+
+    T = n + settle_frames
+    n_obj = sc.n_obj
+    hist = np.zeros((T, n_obj, 4, 4))
+    hist[:, :, 3, 3] = 1.0
+    gp = np.zeros((T, 2, 8))
+    touch = np.zeros((T, 2, 3, n_obj), bool)
+    arm_contact = np.zeros(T, bool)
+    table_force = np.zeros((T, 2))
+    code = sc.geom_code
+    obj_body, base_body = sc.obj_body, sc.base_body
+    fq = sc.finger_qadr
+    force6 = np.zeros(6)
+    diag = {"arm_pair": []}
+    mocap = _as_index(sc.mocap)
+    act = _as_index(sc.act)
+
+    hook = _FRAME_HOOK
+
+    def record(i):
+        if hook is not None:
+            hook(d)
+        hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
+        hist[i, :, :3, 3] = d.xpos[obj_body]
+        gp[i, :, :3] = d.xpos[base_body]
+        gp[i, :, 3:7] = d.xquat[base_body][:, [1, 2, 3, 0]]
+        gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
+
+    ng = m.ngeom
+    pk, pa, pp, po = sc.pair_lists
+
+    def contacts(i):
+        # called every control step: one table look-up per contact (scene.py pair tables), plain Python
+        # on the few relevant contacts (numpy calls on arrays of ~10 elements cost more than the work)
+        nc = d.ncon
+        if nc == 0:
+            return
+        geom = d.contact.geom[:nc]
+        flat = (geom[:, 0] * ng + geom[:, 1]).tolist()
+        for j, f in enumerate(flat):
+            k = pk[f]
+            if k == 0:  # PAIR_NONE: object-object, object-table (most contacts)
+                continue
+            if k == PAIR_TOUCH:
+                touch[i, pa[f], pp[f], po[f]] = True
+            elif k == PAIR_TABLE:
+                mj.mj_contactForce(m, d, j, force6)
+                arm = pa[f]
+                if abs(force6[0]) > table_force[i, arm]:
+                    table_force[i, arm] = abs(force6[0])
+            elif k == PAIR_ARMS:
+                if not diag["arm_pair"]:
+                    diag["arm_pair"] = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in geom[j]]
+                arm_contact[i] = True
+
+    lo = sc.workspace[0] - opt.workspace_margin
+    hi = sc.workspace[1] + opt.workspace_margin
+
+    def hard_failure(i) -> bool:
+        """The outcome is decided (failures.py: a hard failure fails the episode whatever follows).
+        Collisions are checked every frame, the workspace every 6th frame (0.2 s at 30 fps) and at
+        the last: classify() finds the first offending frame in the records."""
+        if arm_contact[i] or table_force[i, 0] > opt.table_force_limit or table_force[i, 1] > opt.table_force_limit:
+            return True
+        if i % 6 and i != T - 1:
+            return False
+        p = np.concatenate([gp[i - 5:i + 1, :, :3], hist[i - 5:i + 1, :, :3, 3]], axis=1)
+        return bool(((p < lo) | (p > hi)).any())
+
+    sub_l = [int(x) for x in sub]
+    closed_ctrl = [tuple(r) for r in closed_cmd[frame_of_ctrl].tolist()]  # per control step, Python bools
+    closed_last = tuple(closed_cmd[-1].tolist())
+    hard_stop = opt.stop_on_hard_failure
+    record(0)
+    k = 0
+    stop = None  # frame after which the simulation was stopped (stop_on_hard_failure)
+    for i in range(1, n):
+        for c in range(cpf):
+            d.mocap_pos[mocap] = tp[k]
+            d.mocap_quat[mocap] = tqu_wxyz[k]
+            d.ctrl[act] = fc.update(closed_ctrl[k], tp[k], d.qpos, fq)
+            mj.mj_step(m, d, nstep=sub_l[c])
+            contacts(i)
+            k += 1
+        steps += steps_per_frame
+        record(i)
+        if hard_stop and hard_failure(i):
+            stop = i
+            break
+    settled = None  # frame at which the settle phase ended early (stop_when_settled)
+    rest_lin, rest_ang = sc.rest_lin, sc.rest_ang
+    if stop is None:
+        rest = 0
+        for i in range(n, T):
+            for c in range(cpf):
+                d.ctrl[act] = fc.update(closed_last, pos[-1], d.qpos, fq)
+                mj.mj_step(m, d, nstep=sub_l[c])
+                contacts(i)
+            steps += steps_per_frame
+            record(i)
+            if hard_stop and hard_failure(i):
+                stop = i
+                break
+            if opt.stop_when_settled:
+                qv = d.qvel
+                still = (fc.steady and float(np.abs(qv[rest_lin]).max()) < opt.rest_speed
+                         and float(np.abs(qv[rest_ang]).max()) < opt.rest_spin)
+                rest = rest + 1 if still else 0
+                if rest >= opt.rest_frames and i < T - 1:
+                    settled = i
+                    break
+
+    g_cmd = np.concatenate([(~closed_cmd).astype(float), np.repeat((~closed_cmd[-1:]).astype(float), settle_frames, 0)])
+    last = stop if stop is not None else settled
+    if last is not None:  # truncate the per-frame records where the simulation stopped
+        hist, gp, touch, arm_contact, table_force, g_cmd = (
+            x[:last + 1] for x in (hist, gp, touch, arm_contact, table_force, g_cmd))
+    if stop is None:
+        ok, pdetail = sc.task.success(m, d, hist)
+        ok = bool(ok)
+    else:  # the predicate is not evaluated after a hard failure
+        ok, pdetail = None, f"not evaluated: simulation stopped at t = {stop / fps:.2f} s after a hard failure"
+    failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), hist, gp, touch, arm_contact,
+                                       table_force, g_cmd, n, diag)
+    res = SimResult(sc.task.name, failure is None, failure, detail, ok, str(pdetail),
+                    steps * m.opt.timestep, steps, time.perf_counter() - t_wall, n, events,
+                    gp, hist, touch, arm_contact, table_force, g_cmd)
+    return res if opt.keep_trajectory else res.strip()
+
+
+_FRAME_HOOK = None  # render.py: callable(data) per recorded frame
+
+
+def _as_index(ids):
+    """A slice for contiguous ids (cheaper MjData writes than fancy indexing), else the array."""
+    ids = np.asarray(ids)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
+
+def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
+    """sha256 of what a task's simulation depends on besides the episode and the executor's code: the
+    scene MJCF with the grippers, and every simulation option (gripper, physics, control). A cache of
+    results keyed by it goes stale by itself when a task's objects or the robot change."""
+    import hashlib
+
+    from .scene import robot_scene_xml
+
+    opt = options or SimOptions()
+    h = hashlib.sha256(robot_scene_xml(task_name, opt.gripper).encode())
+    h.update(repr(replace(opt, keep_trajectory=False)).encode())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------ many episodes
+_WORKER_STATE: dict = {}
+
+
+def _episode_args(ep) -> tuple[Any, Any, float]:
+    if isinstance(ep, dict):
+        objs = ep.get("object_poses")
+        if objs is None:
+            objs = ep.get("keypoints")
+        return objs, ep["actions"], float(ep.get("fps", 30.0))
+    if len(ep) == 3:
+        return ep[0], ep[1], float(ep[2])
+    return ep[0], ep[1], 30.0
+
+
+def _work(job):
+    idx, ep = job
+    task_name, opt = _WORKER_STATE["task"], _WORKER_STATE["opt"]
+    objs, acts, fps = _episode_args(ep)
+    try:
+        return idx, execute(task_name, objs, acts, fps, opt)
+    except Exception as e:  # never lose a batch to one bad episode
+        return idx, SimResult(task_name, False, "invalid_action", f"{type(e).__name__}: {e}", None, "", 0.0, 0,
+                              0.0, 0, events=[(0.0, "invalid_action", str(e))])
+
+
+def _init_worker(task_name, opt, in_pool: bool = False):
+    if in_pool:
+        # Forked workers inherit the parent's signal handlers (Prefect's raises on SIGTERM, which the
+        # pool sends at shutdown); a worker just exits on SIGTERM and leaves Ctrl-C to the parent.
+        import signal
+
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _WORKER_STATE["task"] = task_name
+    _WORKER_STATE["opt"] = opt
+    get_scene(task_name, opt.gripper, opt.physics)  # compile once per process
+
+
+def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
+                 progress: Callable[[int, int], None] | None = None, options: SimOptions | None = None,
+                 keep_trajectory: bool = False, chunksize: int = 4) -> list[SimResult]:
+    """Execute episodes (each a dict {object_poses | keypoints, actions, fps?} or a tuple
+    (object_poses_or_keypoints, actions[, fps])) over `workers` processes, each with its own cached
+    compiled model; results in input order, identical for any worker count.  progress(done, total)
+    is called in the calling process as results arrive."""
+    opt = replace(options or SimOptions(), keep_trajectory=keep_trajectory)
+    jobs = list(enumerate(episodes))
+    total = len(jobs)
+    out: list[SimResult | None] = [None] * total
+    if workers <= 1 or total <= 1:
+        _init_worker(task_name, opt)
+        for done, job in enumerate(jobs, 1):
+            i, r = _work(job)
+            out[i] = r
+            if progress:
+                progress(done, total)
+        return out  # type: ignore[return-value]
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(task_name, opt, True)) as pool:
+        for done, (i, r) in enumerate(pool.imap_unordered(_work, jobs, chunksize=chunksize), 1):
+            out[i] = r
+            if progress:
+                progress(done, total)
+    return out  # type: ignore[return-value]
+
+
+__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "scene_fingerprint", "validate_actions", "as_object_poses",
+           "object_poses_from_keypoints", "FAILURES"]

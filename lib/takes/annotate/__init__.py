@@ -1,0 +1,17 @@
+"""Annotating a recorded take: the task definition (named object keypoints, which arm acts on which
+object), the ``annotations.json`` format and its atomic write, the automatic open/close suggestion
+shown on the timeline, and the rule for when a take counts as annotated. Pure logic: the local web
+page that uses it is served by :mod:`demoforge.flows.annotate` (the page itself is ``page.html`` here).
+"""
+
+from demoforge.lib.takes.annotate.model import (  # noqa: F401
+    NOT_ANNOTATED, SIDES, AnnotationStatus, TaskDefinition, annotation_status, build_annotations,
+    custom_task, library_task, load_task_file, mask_to_ranges, not_annotated_message, parse_task_section,
+    point_info, suggest_closed_ranges, task_for_take, write_annotations,
+)
+
+__all__ = [
+    "NOT_ANNOTATED", "SIDES", "AnnotationStatus", "TaskDefinition", "annotation_status", "build_annotations",
+    "custom_task", "library_task", "load_task_file", "mask_to_ranges", "not_annotated_message",
+    "parse_task_section", "point_info", "suggest_closed_ranges", "task_for_take", "write_annotations",
+]
