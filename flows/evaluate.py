@@ -82,10 +82,10 @@ def evaluate(
     `trials` of them with `llm_backend` (the embedded Gemma 3 270M by default: minutes per trial on 2
     cores, so 1 by default; answers are cached). `make table3` runs the full grid.
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
-    labelled real photos, and on ARCTIC when `arctic_root` (or $ARCTIC_ROOT) is given."""
-    import os
+    labelled real photos, and on ARCTIC when `arctic_root` (or $DEMOFORGE_ARCTIC_ROOT) is given."""
+    from demoforge.lib.settings import read_settings
 
-    arctic_root = arctic_root or os.environ.get("ARCTIC_ROOT") or None
+    arctic_root = arctic_root or read_settings().arctic_root or None
     from demoforge.lib.task_library import TASK_NAMES
 
     logger = get_run_logger()

@@ -22,6 +22,7 @@ import pyarrow as pa
 from demoforge.lib.errors import UserError
 
 from demoforge.schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
+from demoforge.lib.settings import read_settings
 from demoforge.schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
 CATALOG_FILE = "catalog.duckdb"
@@ -40,9 +41,9 @@ def warehouse_root(explicit: str | os.PathLike | None = None) -> Path:
     """``explicit`` if given, else ``$DEMOFORGE_WAREHOUSE``, else ``<project>/warehouse``."""
     if explicit:
         return Path(explicit).expanduser().resolve()
-    env = os.environ.get(ENV_WAREHOUSE)
-    if env:
-        return Path(env).expanduser().resolve()
+    configured = read_settings().warehouse
+    if configured:
+        return configured.resolve()
     return (PROJECT_ROOT / "warehouse").resolve()
 
 

@@ -94,9 +94,11 @@ def _file_digest(path: Path) -> str:
 def digest_cache_dir() -> Path:
     """Where folder digests are remembered across processes ($DEMOFORGE_DIGEST_CACHE, else
     $XDG_CACHE_HOME/demoforge/digests or ~/.cache/demoforge/digests)."""
-    env = os.environ.get("DEMOFORGE_DIGEST_CACHE")
-    if env:
-        return Path(env)
+    from demoforge.lib.settings import read_settings
+
+    configured = read_settings().digest_cache
+    if configured:
+        return configured
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "demoforge" / "digests"
 
 

@@ -42,7 +42,7 @@ def test_arctic_flow_writes_the_thesis_tables(prefect_api, warehouse, tmp_path):
 def test_arctic_errors_name_what_is_missing(warehouse, tmp_path):
     r = CliRunner().invoke(app, ["evaluate-keypoints", "--dataset", "arctic", "--arctic-root", str(tmp_path)])
     assert r.exit_code == 2 and "not found under" in r.stderr and "download ARCTIC" in r.stderr
-    r = CliRunner().invoke(app, ["evaluate-keypoints", "--dataset", "arctic"], env={"ARCTIC_ROOT": ""})
+    r = CliRunner().invoke(app, ["evaluate-keypoints", "--dataset", "arctic"], env={"DEMOFORGE_ARCTIC_ROOT": ""})
     assert r.exit_code == 2 and "arctic-root" in r.stderr
 
 

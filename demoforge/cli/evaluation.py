@@ -18,7 +18,7 @@ app = typer.Typer()
 def evaluate_keypoints_cmd(
     dataset: str = typer.Option("synthetic", "--dataset", help="synthetic (the warehouse's synthetic takes), arctic, or real_photos."),
     detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Default: simulated (synthetic/ARCTIC), mediapipe (real photos)."),
-    arctic_root: Optional[Path] = typer.Option(None, "--arctic-root", envvar="ARCTIC_ROOT", help="Where ARCTIC was downloaded."),
+    arctic_root: Optional[Path] = typer.Option(None, "--arctic-root", envvar="DEMOFORGE_ARCTIC_ROOT", help="Where ARCTIC was downloaded."),
     take: Optional[List[str]] = typer.Option(None, "--take", help="Only these takes/sequences (default: the thesis's 18 ARCTIC takes)."),
     subject: Optional[str] = typer.Option(None, help="ARCTIC subject (default: the first that has the sequence)."),
     predictions_dir: Optional[Path] = typer.Option(None, help="For --detector precomputed: one <seq>.parquet/.npz/.json per take."),
@@ -87,9 +87,9 @@ def evaluate_detection_cmd(
 def llm_eval_cmd(
     task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples."),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval, replay_top1, transform_demo (repeatable; default all)."),
-    backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL)."),
-    model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model name for the openai backend."),
-    trials: int = typer.Option(3, envvar="TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
+    backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL)."),
+    model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model name for the openai backend."),
+    trials: int = typer.Option(3, envvar="DEMOFORGE_TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
     seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),
     waypoints: int = typer.Option(20, help="Waypoints per example action sequence in the prompt."),
     precision: int = typer.Option(3, help="Decimals of the numbers in the prompt."),

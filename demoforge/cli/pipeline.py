@@ -9,6 +9,7 @@ from typing import List, Optional
 import typer
 
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
@@ -21,21 +22,21 @@ app = typer.Typer()
 def evaluate(
     reports: Path = typer.Option(Path("reports"), "--reports", help="Folder for REPORT.md, CSVs and figures."),
     task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six)."),
-    takes: int = typer.Option(1, "--takes", min=1, envvar="TAKES", help="Synthetic takes per task and mirror flag."),
-    seed: int = typer.Option(0, envvar="SEED", help="First seed of the synthetic takes."),
-    mirror: str = typer.Option("both", envvar="MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
-    episodes: int = typer.Option(10_000, envvar="EPISODES", min=1, help="Episodes per task database."),
-    sim_episodes: int = typer.Option(20, envvar="SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
-    stability_episodes: int = typer.Option(10, envvar="STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
-    stability_repeats: int = typer.Option(3, envvar="STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
-    trials: int = typer.Option(1, envvar="TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them). `make table3` runs the full grid."),
-    grid_scenes: int = typer.Option(5, envvar="GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
-    llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
-    llm_backend: str = typer.Option("local", envvar="LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
-    llm_model: Optional[str] = typer.Option(None, envvar="LLM_MODEL", help="Model of the openai backend."),
-    variation_trials: int = typer.Option(2, "--variation-trials", envvar="VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
-    policy_epochs: int = typer.Option(6, envvar="POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
-    policy_trials: int = typer.Option(5, envvar="POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
+    takes: int = typer.Option(1, "--takes", min=1, envvar="DEMOFORGE_TAKES", help="Synthetic takes per task and mirror flag."),
+    seed: int = typer.Option(0, envvar="DEMOFORGE_SEED", help="First seed of the synthetic takes."),
+    mirror: str = typer.Option("both", envvar="DEMOFORGE_MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
+    episodes: int = typer.Option(10_000, envvar="DEMOFORGE_EPISODES", min=1, help="Episodes per task database."),
+    sim_episodes: int = typer.Option(20, envvar="DEMOFORGE_SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
+    stability_episodes: int = typer.Option(10, envvar="DEMOFORGE_STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
+    stability_repeats: int = typer.Option(3, envvar="DEMOFORGE_STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
+    trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes 1-2 min per trial and strategy; 0 skips them). `make table3` runs the full grid."),
+    grid_scenes: int = typer.Option(5, envvar="DEMOFORGE_GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
+    llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="DEMOFORGE_LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
+    llm_backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
+    llm_model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model of the openai backend."),
+    variation_trials: int = typer.Option(2, "--variation-trials", envvar="DEMOFORGE_VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
+    policy_epochs: int = typer.Option(6, envvar="DEMOFORGE_POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
+    policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
     detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
@@ -70,7 +71,7 @@ def evaluate(
     warehouse, reports_dir = current_warehouse(), reports.resolve()
     key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
                             {"real_hands": str(demoforge.lib.SHARED_DATA / "real_hands"),
-                             "arctic": os.environ.get("ARCTIC_ROOT")})
+                             "arctic": str(read_settings().arctic_root or "") or None})
     if not fresh:
         cached = run_cache.lookup(warehouse, key)
         if cached is not None:

@@ -101,6 +101,11 @@ def _main(
 ) -> None:
     from demoforge.runtime import runners
     from demoforge.lib.errors import Reporting
+    from demoforge.lib.settings import adopt_old_names
+
+    # before the command's own options are parsed (click parses them after this callback), so an old
+    # unprefixed name still reaches the option it used to set
+    adopt_old_names()
 
     State.warehouse = warehouse
     State.debug = debug

@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from demoforge.lib.settings import read_settings
 from demoforge.schemas.core import file_sha256
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -26,7 +27,6 @@ CODE_DIRS = ("lib", "tasks", "flows", "schemas")
 RUNS_DIR = "_runs"
 # rebuilt by every query / owned by Prefect's per-stage cache: not outputs of the run
 IGNORED = {"catalog.duckdb", "catalog.duckdb.wal", "_prefect", RUNS_DIR}
-ENV_INPUTS = ("ARCTIC_ROOT", "LLM_BACKEND", "LLM_MODEL", "OPENAI_BASE_URL", "DEMOFORGE_TASK_RUNNER")
 
 
 def code_fingerprint(root: Path = PROJECT_ROOT) -> str:
@@ -59,7 +59,7 @@ def run_key(params: dict[str, Any], external: dict[str, str | None]) -> str:
     inputs = {name: tree_state(Path(path)) if path and Path(path).exists() else None
               for name, path in sorted(external.items())}
     payload = {"params": params, "code": code_fingerprint(), "inputs": inputs,
-               "env": {k: os.environ.get(k) for k in ENV_INPUTS}}
+               "env": read_settings().cache_inputs()}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -27,6 +27,8 @@ import sys
 import threading
 from typing import Any
 
+from demoforge.lib.settings import read_settings
+
 ENV_RUNNER = "DEMOFORGE_TASK_RUNNER"
 ENV_ADDRESS = "DEMOFORGE_DASK_ADDRESS"
 ENV_WORKERS = "DEMOFORGE_DASK_WORKERS"
@@ -34,7 +36,7 @@ RUNNERS = ("threads", "dask")
 
 
 def runner_kind() -> str:
-    kind = os.environ.get(ENV_RUNNER, "threads").strip().lower() or "threads"
+    kind = read_settings().task_runner
     if kind not in RUNNERS:
         raise ValueError(f"{ENV_RUNNER}={kind!r} is not a task runner; use one of: {', '.join(RUNNERS)}")
     return kind
@@ -52,7 +54,7 @@ def local_cluster_kwargs(workers: int) -> dict[str, Any]:
 
 
 def dask_workers() -> int:
-    raw = os.environ.get(ENV_WORKERS, "2")
+    raw = read_settings().dask_workers
     try:
         n = int(raw)
     except ValueError:
@@ -108,7 +110,7 @@ def make_task_runner():
     from prefect_dask import DaskTaskRunner
 
     _quiet_dask()
-    return DaskTaskRunner(address=os.environ.get(ENV_ADDRESS) or _local_cluster_address())
+    return DaskTaskRunner(address=read_settings().dask_address or _local_cluster_address())
 
 
 def with_runner(flow_obj):

@@ -45,9 +45,11 @@ LOAD_TIMES: dict[tuple, float] = {}
 
 
 def default_gguf_path() -> Path:
-    env = os.environ.get("DEMOFORGE_GGUF_PATH")
-    if env:
-        return Path(env)
+    from demoforge.lib.settings import read_settings
+
+    configured = read_settings().gguf_path
+    if configured:
+        return configured
     return Path(sys.prefix) / "share" / "demoforge" / GGUF_NAME
 
 

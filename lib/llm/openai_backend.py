@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import socket
 import time
 import urllib.error
@@ -32,6 +31,7 @@ from typing import Any
 from demoforge.lib.llm import (
     Completion, LLMBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError, Sampling,
 )
+from demoforge.lib.settings import read_settings
 
 log = logging.getLogger(__name__)
 
@@ -54,15 +54,16 @@ class OpenAIBackend(LLMBackend):
                  mode: str = "chat", timeout_s: float = 120.0, max_retries: int = 3, backoff_s: float = 1.0,
                  max_backoff_s: float = 30.0, max_requests: int | None = 1000,
                  max_total_tokens: int | None = 5_000_000, extra_body: dict | None = None):
-        model = model or os.environ.get("DEMOFORGE_LLM_MODEL")
+        settings = read_settings()
+        model = model or settings.llm_model
         if not model:
             raise LLMError("openai backend: no model; pass model=... or set DEMOFORGE_LLM_MODEL")
         if mode not in ("chat", "completions"):
             raise ValueError(f"mode must be 'chat' or 'completions', got {mode!r}")
         self.model = model
-        self.base_url = (base_url or os.environ.get("OPENAI_BASE_URL") or DEFAULT_BASE_URL).rstrip("/")
+        self.base_url = (base_url or settings.openai_base_url or DEFAULT_BASE_URL).rstrip("/")
         self._key_from_env = api_key is None
-        self._api_key = api_key if api_key is not None else os.environ.get("OPENAI_API_KEY")
+        self._api_key = api_key if api_key is not None else settings.openai_api_key
         self.mode = mode
         self.timeout_s = float(timeout_s)
         self.max_retries = int(max_retries)
@@ -87,7 +88,7 @@ class OpenAIBackend(LLMBackend):
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         if self._key_from_env:
-            self._api_key = os.environ.get("OPENAI_API_KEY")
+            self._api_key = read_settings().openai_api_key
 
     def _redact(self, s: str) -> str:
         if self._api_key:

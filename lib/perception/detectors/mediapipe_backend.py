@@ -59,9 +59,11 @@ LABEL_IS_PERSON_HAND = True
 
 
 def default_model_path() -> Path:
-    env = os.environ.get(MODEL_ENV)
-    if env:
-        return Path(env)
+    from demoforge.lib.settings import read_settings
+
+    configured = read_settings().hand_landmarker
+    if configured:
+        return configured
     return Path(sys.prefix) / "share" / "demoforge" / "hand_landmarker.task"
 
 

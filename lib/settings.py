@@ -1,0 +1,143 @@
+"""Every environment variable demoforge reads, in one table, and one frozen object that holds them.
+
+Convention: every name starts with ``DEMOFORGE_``. Two families are read under their own
+ecosystems' names because users already set them for other tools: ``OPENAI_BASE_URL`` /
+``OPENAI_API_KEY`` (OpenAI-compatible servers) and ``PREFECT_*`` / ``MUJOCO_GL`` (read by those
+libraries themselves). The options of ``demoforge evaluate`` and friends are also environment
+variables (``DEMOFORGE_TRIALS=10 make evaluate``): the CLI declares them, this table lists them.
+
+Before this release some names had no prefix (``TAKES``, ``SEED``, ``LLM_MODEL``, ...).
+:func:`adopt_old_names` still reads them for one release, copying each to its new name and printing
+a one-line deprecation warning; the new name wins when both are set.
+
+    settings = read_settings()          # a snapshot of the environment, read once per call
+    settings.warehouse, settings.task_runner, settings.gguf_path, ...
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping, MutableMapping
+
+__all__ = ["PREFIX", "VARIABLES", "RENAMED", "Settings", "read_settings", "adopt_old_names"]
+
+PREFIX = "DEMOFORGE_"
+
+#: name -> what it sets. The CLI options' variables are declared by the CLI with these names.
+VARIABLES: dict[str, str] = {
+    # where things are
+    "DEMOFORGE_WAREHOUSE": "warehouse folder (default: ./warehouse of the project)",
+    "DEMOFORGE_DIGEST_CACHE": "where folder digests are remembered (default: $XDG_CACHE_HOME/demoforge/digests)",
+    "DEMOFORGE_GGUF_PATH": "the local LLM's GGUF file (default: the embedded Gemma 3 270M in the venv)",
+    "DEMOFORGE_HAND_LANDMARKER": "MediaPipe's hand_landmarker.task (default: the one set-up fetched into the venv)",
+    "DEMOFORGE_ARCTIC_ROOT": "an ARCTIC download for evaluate-keypoints --dataset arctic",
+    # how things run
+    "DEMOFORGE_TASK_RUNNER": "threads (default) or dask",
+    "DEMOFORGE_DASK_ADDRESS": "scheduler of an existing Dask cluster",
+    "DEMOFORGE_DASK_WORKERS": "worker processes of a local Dask cluster (default 2)",
+    "DEMOFORGE_DEBUG": "full tracebacks instead of one-line errors",
+    "DEMOFORGE_DETECTORS": "hand detectors `evaluate` ingests every take with",
+    # the LLM
+    "DEMOFORGE_LLM_BACKEND": "local (embedded Gemma 3 270M) or openai",
+    "DEMOFORGE_LLM_MODEL": "model name of the openai backend",
+    "DEMOFORGE_LLM_TASKS": "tasks of the prompting evaluation in `evaluate`",
+    # `demoforge evaluate`'s sizes
+    "DEMOFORGE_TAKES": "synthetic takes per task and mirror flag",
+    "DEMOFORGE_SEED": "first seed of the synthetic takes",
+    "DEMOFORGE_MIRROR": "synthetic takes: both, no or yes (mirrored)",
+    "DEMOFORGE_EPISODES": "episodes per task database",
+    "DEMOFORGE_SIM_EPISODES": "episodes per task executed in MuJoCo",
+    "DEMOFORGE_STABILITY_EPISODES": "episodes executed again on shifted scenes",
+    "DEMOFORGE_STABILITY_REPEATS": "executions per episode of the stability check",
+    "DEMOFORGE_TRIALS": "query scenes per LLM strategy",
+    "DEMOFORGE_GRID_SCENES": "query scenes of the LLM-free baselines and the policy",
+    "DEMOFORGE_VARIATION_TRIALS": "scenes per task and variation kind (Table 4)",
+    "DEMOFORGE_POLICY_EPOCHS": "training epochs of the learned policy",
+    "DEMOFORGE_POLICY_TRIALS": "scenes per kind the learned policy is judged on",
+}
+
+#: the names of the previous release, read for one more release
+RENAMED: dict[str, str] = {
+    old: PREFIX + old for old in (
+        "TAKES", "SEED", "MIRROR", "EPISODES", "SIM_EPISODES", "STABILITY_EPISODES", "STABILITY_REPEATS",
+        "TRIALS", "GRID_SCENES", "LLM_TASKS", "LLM_BACKEND", "LLM_MODEL", "VARIATION_TRIALS",
+        "POLICY_EPOCHS", "POLICY_TRIALS", "ARCTIC_ROOT")
+}
+
+
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
+def adopt_old_names(environ: MutableMapping[str, str] | None = None,
+                    warn: Callable[[str], None] = _warn) -> list[str]:
+    """Copy each old, unprefixed variable that is set to its new name (unless the new one is set),
+    with one warning line per name; returns the old names found."""
+    env = os.environ if environ is None else environ
+    found = []
+    for old, new in RENAMED.items():
+        if old not in env:
+            continue
+        found.append(old)
+        if new in env:
+            warn(f"warning: {old} is ignored because {new} is set; {old} is a deprecated name, unset it")
+        else:
+            env[new] = env[old]
+            warn(f"warning: {old} is deprecated and will stop working in the next release; set {new} instead")
+    return found
+
+
+def _path(env: Mapping[str, str], name: str) -> Path | None:
+    raw = env.get(name)
+    return Path(raw).expanduser() if raw else None
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The environment as demoforge reads it (None: not set, the reader's default applies)."""
+
+    warehouse: Path | None = None
+    digest_cache: Path | None = None
+    gguf_path: Path | None = None
+    hand_landmarker: Path | None = None
+    arctic_root: Path | None = None
+    task_runner: str = "threads"
+    dask_address: str | None = None
+    dask_workers: str = "2"
+    llm_backend: str | None = None
+    llm_model: str | None = None
+    openai_base_url: str | None = None
+    openai_api_key: str | None = None
+
+    def __repr__(self) -> str:  # never print a key
+        key = "set" if self.openai_api_key else None
+        fields = {k: v for k, v in self.__dict__.items() if k != "openai_api_key"}
+        return f"Settings({', '.join(f'{k}={v!r}' for k, v in fields.items())}, openai_api_key={key!r})"
+
+    def cache_inputs(self) -> dict[str, str | None]:
+        """The settings that change what `evaluate` computes (part of its run-cache key)."""
+        return {"arctic_root": str(self.arctic_root) if self.arctic_root else None,
+                "llm_backend": self.llm_backend, "llm_model": self.llm_model,
+                "openai_base_url": self.openai_base_url, "task_runner": self.task_runner}
+
+
+def read_settings(environ: Mapping[str, str] | None = None) -> Settings:
+    """A snapshot of the environment (``os.environ`` unless given)."""
+    env = os.environ if environ is None else environ
+    return Settings(
+        warehouse=_path(env, "DEMOFORGE_WAREHOUSE"),
+        digest_cache=_path(env, "DEMOFORGE_DIGEST_CACHE"),
+        gguf_path=_path(env, "DEMOFORGE_GGUF_PATH"),
+        hand_landmarker=_path(env, "DEMOFORGE_HAND_LANDMARKER"),
+        arctic_root=_path(env, "DEMOFORGE_ARCTIC_ROOT"),
+        task_runner=(env.get("DEMOFORGE_TASK_RUNNER") or "threads").strip().lower() or "threads",
+        dask_address=env.get("DEMOFORGE_DASK_ADDRESS") or None,
+        dask_workers=env.get("DEMOFORGE_DASK_WORKERS", "2"),
+        llm_backend=env.get("DEMOFORGE_LLM_BACKEND") or None,
+        llm_model=env.get("DEMOFORGE_LLM_MODEL") or None,
+        openai_base_url=env.get("OPENAI_BASE_URL") or None,
+        openai_api_key=env.get("OPENAI_API_KEY") or None,
+    )
