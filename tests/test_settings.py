@@ -51,7 +51,9 @@ def test_every_cli_environment_variable_is_prefixed_and_listed():
 def test_an_old_name_still_reaches_its_option_through_the_cli(tmp_path):
     from demoforge.cli import app
 
-    r = CliRunner().invoke(app, ["--warehouse", str(tmp_path), "evaluate"], env={"MIRROR": "sideways", "DEMOFORGE_MIRROR": None})
+    # --detector bogus: should the old name not be adopted, the command still stops at once (on the detector)
+    r = CliRunner().invoke(app, ["--warehouse", str(tmp_path), "evaluate", "--detector", "bogus"],
+                           env={"MIRROR": "sideways", "DEMOFORGE_MIRROR": None})
     # (None: unset during the call and again after it, so the adopted name does not leak into other tests)
     assert r.exit_code == 2, r.output
     assert "--mirror must be both, no or yes, got 'sideways'" in r.output
@@ -61,6 +63,7 @@ def test_an_old_name_still_reaches_its_option_through_the_cli(tmp_path):
 def test_the_new_name_sets_the_option(tmp_path):
     from demoforge.cli import app
 
-    r = CliRunner().invoke(app, ["--warehouse", str(tmp_path), "evaluate"], env={"DEMOFORGE_MIRROR": "upside"})
+    r = CliRunner().invoke(app, ["--warehouse", str(tmp_path), "evaluate", "--detector", "bogus"],
+                           env={"DEMOFORGE_MIRROR": "upside"})
     assert r.exit_code == 2 and "got 'upside'" in r.output
     assert "deprecated" not in r.output
