@@ -119,7 +119,7 @@ def test_build_annotations_validates_and_writes_atomically(tmp_path):
 
 
 def test_mask_to_ranges_and_suggestion_follow_the_automatic_method():
-    from demoforge.lib.ingest.gripper_mapping import gripper_state
+    from demoforge.lib.ingest.gripper_open_close import gripper_state
 
     assert mask_to_ranges(np.array([1, 1, 0, 0, 1, 0, 1], bool)) == [[0, 2], [4, 5], [6, 7]]
     assert mask_to_ranges(np.zeros(4, bool)) == []

@@ -466,7 +466,7 @@ def test_carried_object_keypoints_match_the_task_library_scenes(mirror):
 def test_lerobot_stats_equal_lerobots_histogram_algorithm(seed, n_eps, length, dims):
     """The vectorised statistics equal a per-dimension transcription of LeRobot's RunningQuantileStats
     (to one histogram bin), and the aggregate is LeRobot's count-weighted one."""
-    from demoforge.lib.exports.lerobot import aggregate_stats, lerobot_stats
+    from demoforge.lib.exports.lerobot_stats import aggregate_stats, lerobot_stats
 
     rng = np.random.default_rng(seed)
     x = rng.normal(0, rng.uniform(0.01, 5), (n_eps, length, dims)).astype(np.float32)

@@ -14,7 +14,7 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
 2. **Duplicates**: both labels on the same physical hand (mean 2D joint distance under
    ``duplicate_sizes`` hand sizes): the less confident one is dropped.
 3. **Identity**: left/right swaps and handedness flips are repaired from 2D continuity
-   (:func:`demoforge.lib.ingest.alignment.repair_swaps`: each detection goes to the physical hand whose last
+   (:func:`demoforge.lib.ingest.track_repair.repair_swaps`: each detection goes to the physical hand whose last
    position is closer; positions older than ``max_gap_frames`` are forgotten, so sparse
    detections are not re-labelled against where a hand was seconds ago).
 4. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
@@ -220,7 +220,7 @@ def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarr
 
     cen = np.where(det[..., None], np.nanmean(np.where(det[..., None, None], P, 0.0), axis=2), np.nan)
     if cfg.repair_identity:
-        from demoforge.lib.ingest.alignment import repair_swaps
+        from demoforge.lib.ingest.track_repair import repair_swaps
 
         swapped = repair_swaps(cen, det, cfg.swap_margin_px, max_age=cfg.max_gap_frames)
     else:

@@ -288,7 +288,7 @@ def mask_to_ranges(mask: np.ndarray) -> list[list[int]]:
 
 def suggest_closed_ranges(fingertip_distance: np.ndarray) -> dict[str, list[list[int]]]:
     """The automatic open/close method's closed ranges per hand, from (T, 2) fingertip distances (m)."""
-    from demoforge.lib.ingest.gripper_mapping import gripper_state
+    from demoforge.lib.ingest.gripper_open_close import gripper_state
 
     d = np.asarray(fingertip_distance, float)
     if d.ndim != 2 or d.shape[1] != 2:
