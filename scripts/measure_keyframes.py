@@ -1,11 +1,16 @@
 """Round trip of the action encodings in physics (issue 21 point 2): database episodes executed in
 MuJoCo raw, keyframe-encoded -> decoded, and uniformly resampled to 20 / 40 waypoints -> upsampled.
 
-Per task: the scripted demonstration of seed ``--demo-seed`` (the ground truth a `demoforge synth`
-take of that seed is rendered from, without the perception noise of an ingest) -> an augmented
+Per task: a demonstration -> an augmented
 database in memory (``generate_episodes``, as `demoforge augment` builds it: translated and mirrored
 episodes) -> ``--episodes`` valid episodes drawn at random -> each executed with
 ``demoforge.lib.sim.execute(task, keypoints, actions)`` in five forms:
+
+The demonstration (``--source``): ``scripted``, the task library's scripted demo of seed
+``--demo-seed`` (the ground truth a `demoforge synth` take of that seed is rendered from, no
+perception noise); or ``ingested``, that synthetic take rendered (into ``--work``, if missing) and
+ingested with the simulated detector (``flows.ingest.ingest_take``), read back as the augmentation
+reads it (``tasks.augment.load_demo_source``): the trajectory with the ingest's noise.
 
 * ``raw``: the episode's actions as stored;
 * ``keyframes``: ``encode_keyframes`` (5 mm, 0.05 rad, gripper instants; what the prompts write) ->
@@ -50,9 +55,31 @@ def _group(db, i):
     return next(g for g in db.groups if g.row0 <= i < g.row1)
 
 
-def measure_task(task: str, n_episodes: int, n_database: int, demo_seed: int, seed: int, workers: int) -> dict:
+def ingested_source(task: str, demo_seed: int, work: str):
+    """The synthetic take of (task, demo_seed) rendered and ingested into work/, as a DemoSource."""
+    from pathlib import Path
+
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.lib.synth.take import generate_take
+    from demoforge.tasks.augment import load_demo_source
+
+    root = Path(work)
+    take = root / "takes" / f"synth_{task}_s{demo_seed:04d}"
+    if not (take / "take.json").is_file():  # written last
+        generate_take(task, demo_seed, False, take, video=False)
+    warehouse = root / "warehouse"
+    warehouse.mkdir(parents=True, exist_ok=True)
+    ingest_take(str(take), str(warehouse), show_progress=False)
+    return load_demo_source(take.name, task, str(warehouse))
+
+
+def measure_task(task: str, n_episodes: int, n_database: int, demo_seed: int, seed: int, workers: int,
+                 source: str = "scripted", work: str = "/tmp/measure_keyframes") -> dict:
     spec = get_task(task)
-    src = from_scripted_demo(spec, spec.scripted_demo(demo_seed))
+    if source == "ingested":
+        src = ingested_source(task, demo_seed, work)
+    else:
+        src = from_scripted_demo(spec, spec.scripted_demo(demo_seed))
     db = generate_episodes(src, n=n_database, n_mirrored=n_database // 2, seed=seed)
     valid = np.flatnonzero(db.valid)
     rng = np.random.default_rng(seed)
@@ -94,7 +121,7 @@ def measure_task(task: str, n_episodes: int, n_database: int, demo_seed: int, se
         tokens["keyframes"].append(approx_token_count(build_prompt(exs, kp, db.initial[i]).text))
         for m in (20, 40):
             tokens[f"uniform{m}"].append(approx_token_count(build_prompt(exs, kp, db.initial[i], n_waypoints=m).text))
-    out = {"task": task, "episodes": int(len(ids)), "database": int(len(db)), "valid": int(len(valid)),
+    out = {"task": task, "source": source, "episodes": int(len(ids)), "database": int(len(db)), "valid": int(len(valid)),
            "mean_steps": float(np.mean(db.lengths[ids])), "mean_keyframes": float(np.mean(n_kf)),
            "mean_keyframes_boundaries": float(np.mean(n_kfb)), "mean_keyframes_coarse": float(np.mean(n_kfc)), "max_pos_err_m": float(np.max(err_p)),
            "max_rot_err_rad": float(np.max(err_q)),
@@ -147,18 +174,21 @@ def main(argv=None) -> int:
     ap.add_argument("--demo-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--source", choices=("scripted", "ingested"), default="scripted")
+    ap.add_argument("--work", default="/tmp/measure_keyframes", help="takes and warehouse of --source ingested")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
     args = ap.parse_args(argv)
     results = []
     for task in args.tasks:
         t0 = time.perf_counter()
-        r = measure_task(task, args.episodes, args.database, args.demo_seed, args.seed, args.workers)
+        r = measure_task(task, args.episodes, args.database, args.demo_seed, args.seed, args.workers, args.source,
+                         args.work)
         r["wall_s"] = time.perf_counter() - t0
         print(f"{task}: {json.dumps(r)}", file=sys.stderr, flush=True)
         results.append(r)
     print(markdown(results))
     for r in results:
-        print(f"\n{r['task']}: {r['episodes']} of {r['valid']} valid episodes (database {r['database']}), "
+        print(f"\n{r['task']} ({r['source']}): {r['episodes']} of {r['valid']} valid episodes (database {r['database']}), "
               f"keyframe reconstruction max {r['max_pos_err_m'] * 1000:.2f} mm / {r['max_rot_err_rad']:.4f} rad, "
               f"{r['wall_s']:.0f} s")
     if args.json:
