@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-LLM_EVAL_VERSION = "1"
+LLM_EVAL_VERSION = "2"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None)
 LLM_STRATEGIES = ("single", "random", "retrieval")
 BASELINES = ("replay_top1", "transform_demo")
 K_EXAMPLES = 3
@@ -60,7 +60,7 @@ def _episode_data(warehouse: str, task: str, take: str):
 @stage_task(name="llm_trials", version=LLM_EVAL_VERSION)
 def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
                backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
-               n_waypoints: int = 20, precision: int = 3, max_tokens: int | None = None,
+               n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
                temperature: float = 0.0) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
     from demoforge.tasks.augment import episode_actions
@@ -82,7 +82,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
         poses, kp = query_scene(task, seed, trial)
         row = {"task": task, "take": take, "trial": trial, "strategy": strategy,
                "backend": backend if llm else "none", "model": getattr(llm, "model", "") if llm else "",
-               "seed": seed, "query_keypoints": kp.tolist(), "n_waypoints": n_waypoints, "prompt_tokens": 0,
+               "seed": seed, "query_keypoints": kp.tolist(), "n_waypoints": int(n_waypoints or 0), "prompt_tokens": 0,
                "answer_tokens": 0, "latency_s": 0.0, "cached": False, "parse_status": "ok", "parse_detail": "",
                "prompt_hash": "", "raw_answer": ""}
         if strategy == "single":
@@ -119,16 +119,20 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     return Manifest.from_written("llm_trials", written)
 
 
-def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int, n_waypoints: int = 20,
-                precision: int = 3, max_tokens: int | None = None, temperature: float = 0.0,
-                seed: int = 0) -> tuple[np.ndarray | None, dict]:
-    """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt -> the
-    backend's answer -> parsed actions upsampled to n_steps (None when the answer does not parse), and
-    the llm_trials fields of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).
-    A backend failure gives parse_status `llm_error`, never an exception."""
+def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int,
+                n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
+                temperature: float = 0.0, seed: int = 0) -> tuple[np.ndarray | None, dict]:
+    """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt (the
+    examples ordered with the most similar one last, next to the new input) -> the backend's answer ->
+    parsed actions brought to n_steps (None when the answer does not parse), and the llm_trials fields
+    of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).  n_waypoints None:
+    a keyframe prompt, whose answer is decoded with the keyframe decoder on the most similar example's
+    time curve; else uniform waypoints, upsampled.  A backend failure gives parse_status `llm_error`,
+    never an exception."""
     from demoforge.lib.llm import Sampling
-    from demoforge.lib.llm.prompting import build_prompt, parse_actions
+    from demoforge.lib.llm.prompting import build_prompt, order_by_similarity, parse_actions
 
+    examples = order_by_similarity(examples, query_keypoints)
     prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision)
     fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
               "raw_answer": "", "parse_status": "ok", "parse_detail": ""}
@@ -143,9 +147,21 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
         return None, fields
     fields.update(prompt_tokens=int(c.prompt_tokens or 0), answer_tokens=int(c.completion_tokens or 0),
                   latency_s=0.0 if c.cached else float(c.latency_s), cached=bool(c.cached), raw_answer=c.text)
-    parsed = parse_actions(c.text, expected_waypoints=n_waypoints, prefix=prompt.answer_prefix)
+    parsed = parse_actions(c.text, expected_waypoints=prompt.n_waypoints, prefix=prompt.answer_prefix)
     fields.update(parse_status=parsed.status, parse_detail=parsed.detail)
-    return (upsample(parsed.actions, n_steps) if parsed.ok else None), fields
+    if not parsed.ok:
+        return None, fields
+    return decode_answer(prompt, parsed.actions, n_steps), fields
+
+
+def decode_answer(prompt, answer: np.ndarray, n_steps: int) -> np.ndarray:
+    """A parsed (n, 2, 8) answer as n_steps actions: keyframes decoded as the robot executor interpolates
+    (on the last example's time curve), uniform waypoints upsampled."""
+    if getattr(prompt, "encoding", "uniform") == "keyframes":
+        from demoforge.lib.trajectories.keyframes import answer_times, decode_keyframes
+
+        return decode_keyframes(answer, answer_times(prompt.keyframe_times, len(answer), n_steps), n_steps)
+    return upsample(answer, n_steps)
 
 
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:

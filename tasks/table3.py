@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-TABLE3_VERSION = "1"
+TABLE3_VERSION = "2"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None)
 LLM_STRATEGIES = ("single", "random", "retrieval")
 FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
 POLICY = "policy"
@@ -52,7 +52,7 @@ def nearest_source(source, query_keypoints: np.ndarray):
 @stage_task(name="table3_trials", version=TABLE3_VERSION, key_ignore=("show_progress",))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
-                  backend_options: dict | None = None, n_waypoints: int = 20, precision: int = 3,
+                  backend_options: dict | None = None, n_waypoints: int | None = 20, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
                   show_progress: bool = True) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.

@@ -11,9 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+import demoforge.lib
 from demoforge.lib.llm.prompting import (
-    ANSWER_PREFIX, PARSE_STATUSES, Example, approx_token_count, build_prompt, count_tokens, format_actions,
-    format_number, parse_actions, resample_actions,
+    ANSWER_PREFIX, PARSE_STATUSES, PROMPT_VERSION, SYSTEM_PROMPT, Example, approx_token_count, build_prompt,
+    count_tokens, format_actions, format_keypoints, format_number, order_by_similarity, parse_actions, resample_actions,
 )
 
 GOLDEN = Path(__file__).parent / "golden" / "prompt_3demos.txt"
@@ -100,6 +101,56 @@ def test_demo_actions_in_prompt_parse_back():
     ref = resample_actions(three_examples()[0].actions, 6)
     assert np.allclose(res.actions[:, :, :3], ref[:, :, :3], atol=6e-4)
     assert np.array_equal(res.actions[:, :, 7], ref[:, :, 7])
+
+
+THESIS = demoforge.lib.SHARED_DATA.parent / "reference" / "thesis.txt"
+
+
+def test_system_prompt_is_the_thesis_appendix_a_word_for_word():
+    """The system message is the text of Appendix A's SYSTEM_PROMPT (between its opening quotes and
+    FORMAT_PROMPT; the extraction never closes the string), with the task's keypoint count for 11."""
+    if not THESIS.is_file():
+        pytest.skip(f"{THESIS} absent (the thesis text lives next to ../shared/data)")
+    text = THESIS.read_text(encoding="utf-8")
+    start = text.index('SYSTEM_PROMPT = """\n') + len('SYSTEM_PROMPT = """\n')
+    thesis_system = text[start:text.index("FORMAT_PROMPT", start)].rstrip("\n")
+    assert SYSTEM_PROMPT.format(k=11) == thesis_system
+    p = golden_prompt()
+    assert p.system == thesis_system
+
+
+def test_keyframe_prompt_is_the_default_and_asks_for_the_last_examples_count():
+    from demoforge.lib.trajectories.keyframes import encode_keyframes
+
+    exs = [hand_episode(0.0, n=40), hand_episode(0.05, n=30)]
+    q = hand_episode(0.01)
+    p = build_prompt(exs, q.keypoints, q.initial)
+    assert p.encoding == "keyframes" and p.version == PROMPT_VERSION == "appendix-a-v2-keyframes"
+    idx = [encode_keyframes(e.actions) for e in exs]
+    for e, i in zip(exs, idx):
+        assert f"# shape: ({len(i)}, 2, 8)" in p.user
+        assert format_actions(e.actions[i]) in p.user  # the keyframes themselves, unchanged
+    assert p.n_waypoints == len(idx[-1]) and np.allclose(p.keyframe_times, idx[-1] / 29)
+    # explicit waypoints keep today's uniform resampling; the encodings never share a content hash
+    u = build_prompt(exs, q.keypoints, q.initial, n_waypoints=6)
+    assert u.encoding == "uniform" and u.n_waypoints == 6 and u.keyframe_times == ()
+    r = build_prompt(exs, q.keypoints, q.initial, encoding="raw")
+    assert r.n_waypoints == 30 and len({p.content_hash, u.content_hash, r.content_hash}) == 3
+    with pytest.raises(ValueError):
+        build_prompt(exs, q.keypoints, q.initial, encoding="uniform")
+    with pytest.raises(ValueError):
+        build_prompt(exs, q.keypoints, q.initial, encoding="bogus")
+
+
+def test_examples_ordered_with_the_most_similar_last():
+    q = hand_episode(0.01)
+    exs = [hand_episode(0.0), hand_episode(0.08), hand_episode(-0.04)]  # MSE order: 0 < 2 < 1
+    ordered = order_by_similarity(exs, q.keypoints)
+    assert [o.keypoints[0, 0] for o in ordered] == [exs[i].keypoints[0, 0] for i in (1, 2, 0)]
+    p = build_prompt(ordered, q.keypoints, q.initial)
+    last = p.user.split("** Demo 2 **")[1].split("** New Input **")[0]
+    assert format_keypoints(exs[0].keypoints) in last  # the nearest example sits next to the new input
+    assert format_keypoints(exs[1].keypoints) in p.user.split("** Demo 1 **")[0]
 
 
 def test_build_prompt_accepts_tuples_and_dicts():

@@ -18,8 +18,15 @@ What was filled in or changed where the thesis text is garbled or elided (docume
     text between the quotes.  Lines ``** Demo 1 ** . . .`` are the elided demos 1 and 2.
   - Numbers are rounded (default 3 decimals, trailing zeros stripped, gripper state as 0/1) and
     written compactly, one keypoint / one waypoint per line, instead of Python's full float repr.
-  - Action sequences are time-resampled to a fixed number of waypoints (KAT used ~20), see
-    :func:`resample_actions`.
+  - Action sequences (``encoding``): ``"keyframes"`` (the default when no ``n_waypoints`` is given)
+    writes each example's keyframes (``demoforge.lib.trajectories.keyframes``: the steps that keep
+    linear / slerp reconstruction within 5 mm and 0.05 rad, gripper instants and boundaries kept);
+    the answer is asked for with the count of the most similar example (the last one) and decoded on
+    its time curve (:attr:`Prompt.keyframe_times`).  ``"uniform"`` time-resamples every sequence to
+    ``n_waypoints`` waypoints (KAT used ~20, see :func:`resample_actions`); ``"raw"`` writes the
+    sequences as given.
+  - Example order: the caller's.  :func:`order_by_similarity` puts the most similar example (lowest
+    keypoint MSE to the query) last, next to the new input; the LLM evaluation uses it.
   - For BASE (completion) models, :attr:`Prompt.text` = system + user + ``Action Sequence:\\n[[[``,
     so the model continues the answer array right after its opening brackets
     (:attr:`Prompt.answer_prefix`).  The parser accepts such continuations.
@@ -65,12 +72,16 @@ __all__ = [
     "format_poses",
     "format_actions",
     "build_prompt",
+    "order_by_similarity",
+    "ENCODINGS",
     "count_tokens",
     "approx_token_count",
     "parse_actions",
 ]
 
-PROMPT_VERSION = "appendix-a-v1"
+# part of every prompt's content hash: answers cached for another prompt version never mix
+PROMPT_VERSION = "appendix-a-v2-keyframes"
+ENCODINGS = ("keyframes", "uniform", "raw")
 
 # The thesis's SYSTEM_PROMPT (Appendix A), verbatim apart from the keypoint count placeholder.
 SYSTEM_PROMPT = (
@@ -289,7 +300,7 @@ class Prompt:
     messages: tuple[dict, ...]
     text: str
     n_examples: int
-    n_waypoints: int
+    n_waypoints: int  # waypoints (uniform) or keyframes (the last example's count) the answer should have
     precision: int
     n_keypoints: int
     answer_prefix: str = ANSWER_PREFIX
@@ -297,6 +308,10 @@ class Prompt:
     version: str = PROMPT_VERSION
     content_hash: str = field(default="")
     answer_tokens_estimate: int = 0  # approx tokens of one example's action block (+25 %): a max_tokens hint
+    encoding: str = "uniform"  # how the action sequences are written: one of ENCODINGS
+    # keyframes: the last (most similar) example's keyframe times as fractions of its length, the time
+    # curve an answer is decoded on (demoforge.lib.trajectories.keyframes.answer_times)
+    keyframe_times: tuple[float, ...] = ()
 
     def __hash__(self) -> int:
         return hash(self.content_hash)
@@ -319,8 +334,9 @@ class Prompt:
                 f"=== COMPLETION TEXT ===\n{self.text}\n=== END ===\n")
 
 
-def _hash_prompt(messages: Sequence[dict], text: str) -> str:
-    blob = json.dumps({"messages": list(messages), "text": text}, sort_keys=True, ensure_ascii=False)
+def _hash_prompt(messages: Sequence[dict], text: str, encoding: str = "uniform") -> str:
+    blob = json.dumps({"messages": list(messages), "text": text, "version": PROMPT_VERSION, "encoding": encoding},
+                      sort_keys=True, ensure_ascii=False)
     return hashlib.sha256(blob.encode("utf-8")).hexdigest()
 
 
@@ -329,11 +345,43 @@ def _scene_block(kp: np.ndarray, init: np.ndarray, precision: int) -> str:
             f"Initial Gripper Poses:\n{format_poses(init, precision)}\n# shape: (2, 8)\n")
 
 
+def order_by_similarity(examples: Sequence[Any], query_keypoints: Any) -> list[Example]:
+    """The examples ordered by decreasing keypoint MSE to the query: the most similar one last, next to
+    the new input (ties keep the given order)."""
+    exs = [Example.coerce(e) for e in examples]
+    q = np.asarray(query_keypoints, dtype=np.float64)
+    mse = [float(np.mean(np.sum((e.keypoints - q) ** 2, axis=-1))) for e in exs]
+    order = sorted(range(len(exs)), key=lambda i: -mse[i])  # sorted() is stable
+    return [exs[i] for i in order]
+
+
+def _encode_examples(exs: Sequence[Example], encoding: str, n_waypoints: int | None, pos_tol_m: float,
+                     rot_tol_rad: float) -> tuple[list[np.ndarray], tuple[float, ...]]:
+    """Each example's action block and the keyframe time fractions of the last example."""
+    if encoding == "uniform":
+        return [resample_actions(e.actions, n_waypoints) for e in exs], ()
+    if encoding == "raw":
+        return [np.asarray(e.actions, np.float64) for e in exs], ()
+    from demoforge.lib.trajectories.keyframes import encode_keyframes, keyframe_fractions
+
+    blocks, times = [], ()
+    for e in exs:
+        a = np.asarray(e.actions, np.float64)
+        idx = encode_keyframes(a, pos_tol_m, rot_tol_rad)
+        blocks.append(a[idx])
+        times = tuple(float(x) for x in keyframe_fractions(idx, len(a)))
+    return blocks, times
+
+
 def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: Any,
-                 n_waypoints: int | None = 20, precision: int = 3) -> Prompt:
+                 n_waypoints: int | None = None, precision: int = 3, encoding: str | None = None,
+                 pos_tol_m: float = 0.005, rot_tol_rad: float = 0.05) -> Prompt:
     """The thesis's prompt (Appendix A) for ``examples`` (Example, (kp, init, actions) tuples or mappings
     with keys keypoints / initial / actions) and the query scene.  Each example's action sequence is
-    resampled to ``n_waypoints`` (None: kept as given)."""
+    written as ``encoding`` says (module docstring): ``"keyframes"`` (default when ``n_waypoints`` is
+    None; tolerances ``pos_tol_m`` / ``rot_tol_rad``), ``"uniform"`` (default when ``n_waypoints`` is
+    given: resampled to it) or ``"raw"``.  The examples are written in the given order (see
+    :func:`order_by_similarity`)."""
     exs = [Example.coerce(e) for e in examples]
     qkp = np.asarray(query_keypoints, dtype=np.float64)
     qinit = np.asarray(query_initial, dtype=np.float64)
@@ -341,14 +389,20 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
         raise ValueError(f"query keypoints must be (k, 3), got {qkp.shape}")
     if qinit.shape != (2, 8):
         raise ValueError(f"query initial poses must be (2, 8), got {qinit.shape}")
+    enc = encoding or ("uniform" if n_waypoints else "keyframes")
+    if enc not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
+    if enc == "uniform" and not n_waypoints:
+        raise ValueError("encoding 'uniform' needs n_waypoints")
     k = qkp.shape[0]
-    parts = []
-    n_out = None
-    answer_est = 0
     for i, e in enumerate(exs):
         if e.keypoints.shape != (k, 3):
             raise ValueError(f"example {i}: keypoints {e.keypoints.shape} != query's {(k, 3)}")
-        acts = resample_actions(e.actions, n_waypoints) if n_waypoints else np.asarray(e.actions, float)
+    blocks, kf_times = _encode_examples(exs, enc, n_waypoints, pos_tol_m, rot_tol_rad)
+    parts = []
+    n_out = None
+    answer_est = 0
+    for i, (e, acts) in enumerate(zip(exs, blocks)):
         n_out = acts.shape[0]
         answer_est = max(answer_est, approx_token_count(format_actions(acts, precision)))
         parts.append(f"** Demo {i} **\n" + _scene_block(e.keypoints, e.initial, precision)
@@ -358,10 +412,12 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     user = "".join(parts)
     text = f"{system}\n\n{user}Action Sequence:\n{ANSWER_PREFIX}"
     messages = ({"role": "system", "content": system}, {"role": "user", "content": user})
+    # the answer's expected count: the uniform count, else the last (most similar) example's
+    n_answer = int(n_waypoints) if enc == "uniform" else int(n_out or 0)
     return Prompt(messages=messages, text=text, n_examples=len(exs),
-                  n_waypoints=int(n_waypoints or (n_out or 0)), precision=int(precision), n_keypoints=k,
-                  content_hash=_hash_prompt(messages, text),
-                  answer_tokens_estimate=int(answer_est * 1.25) + 16)
+                  n_waypoints=n_answer, precision=int(precision), n_keypoints=k,
+                  content_hash=_hash_prompt(messages, text, enc),
+                  answer_tokens_estimate=int(answer_est * 1.25) + 16, encoding=enc, keyframe_times=kf_times)
 
 
 # --------------------------------------------------------------------------------------------
