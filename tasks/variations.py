@@ -27,10 +27,11 @@ def database_files(warehouse: str, task: str, take: str) -> list[Path]:
 
 def code_files() -> list[Path]:
     """Sources whose changes change the outcomes (scenes, variations, the simulator, the transforms):
-    their content keys the stage's cache, so a physics change in robot_sim re-runs the trials."""
+    their content keys the stage's cache, so a physics change in lib/sim re-runs the trials."""
     root = Path(__file__).resolve().parents[1] / "lib"
-    return sorted([*(root / "robot_sim").glob("*.py"), *(root / "task_library").glob("*.py"),
-                   root / "variations.py", root / "augmentation.py", root / "retrieval.py", root / "geometry.py"])
+    return sorted([*(root / "sim").rglob("*.py"), *(root / "task_library").glob("*.py"),
+                   *(root / "trajectories" / "augmentation").glob("*.py"), root / "trajectories" / "retrieval.py",
+                   *(root / "geometry").glob("*.py")])
 
 
 class _Strategies:

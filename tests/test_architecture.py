@@ -125,3 +125,12 @@ def test_prefect_stages_live_in_tasks_only():
                     if getattr(f, "id", getattr(f, "attr", None)) == "stage_task" and _layer(m) != "tasks":
                         outside.append(f"{m}.{n.name}")
     assert outside == []
+
+
+def test_the_variations_cache_is_keyed_on_source_files_that_exist():
+    from demoforge.tasks.variations import code_files
+
+    files = code_files()
+    assert [f for f in files if not f.is_file()] == []
+    names = {f.relative_to(ROOT).as_posix() for f in files}
+    assert {"lib/trajectories/retrieval.py", "lib/geometry/rotations.py", "lib/sim/executor.py"} <= names
