@@ -41,7 +41,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from demoforge.lib.geometry import interpolate_poses, quat_normalize, quat_slerp
+from demoforge.lib.geometry import interpolate_poses, quat_angle, quat_normalize, quat_slerp
 
 __all__ = ["encode_keyframes", "decode_keyframes", "answer_times", "keyframe_fractions", "reconstruction_error",
            "gripper_change_steps"]
@@ -62,14 +62,6 @@ def gripper_change_steps(actions: Any) -> np.ndarray:
     return np.flatnonzero(np.any(g[1:] != g[:-1], axis=1)) + 1
 
 
-def _rot_angle(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
-    """Rotation angle between unit quaternions (any sign): 4 asin(|q0 -+ q1| / 2), accurate near 0
-    (acos of the dot product loses half the digits there, which would break zero-tolerance encoding)."""
-    s = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-    chord = np.linalg.norm(q0 - s * q1, axis=-1)
-    return 4.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0))
-
-
 def _segment_errors(pos: np.ndarray, quat: np.ndarray, a: int, b: int) -> tuple[float, float]:
     """Largest position / rotation error over the steps strictly between a and b, both arms, when they
     are interpolated between a and b as the decoder does."""
@@ -80,7 +72,7 @@ def _segment_errors(pos: np.ndarray, quat: np.ndarray, a: int, b: int) -> tuple[
     q = quat_slerp(np.broadcast_to(quat[a], (len(h), 2, 4)), np.broadcast_to(quat[b], (len(h), 2, 4)),
                    np.broadcast_to(h[:, None], (len(h), 2)))
     dp = float(np.linalg.norm(p - pos[a + 1:b], axis=-1).max())
-    dq = float(_rot_angle(q, quat[a + 1:b]).max())
+    dq = float(quat_angle(q, quat[a + 1:b]).max())
     return dp, dq
 
 
@@ -148,7 +140,7 @@ def reconstruction_error(actions: Any, decoded: Any) -> tuple[np.ndarray, np.nda
     """Per-step (T,) largest position error (m) and rotation error (rad) over both arms."""
     a, d = _check(actions), _check(decoded)
     dp = np.linalg.norm(a[:, :, :3] - d[:, :, :3], axis=-1).max(axis=1)
-    dq = _rot_angle(quat_normalize(a[:, :, 3:7]), quat_normalize(d[:, :, 3:7])).max(axis=1)
+    dq = quat_angle(quat_normalize(a[:, :, 3:7]), quat_normalize(d[:, :, 3:7])).max(axis=1)
     return dp, dq
 
 
