@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml setup.py requirements/lock.txt requirements/torch.txt r
 	@touch $@
 
 test: setup  ## run the test suite
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest --durations=25 $(PYTEST_ARGS)
 
 evaluate: setup  ## the main job: synthetic takes -> every flow -> reports/
 	$(VENV)/bin/demoforge evaluate $(EVALUATE_ARGS)

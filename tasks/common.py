@@ -186,6 +186,11 @@ class ContentHashPolicy(CachePolicy):
         return hashlib.sha256(payload.encode()).hexdigest()
 
 
+# Inputs no stage's result can depend on, left out of every key: a take ingested with a progress bar
+# (the main job) and again without one (the side-by-side ingest) is one cache entry, not two writes.
+PRESENTATION_ONLY = ("show_progress",)
+
+
 def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), key_optional: tuple[str, ...] = (),
                **task_options: Any) -> Callable:
     """Decorate a stage function as a Prefect task with demoforge's cache policy.
@@ -198,10 +203,11 @@ def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), key
     """
 
     def decorate(fn: Callable) -> Any:
+        ignore = tuple(dict.fromkeys((*key_ignore, *PRESENTATION_ONLY)))
         return task(
             fn,
             name=name,
-            cache_policy=ContentHashPolicy(salt=f"{name}@{version}{LAYOUT}", ignore=tuple(key_ignore),
+            cache_policy=ContentHashPolicy(salt=f"{name}@{version}{LAYOUT}", ignore=ignore,
                                            optional=tuple(key_optional)),
             persist_result=True,
             **task_options,

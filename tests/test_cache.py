@@ -126,3 +126,25 @@ def test_folder_digests_are_remembered_across_processes_and_follow_changes(tmp_p
 
     shutil.copytree(take, tmp_path / "copy" / "take")
     assert content_fingerprint(tmp_path / "copy" / "take") == changed
+
+
+def test_a_progress_bar_never_changes_a_stage_key():
+    """The main job ingests a take with a progress bar and the side-by-side ingest again without one:
+    one key, so the second call is a cache hit instead of rewriting the take's hand_keypoints."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import demoforge.tasks as tasks_pkg
+
+    checked = []
+    for mod_info in pkgutil.iter_modules(tasks_pkg.__path__):
+        mod = importlib.import_module(f"demoforge.tasks.{mod_info.name}")
+        for obj in vars(mod).values():
+            policy = getattr(obj, "cache_policy", None)
+            if not isinstance(policy, ContentHashPolicy) or "show_progress" not in inspect.signature(obj.fn).parameters:
+                continue
+            inputs = {"x": 1, "show_progress": True}
+            assert policy.compute_key(None, inputs, {}) == policy.compute_key(None, {**inputs, "show_progress": False}, {}), obj.name
+            checked.append(obj.name)
+    assert "detect_hands" in checked and "synthesize_take" in checked, checked

@@ -94,9 +94,6 @@ def _table(warehouse: Path, name: str) -> pa.Table:
     return t.sort_by([(k, "ascending") for k in keys])
 
 
-@pytest.mark.xfail(reason="known regression, found 2026-11-25 and not yet fixed: after a Ctrl-C at the first robot "
-                   "check, the resumed run rewrites the default ingest's hand_keypoints file (frames and "
-                   "gripper_poses are kept); seen 3 times in a row", strict=False)
 def test_evaluate_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(tmp_path, prefect_api_env):
     from tests.conftest import SHARED_DATA, require_mediapipe_model
 
