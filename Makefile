@@ -5,6 +5,8 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
+# test processes (pytest-xdist, whole files per worker); 0 runs the suite in this process
+PYTEST_WORKERS ?= 2
 
 .PHONY: setup test evaluate bench catalog table3 help check-exports
 
@@ -19,7 +21,7 @@ $(STAMP): pyproject.toml setup.py requirements/lock.txt requirements/torch.txt r
 	@touch $@
 
 test: setup  ## run the test suite
-	$(PY) -m pytest --durations=25 $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --durations=25 $(PYTEST_ARGS)
 
 evaluate: setup  ## the main job: synthetic takes -> every flow -> reports/
 	$(VENV)/bin/demoforge evaluate $(EVALUATE_ARGS)

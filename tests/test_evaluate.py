@@ -8,6 +8,8 @@ import pytest
 from demoforge.flows.evaluate import detector_problem, evaluate
 from tests.conftest import SHARED_DATA, require_mediapipe_model
 
+pytestmark = pytest.mark.slow
+
 HAVE_PHOTOS = (SHARED_DATA / "real_hands").is_dir()
 
 
