@@ -11,20 +11,18 @@
   the keyframe prompts' examples have 5-30 keyframes and uniform ones ~20, so 64 never cuts a
   plausible answer while still bounding a runaway list (64 x 16 numbers ~ 6k tokens).
 * :func:`actions_json_schema` — the same constraint as a JSON schema (``{"actions": n x 2 x 8}``) for
-  OpenAI-style ``response_format={"type": "json_schema", ...}``; :func:`parse_structured` turns such a
-  JSON answer (or a GBNF-constrained one) into the tolerant parser's :class:`ParseResult`.
+  OpenAI-style ``response_format={"type": "json_schema", ...}``.  Such a JSON answer needs no reader
+  of its own: :func:`demoforge.lib.llm.prompting.parse_actions` already takes the first (n, 2, 8)
+  array inside ``{"actions": ...}`` (tests/test_llm_grammar.py checks it).
 """
 
 from __future__ import annotations
 
-import json
 from functools import lru_cache
 from typing import Any
 
-from demoforge.lib.llm.prompting import ANSWER_PREFIX, ParseResult, parse_actions
-
-__all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "parse_structured",
-           "llama_grammar"]
+__all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
+           "structured_grammar", "opened_prefix"]
 
 MAX_ROWS = 64
 _OPEN = "[[["  # outer list, first waypoint, its left arm
@@ -85,26 +83,6 @@ def response_format(n_keyframes: int | None, max_rows: int = MAX_ROWS) -> dict:
     """The OpenAI ``response_format`` of :func:`actions_json_schema`."""
     return {"type": "json_schema",
             "json_schema": {"name": "actions", "strict": True, "schema": actions_json_schema(n_keyframes, max_rows)}}
-
-
-def parse_structured(text: Any, expected_waypoints: int | None = None, prefix: str | None = None) -> ParseResult:
-    """A structured answer as the tolerant parser's result: a JSON ``{"actions": ...}`` object is read
-    with ``json`` and its array handed to :func:`parse_actions` (quaternion normalising, gripper
-    snapping, statuses); anything else (a GBNF continuation, a server that ignored the schema) goes
-    to :func:`parse_actions` as it is."""
-    raw = text if isinstance(text, str) else ("" if text is None else str(text))
-    s = raw.strip()
-    if s.startswith("{"):
-        try:
-            obj = json.loads(s)
-        except ValueError:
-            obj = None
-        if isinstance(obj, dict) and isinstance(obj.get("actions"), list):
-            res = parse_actions(json.dumps(obj["actions"]), expected_waypoints=expected_waypoints, prefix="")
-            res.raw = raw
-            return res
-    return parse_actions(raw, expected_waypoints=expected_waypoints,
-                         prefix=ANSWER_PREFIX if prefix is None else prefix)
 
 
 @lru_cache(maxsize=32)
