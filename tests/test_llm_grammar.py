@@ -1,0 +1,133 @@
+"""Structured output (lib/llm/grammar.py): the GBNF grammar, the JSON schema, the cache key, and the
+embedded model's constrained answers (always (n, 2, 8))."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+
+import numpy as np
+import pytest
+
+from demoforge.lib.llm import FakeBackend, Sampling
+from demoforge.lib.llm.cache import cache_key
+from demoforge.lib.llm.grammar import (
+    MAX_ROWS, actions_gbnf, actions_json_schema, opened_prefix, response_format,
+)
+from demoforge.lib.llm.prompting import build_prompt, format_actions, parse_actions
+
+_HAVE_LLAMA = importlib.util.find_spec("llama_cpp") is not None
+needs_llama = pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
+                                 "install requirements/llm.txt (scripts/setup_llm.sh)")
+
+
+def demo(shift: float = 0.0, n: int = 5, seed: int = 0):
+    """A small synthetic example (keypoints, initial poses, actions) with a gripper closing midway."""
+    rng = np.random.default_rng(seed)
+    kp = rng.uniform(-0.3, 0.3, size=(11, 3)) + shift
+    acts = np.zeros((n, 2, 8))
+    acts[:, :, :3] = np.linspace(0, 0.1, n)[:, None, None] + np.array([[-0.2, 0.1, 0.15], [0.2, 0.1, 0.15]]) + shift
+    acts[:, :, 6] = 1.0
+    acts[:, :, 7] = 1.0
+    acts[n // 2:, 1, 7] = 0.0
+    return kp, acts[0], acts
+
+
+def real_prompts():
+    """Three short real prompts (1 example each, 2-3 waypoints): uniform and keyframe encodings."""
+    a, b, c = demo(0.0, seed=0), demo(0.05, seed=1), demo(-0.04, n=7, seed=2)
+    return [build_prompt([a], a[0] + 0.01, a[1], n_waypoints=2),
+            build_prompt([b], b[0] - 0.02, b[1], n_waypoints=3),
+            build_prompt([c], c[0] + 0.02, c[1], n_waypoints=2)]
+
+
+# ------------------------------------------------------------------------------------------------
+# the grammar text and the JSON schema (no model)
+# ------------------------------------------------------------------------------------------------
+
+def _gbnf_regex(n: int) -> re.Pattern:
+    """The language of actions_gbnf(n, 3, "") as a regex (the grammar is regular)."""
+    num = r"-?[0-9][0-9]?(\.[0-9]{1,3})?"
+    arm = r"\[" + ",".join([num] * 7) + r",[01]\]"
+    wp = r"\[" + arm + "," + arm + r"\]"
+    return re.compile(r"\[" + wp + r"(,\n?" + wp + "){" + str(n - 1) + r"}\]")
+
+
+def test_grammar_counts_exactly_n_waypoints_and_matches_the_prompt_format():
+    g = actions_gbnf(4, precision=3)
+    assert "more{3}" in g and g.startswith('root ::= "[[[" arm')
+    # what the prompt shows for an example is a word of the grammar's language
+    acts = demo(n=4)[2]
+    assert _gbnf_regex(4).fullmatch(format_actions(acts, 3))
+    assert not _gbnf_regex(4).fullmatch(format_actions(demo(n=5)[2], 3))
+    # continuing after the prompt's opened "[[[": the grammar starts inside the first arm
+    assert actions_gbnf(4, prefix="[[[").startswith("root ::= arm ")
+    assert opened_prefix("Action Sequence:\n[[[") == "[[[" and opened_prefix("x") == ""
+    assert "more{0,63}" in actions_gbnf(None) and MAX_ROWS == 64
+    assert "more" not in actions_gbnf(1).splitlines()[0]
+    with pytest.raises(ValueError):
+        actions_gbnf(0)
+    with pytest.raises(ValueError):
+        actions_gbnf(2, prefix="x")
+
+
+def test_json_schema_fixes_the_shape_and_parse_actions_reads_its_answers():
+    s = actions_json_schema(3)
+    a = s["properties"]["actions"]
+    assert (a["minItems"], a["maxItems"]) == (3, 3)
+    assert (a["items"]["minItems"], a["items"]["maxItems"]) == (2, 2)
+    assert (a["items"]["items"]["minItems"], a["items"]["items"]["maxItems"]) == (8, 8)
+    assert s["required"] == ["actions"] and s["additionalProperties"] is False
+    assert (actions_json_schema(None)["properties"]["actions"]["minItems"],
+            actions_json_schema(None)["properties"]["actions"]["maxItems"]) == (1, MAX_ROWS)
+    rf = response_format(3)
+    assert rf["type"] == "json_schema" and rf["json_schema"]["schema"] == s
+    # a JSON answer of that schema parses with the tolerant parser as it is (no reader of its own)
+    acts = demo(n=3)[2]
+    res = parse_actions(json.dumps({"actions": acts.tolist()}), expected_waypoints=3, prefix="[[[")
+    assert res.status == "ok" and res.actions.shape == (3, 2, 8) and res.detail == ""
+    assert np.allclose(res.actions[..., :3], acts[..., :3])
+
+
+def test_structured_is_part_of_the_cache_key():
+    b = FakeBackend(["x"])
+    p = real_prompts()[0]
+    free, structured = Sampling(), Sampling(structured=True)
+    assert cache_key(b, p, free) != cache_key(b, p, structured)
+    assert cache_key(b, p, structured) == cache_key(b, p, Sampling(structured=True))
+    assert Sampling().structured is False and structured.to_dict()["structured"] is True
+
+
+# ------------------------------------------------------------------------------------------------
+# the real embedded model
+# ------------------------------------------------------------------------------------------------
+
+@needs_llama
+def test_gbnf_grammar_compiles_in_llama_cpp():
+    """LlamaGrammar.from_string only stores the text; llama.cpp parses it when the sampler is built,
+    and a bad grammar makes llama_sampler_init_grammar return NULL."""
+    import llama_cpp
+    from demoforge.lib.llm.local_backend import LocalBackend
+
+    vocab = llama_cpp.llama_model_get_vocab(LocalBackend(n_ctx=4096).llm.model)
+    for n, prefix in ((2, "[[["), (3, ""), (None, "[[[")):
+        s = llama_cpp.llama_sampler_init_grammar(vocab, actions_gbnf(n, 3, prefix).encode(), b"root")
+        assert s, f"llama.cpp rejected the grammar for n={n}, prefix={prefix!r}"
+        llama_cpp.llama_sampler_free(s)
+    assert not llama_cpp.llama_sampler_init_grammar(vocab, b'root ::= "a" (', b"root")  # the check can fail
+
+
+@pytest.mark.slow
+@needs_llama
+def test_structured_greedy_answers_of_the_embedded_model_always_parse():
+    from demoforge.lib.llm.local_backend import LocalBackend
+
+    b = LocalBackend(n_ctx=4096)
+    for p in real_prompts():
+        n = p.n_waypoints
+        c = b.complete(p, Sampling(temperature=0.0, max_tokens=60 * n, seed=0, stop=p.stop, structured=True))
+        res = parse_actions(c.text, expected_waypoints=n, prefix=p.answer_prefix)
+        assert res.status == "ok" and res.actions.shape == (n, 2, 8), (res.status, res.detail, c.text)
+        assert c.finish_reason == "stop", c.text  # the grammar closed the list; nothing ran into max_tokens
+        assert res.detail == ""
