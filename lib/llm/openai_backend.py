@@ -22,7 +22,8 @@
   that serve base models on ``/completions`` (llama.cpp's ``llama-server``, ``python -m
   llama_cpp.server``) take ``grammar``.  A server that answers 400/422 naming the field is asked
   again once without it, and this backend instance stops sending it (``structured_supported``); the
-  answer is then free-running and goes through the tolerant parser.
+  answer is then free-running and goes through the tolerant parser.  (llama-cpp-python's server
+  answers that refusal with HTTP 500: a 500 naming the field is not retried, it is the refusal.)
 """
 
 from __future__ import annotations
@@ -55,10 +56,15 @@ def _clean_url(url: str) -> str:
     return urllib.parse.urlunsplit((p.scheme, host, p.path.rstrip("/"), "", ""))
 
 
+_REFUSAL_STATUSES = (400, 422, 500)
+
+
 def _refuses_structure(e: LLMRequestError) -> bool:
-    """A 400/422 whose message names the structured-output field (not any bad request)."""
+    """An error answer whose message names the structured-output field (not any bad request).  500 is
+    included: llama-cpp-python's server answers its own request-validation error on a json_schema
+    response_format with HTTP 500 (seen with 0.3.36)."""
     msg = str(e).lower()
-    return e.status in (400, 422) and any(w in msg for w in ("response_format", "json_schema", "grammar"))
+    return e.status in _REFUSAL_STATUSES and any(w in msg for w in ("response_format", "json_schema", "grammar"))
 
 
 class OpenAIBackend(LLMBackend):
@@ -187,6 +193,7 @@ class OpenAIBackend(LLMBackend):
         if self._api_key:
             headers["Authorization"] = f"Bearer {self._api_key}"
         safe_url = _clean_url(url)
+        structured_sent = "response_format" in body or "grammar" in body
         last: LLMRequestError | None = None
         t_start = time.perf_counter()
         for attempt in range(self.max_retries + 1):
@@ -207,6 +214,8 @@ class OpenAIBackend(LLMBackend):
                 msg = self._redact(f"{safe_url} answered HTTP {e.code}: {detail.strip()[:500]}")
                 retryable = e.code == 429 or e.code >= 500
                 last = LLMRequestError(msg, status=e.code, attempts=attempt + 1)
+                if structured_sent and _refuses_structure(last):
+                    retryable = False  # the server refuses the field: complete() asks again without it
                 if not retryable:
                     raise last from None
             except (TimeoutError, socket.timeout) as e:
