@@ -46,23 +46,42 @@ def real_prompts():
 # the grammar text and the JSON schema (no model)
 # ------------------------------------------------------------------------------------------------
 
-def _gbnf_regex(n: int) -> re.Pattern:
-    """The language of actions_gbnf(n, 3, "") as a regex (the grammar is regular)."""
-    num = r"-?[0-9][0-9]?(\.[0-9]{1,3})?"
-    arm = r"\[" + ",".join([num] * 7) + r",[01]\]"
-    wp = r"\[" + arm + "," + arm + r"\]"
-    return re.compile(r"\[" + wp + r"(,\n?" + wp + "){" + str(n - 1) + r"}\]")
+_GBNF_TOKEN = re.compile(r'"(?:\\.|[^"\\])*"|\[[^\]]*\]|[A-Za-z_]+|\{\d+(?:,\d+)?\}|[()|?*+]|\s+')
+
+
+def gbnf_regex(grammar: str) -> re.Pattern:
+    """A non-recursive GBNF grammar's language as a regex: the grammar itself is checked, not a copy."""
+    rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
+    rules = {k.strip(): v for k, v in rules.items()}
+
+    def conv(name: str) -> str:
+        out = []
+        for t in _GBNF_TOKEN.findall(rules[name]):
+            if t.isspace():
+                continue
+            if t.startswith('"'):
+                out.append(re.escape(json.loads(t)))
+            elif t[0].isalpha() or t[0] == "_":
+                out.append(f"(?:{conv(t)})")
+            else:
+                out.append(t)
+        return "".join(out)
+
+    return re.compile(conv("root"))
 
 
 def test_grammar_counts_exactly_n_waypoints_and_matches_the_prompt_format():
-    g = actions_gbnf(4, precision=3)
-    assert "more{3}" in g and g.startswith('root ::= "[[[" arm')
-    # what the prompt shows for an example is a word of the grammar's language
-    acts = demo(n=4)[2]
-    assert _gbnf_regex(4).fullmatch(format_actions(acts, 3))
-    assert not _gbnf_regex(4).fullmatch(format_actions(demo(n=5)[2], 3))
+    g = gbnf_regex(actions_gbnf(4, precision=3))
+    # what the prompt shows for an example is a word of the grammar's language; other counts are not
+    text = format_actions(demo(n=4)[2], 3)
+    assert g.fullmatch(text)
+    assert not g.fullmatch(format_actions(demo(n=5)[2], 3)) and not g.fullmatch(format_actions(demo(n=3)[2], 3))
+    bad = text.replace("],[", ",1],[", 1)  # a ninth number in the first arm
+    assert not g.fullmatch(bad) and not g.fullmatch(text.replace(",1]", ",0.5]", 1))  # gripper 0/1 only
+    assert not g.fullmatch(text.replace("0.15", "0.15001", 1)) and not g.fullmatch(text.replace("0.15", "100.15", 1))
     # continuing after the prompt's opened "[[[": the grammar starts inside the first arm
-    assert actions_gbnf(4, prefix="[[[").startswith("root ::= arm ")
+    assert gbnf_regex(actions_gbnf(4, prefix="[[[")).fullmatch(text[3:])
+    assert gbnf_regex(actions_gbnf(None)).fullmatch(text)
     assert opened_prefix("Action Sequence:\n[[[") == "[[[" and opened_prefix("x") == ""
     assert "more{0,63}" in actions_gbnf(None) and MAX_ROWS == 64
     assert "more" not in actions_gbnf(1).splitlines()[0]
