@@ -26,10 +26,12 @@ def llm_eval(
     n_waypoints: int = 20,
     precision: int = 3,
     max_tokens: int | None = None,
+    structured: bool | None = None,
 ) -> list[Manifest]:
     """Predict trajectories for `trials` seeded query scenes per take and strategy and judge each in
     MuJoCo. Strategies: single / random / retrieval (the thesis's three prompts, through `backend`),
-    and the LLM-free baselines replay_top1 and transform_demo. Answers are cached: a re-run is free."""
+    and the LLM-free baselines replay_top1 and transform_demo. Answers are cached: a re-run is free.
+    `structured`: grammar / JSON-schema constrained answers (None: on for the local backend)."""
     from demoforge.schemas.catalog import query
 
     logger = get_run_logger()
@@ -51,7 +53,8 @@ def llm_eval(
         for strategy in strategies:
             m = run_stage(llm_trials, warehouse, task=task, take=take, strategy=strategy, warehouse=warehouse,
                           backend=backend, backend_options=backend_options or {}, trials=trials, seed=seed,
-                          n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens)
+                          n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens,
+                          structured=structured)
             logger.info("%s %s %s: %d trials", task, take, strategy, m.rows)
             out.append(m)
     return out

@@ -40,6 +40,7 @@ def table3(
     n_waypoints: int = 20,
     precision: int = 3,
     max_tokens: int | None = None,
+    structured: bool | None = None,
     take_dirs: Sequence[str] | None = None,
     show_progress: bool = True,
 ) -> list[Manifest]:
@@ -96,6 +97,7 @@ def table3(
                                   episodes=db["episodes"], scenes=[q.scene(j) for j in range(n)], seed=seed,
                                   backend=backend if llm else "none", backend_options=(backend_options or {}) if llm else {},
                                   n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens if llm else None,
+                                  structured=structured if llm else None,
                                   policy_checkpoint=ck if strategy == POLICY else None, show_progress=show_progress)
                     logger.info("%s %s take %d (%s) %s: %d trials", task, protocol, i, db["take"], strategy, m.rows)
                     out.append(m)

@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-LLM_EVAL_VERSION = "2"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None)
+LLM_EVAL_VERSION = "3"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers
 LLM_STRATEGIES = ("single", "random", "retrieval")
 BASELINES = ("replay_top1", "transform_demo")
 K_EXAMPLES = 3
@@ -61,8 +61,9 @@ def _episode_data(warehouse: str, task: str, take: str):
 def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
                backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
                n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
-               temperature: float = 0.0) -> Manifest:
-    """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check."""
+               temperature: float = 0.0, structured: bool | None = None) -> Manifest:
+    """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check.
+    `structured`: constrained answers (see llm_predict; None: on for the local backend)."""
     from demoforge.tasks.augment import episode_actions
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
@@ -102,7 +103,8 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
             acts = episode_actions(warehouse, task, take, ids)
             examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints, precision=precision,
-                                          max_tokens=max_tokens, temperature=temperature, seed=seed)
+                                          max_tokens=max_tokens, temperature=temperature, seed=seed,
+                                          structured=structured)
             row.update(fields)
             if fields["parse_status"] == "llm_error":
                 row.update(success=False, failure_reason="llm_error", sim_detail="")
@@ -121,14 +123,17 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
 
 def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int,
                 n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
-                temperature: float = 0.0, seed: int = 0) -> tuple[np.ndarray | None, dict]:
+                temperature: float = 0.0, seed: int = 0,
+                structured: bool | None = None) -> tuple[np.ndarray | None, dict]:
     """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt (the
     examples ordered with the most similar one last, next to the new input) -> the backend's answer ->
     parsed actions brought to n_steps (None when the answer does not parse), and the llm_trials fields
     of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).  n_waypoints None:
     a keyframe prompt, whose answer is decoded with the keyframe decoder on the most similar example's
     time curve; else uniform waypoints, upsampled.  A backend failure gives parse_status `llm_error`,
-    never an exception."""
+    never an exception.  `structured`: the answer is constrained to the action-list syntax with the
+    prompt's waypoint count (demoforge.lib.llm.grammar); None: on for the local backend (the 270M
+    model's free answers often do not parse), off for openai (servers differ in what they accept)."""
     from demoforge.lib.llm import Sampling
     from demoforge.lib.llm.prompting import build_prompt, order_by_similarity, parse_actions
 
@@ -137,7 +142,8 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
               "raw_answer": "", "parse_status": "ok", "parse_detail": ""}
     sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
-                        seed=seed, stop=tuple(prompt.stop))
+                        seed=seed, stop=tuple(prompt.stop),
+                        structured=(getattr(llm, "name", "") == "local") if structured is None else bool(structured))
     t0 = time.perf_counter()
     try:
         c = llm.complete(prompt, sampling)

@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-TABLE3_VERSION = "2"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None)
+TABLE3_VERSION = "3"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers
 LLM_STRATEGIES = ("single", "random", "retrieval")
 FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
 POLICY = "policy"
@@ -54,7 +54,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
                   backend_options: dict | None = None, n_waypoints: int | None = 20, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
-                  show_progress: bool = True) -> Manifest:
+                  show_progress: bool = True, structured: bool | None = None) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
     `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
     are cached by the backend, so a re-run after an interruption pays only the robot checks."""
@@ -122,7 +122,8 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
             pos = {int(i): r for r, i in enumerate(db["ids"])}
             examples = [(db["keypoints"][pos[i]], db["initial"][pos[i]], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints,
-                                          precision=precision, max_tokens=max_tokens, seed=seed)
+                                          precision=precision, max_tokens=max_tokens, seed=seed,
+                                          structured=structured)
             row.update(fields)
         elif strategy in ("replay_original", "replay_top1"):
             actions = episode_actions(warehouse, task, database, ids)[ids[0]]

@@ -123,3 +123,17 @@ def _main(
             runners.dask_workers()
     except ValueError as e:
         raise fail(str(e))
+
+
+def llm_backend_options(backend: str, model: str | None, base_url: str | None, api_mode: str) -> dict:
+    """The openai backend's constructor options from the llm commands' flags (the local backend takes none)."""
+    if api_mode not in ("chat", "completions"):
+        raise fail(f"--api-mode must be chat or completions, got {api_mode!r}")
+    if backend.strip().lower() != "openai":
+        return {}
+    options: dict = {"mode": api_mode}
+    if model:
+        options["model"] = model
+    if base_url:
+        options["base_url"] = base_url
+    return options

@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import current_warehouse, fail, llm_backend_options
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -26,6 +26,9 @@ def table3_cmd(
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=10, help="Episodes per database (the thesis: 10,000)."),
     policy_epochs: int = typer.Option(6, min=1, help="Training epochs of the policy column (the same as `make evaluate`'s, so its checkpoint is shared)."),
     waypoints: int = typer.Option(20, min=2, help="Waypoints per example action sequence in the prompts."),
+    structured: Optional[bool] = typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain the answer to the action-list syntax with the expected waypoint count (local: a llama.cpp grammar; openai: a JSON schema in chat mode, a `grammar` field in completions mode). Default: on for local, off for openai."),
+    base_url: Optional[str] = typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com)."),
+    api_mode: str = typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models)."),
 ) -> None:
     """Run the thesis's Table 3 grid: takes x query scenes x strategies, judged in MuJoCo.
 
@@ -50,8 +53,8 @@ def table3_cmd(
     try:
         run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, takes=takes, scenes=scenes,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
-                 backend_options={"model": model} if model else {}, seed=seed, episodes=episodes,
-                 policy_epochs=policy_epochs, n_waypoints=waypoints)
+                 backend_options=llm_backend_options(backend, model, base_url, api_mode), seed=seed, episodes=episodes,
+                 policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured)
     except ValueError as e:
         raise fail(str(e))
     where = "WHERE task = ? AND list_contains(?, protocol)"

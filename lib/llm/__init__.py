@@ -63,6 +63,10 @@ class Sampling:
     max_tokens: int = 2048
     seed: int | None = 0
     stop: tuple[str, ...] = ()
+    # constrained decoding of the action list (demoforge.lib.llm.grammar): the local backend samples
+    # under a GBNF grammar, the openai one asks for a JSON schema / grammar.  Part of the cache key
+    # (to_dict), so a free-running answer is never served for a structured request.
+    structured: bool = False
 
     def __post_init__(self):
         # lists are accepted for convenience; stored as a tuple (hashable, stable cache key)

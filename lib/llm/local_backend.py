@@ -184,11 +184,16 @@ class LocalBackend(LLMBackend):
             max_tokens = min(int(sampling.max_tokens), n_ctx - n_prompt)
             if not self.swa_full:
                 llm.reset()  # no prefix reuse: the windowed cache no longer holds what it would need
+            grammar = None
+            if sampling.structured:
+                from demoforge.lib.llm.grammar import structured_grammar
+
+                grammar = structured_grammar(prompt, text)
             t0 = time.perf_counter()
             out = llm.create_completion(
                 prompt=text, max_tokens=max_tokens, temperature=float(sampling.temperature),
                 top_p=float(sampling.top_p), stop=list(sampling.stop) or None,
-                seed=None if sampling.seed is None else int(sampling.seed),
+                seed=None if sampling.seed is None else int(sampling.seed), grammar=grammar,
             )
             dt = time.perf_counter() - t0
         choice = out["choices"][0]

@@ -15,6 +15,15 @@
 * The API key is held privately: it is never logged, never in an exception message (server error
   bodies are redacted), never in ``repr``, pickles (re-read from the environment on unpickling) or
   cache keys (``cache_identity`` = base URL without credentials / query, and mode).
+* ``Sampling(structured=True)``: chat mode sends ``response_format`` with the action list's JSON schema
+  (:func:`demoforge.lib.llm.grammar.response_format`; OpenAI, vLLM and llama.cpp's ``llama-server``
+  honour it); completions mode sends the GBNF grammar in a ``grammar`` field instead — the completion
+  continues ``prompt.text`` after its opened ``[[[``, which a JSON object cannot do, and the servers
+  that serve base models on ``/completions`` (llama.cpp's ``llama-server``, ``python -m
+  llama_cpp.server``) take ``grammar``.  A server that answers 400/422 naming the field is asked
+  again once without it, and this backend instance stops sending it (``structured_supported``); the
+  answer is then free-running and goes through the tolerant parser.  (llama-cpp-python's server
+  answers that refusal with HTTP 500: a 500 naming the field is not retried, it is the refusal.)
 """
 
 from __future__ import annotations
@@ -47,6 +56,17 @@ def _clean_url(url: str) -> str:
     return urllib.parse.urlunsplit((p.scheme, host, p.path.rstrip("/"), "", ""))
 
 
+_REFUSAL_STATUSES = (400, 422, 500)
+
+
+def _refuses_structure(e: LLMRequestError) -> bool:
+    """An error answer whose message names the structured-output field (not any bad request).  500 is
+    included: llama-cpp-python's server answers its own request-validation error on a json_schema
+    response_format with HTTP 500 (seen with 0.3.36)."""
+    msg = str(e).lower()
+    return e.status in _REFUSAL_STATUSES and any(w in msg for w in ("response_format", "json_schema", "grammar"))
+
+
 class OpenAIBackend(LLMBackend):
     name = "openai"
 
@@ -72,6 +92,7 @@ class OpenAIBackend(LLMBackend):
         self.max_requests = max_requests
         self.max_total_tokens = max_total_tokens
         self.extra_body = dict(extra_body or {})
+        self.structured_supported: bool | None = None  # None: not tried yet; False: the server refused it
         self.requests_made = 0
         self.prompt_tokens_used = 0
         self.completion_tokens_used = 0
@@ -121,8 +142,31 @@ class OpenAIBackend(LLMBackend):
         else:
             body["prompt"] = getattr(prompt, "text", None) or str(prompt)
             path = "/completions"
+        if sampling.structured and self.structured_supported is not False:
+            from demoforge.lib.llm import grammar
+
+            n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
+            if self.mode == "chat":
+                body["response_format"] = grammar.response_format(n)
+            else:
+                body["grammar"] = grammar.actions_gbnf(n, int(getattr(prompt, "precision", 3)),
+                                                       grammar.opened_prefix(body["prompt"]))
         body.update(self.extra_body)
         return self.base_url + path, body
+
+    def complete(self, prompt: Any, sampling: Sampling) -> Completion:
+        try:
+            c = self._complete(prompt, sampling)
+        except LLMRequestError as e:
+            if not (sampling.structured and self.structured_supported is not False and _refuses_structure(e)):
+                raise
+            log.warning("%s does not take structured output; asking again without it: %s",
+                        _clean_url(self.base_url), e)
+            self.structured_supported = False
+            return self._complete(prompt, sampling)
+        if sampling.structured and self.structured_supported is None:
+            self.structured_supported = True
+        return c
 
     def _check_budget(self) -> None:
         if self.max_requests is not None and self.requests_made >= self.max_requests:
@@ -142,13 +186,14 @@ class OpenAIBackend(LLMBackend):
                 pass
         time.sleep(delay)
 
-    def complete(self, prompt: Any, sampling: Sampling) -> Completion:
+    def _complete(self, prompt: Any, sampling: Sampling) -> Completion:
         url, body = self._payload(prompt, sampling)
         data = json.dumps(body).encode("utf-8")
         headers = {"Content-Type": "application/json", "Accept": "application/json"}
         if self._api_key:
             headers["Authorization"] = f"Bearer {self._api_key}"
         safe_url = _clean_url(url)
+        structured_sent = "response_format" in body or "grammar" in body
         last: LLMRequestError | None = None
         t_start = time.perf_counter()
         for attempt in range(self.max_retries + 1):
@@ -169,6 +214,8 @@ class OpenAIBackend(LLMBackend):
                 msg = self._redact(f"{safe_url} answered HTTP {e.code}: {detail.strip()[:500]}")
                 retryable = e.code == 429 or e.code >= 500
                 last = LLMRequestError(msg, status=e.code, attempts=attempt + 1)
+                if structured_sent and _refuses_structure(last):
+                    retryable = False  # the server refuses the field: complete() asks again without it
                 if not retryable:
                     raise last from None
             except (TimeoutError, socket.timeout) as e:

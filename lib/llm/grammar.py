@@ -1,0 +1,108 @@
+"""Structured output: answers that always parse.
+
+* :func:`actions_gbnf` — a llama.cpp GBNF grammar admitting only the action-list syntax the prompt
+  shows (:func:`demoforge.lib.llm.prompting.format_actions`): ``[[[l0,...,l7],[r0,...,r7]],\\n[[...]]]``
+  with exactly ``n_keyframes`` waypoints of 2 x 8 numbers.  Numbers are bounded (optional ``-``, 1-2
+  integer digits, at most ``precision`` decimals; the gripper state is ``0`` or ``1`` as the prompt
+  writes it), so a constrained generation cannot run away inside a number, and after the closing
+  ``]]]`` llama.cpp admits only end-of-generation.  ``prefix``: what the prompt already opened (the
+  completion text ends with ``[[[``), the grammar starts after it.
+* ``n_keyframes=None`` (a count the caller does not fix): 1..``max_rows`` waypoints, default 64 —
+  the keyframe prompts' examples have 5-30 keyframes and uniform ones ~20, so 64 never cuts a
+  plausible answer while still bounding a runaway list (64 x 16 numbers ~ 6k tokens).
+* :func:`actions_json_schema` — the same constraint as a JSON schema (``{"actions": n x 2 x 8}``) for
+  OpenAI-style ``response_format={"type": "json_schema", ...}``.  Such a JSON answer needs no reader
+  of its own: :func:`demoforge.lib.llm.prompting.parse_actions` already takes the first (n, 2, 8)
+  array inside ``{"actions": ...}`` (tests/test_llm_grammar.py checks it).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+__all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
+           "structured_grammar", "opened_prefix"]
+
+MAX_ROWS = 64
+_OPEN = "[[["  # outer list, first waypoint, its left arm
+
+
+def _rows_spec(n_keyframes: int | None, max_rows: int) -> tuple[int, int]:
+    if n_keyframes is None:
+        if max_rows < 1:
+            raise ValueError("max_rows must be >= 1")
+        return 1, int(max_rows)
+    n = int(n_keyframes)
+    if n < 1:
+        raise ValueError(f"n_keyframes must be >= 1, got {n_keyframes!r}")
+    return n, n
+
+
+def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS) -> str:
+    """GBNF grammar of an (n_keyframes, 2, 8) action list written as the prompt writes it.  ``prefix``
+    must be a prefix of ``[[[`` (``""``: the answer starts from scratch, e.g. a chat answer)."""
+    if not _OPEN.startswith(prefix):
+        raise ValueError(f"prefix must be a prefix of {_OPEN!r}, got {prefix!r}")
+    if int(precision) < 0:
+        raise ValueError("precision must be >= 0")
+    lo, hi = _rows_spec(n_keyframes, max_rows)
+    rest = _OPEN[len(prefix):]
+    head = f'"{rest}" ' if rest else ""
+    more_lo, more_hi = lo - 1, hi - 1
+    if more_hi == 0:
+        more = ""
+    elif more_lo == more_hi:
+        more = f" more{{{more_lo}}}"
+    else:
+        more = f" more{{{more_lo},{more_hi}}}"
+    dec = f' ("." [0-9]{{1,{int(precision)}}})?' if int(precision) > 0 else ""
+    return "\n".join([
+        f'root ::= {head}arm "],[" arm "]]"{more} "]"',
+        'more ::= "," "\\n"? "[[" arm "],[" arm "]]"',
+        'arm  ::= num "," num "," num "," num "," num "," num "," num "," grip',
+        f'num  ::= "-"? [0-9] [0-9]?{dec}',
+        'grip ::= "0" | "1"',
+        "",
+    ])
+
+
+def actions_json_schema(n_keyframes: int | None, max_rows: int = MAX_ROWS) -> dict:
+    """JSON schema of ``{"actions": [[[8 numbers], [8 numbers]], ...]}`` with n_keyframes waypoints."""
+    lo, hi = _rows_spec(n_keyframes, max_rows)
+
+    def arr(items: dict, n_min: int, n_max: int) -> dict:
+        return {"type": "array", "items": items, "minItems": n_min, "maxItems": n_max}
+
+    actions = arr(arr(arr({"type": "number"}, 8, 8), 2, 2), lo, hi)
+    return {"type": "object", "properties": {"actions": actions}, "required": ["actions"],
+            "additionalProperties": False}
+
+
+def response_format(n_keyframes: int | None, max_rows: int = MAX_ROWS) -> dict:
+    """The OpenAI ``response_format`` of :func:`actions_json_schema`."""
+    return {"type": "json_schema",
+            "json_schema": {"name": "actions", "strict": True, "schema": actions_json_schema(n_keyframes, max_rows)}}
+
+
+@lru_cache(maxsize=32)
+def llama_grammar(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS):
+    """The compiled ``llama_cpp.LlamaGrammar`` of :func:`actions_gbnf` (cached per row count)."""
+    from llama_cpp import LlamaGrammar
+
+    return LlamaGrammar.from_string(actions_gbnf(n_keyframes, precision, prefix, max_rows), verbose=False)
+
+
+def structured_grammar(prompt: Any, text: str):
+    """The compiled grammar for ``prompt``: its answer's waypoint count (``prompt.n_waypoints``; 0 or
+    absent: 1..MAX_ROWS), its precision, and whatever part of ``[[[`` the completion text already opened."""
+    n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
+    return llama_grammar(n, int(getattr(prompt, "precision", 3)), opened_prefix(text))
+
+
+def opened_prefix(text: str) -> str:
+    """The longest prefix of ``[[[`` that ``text`` ends with (what a completion continues after)."""
+    for k in range(len(_OPEN), 0, -1):
+        if text.endswith(_OPEN[:k]):
+            return _OPEN[:k]
+    return ""

@@ -1,0 +1,196 @@
+"""Structured output (lib/llm/grammar.py): the GBNF grammar, the JSON schema, the cache key, and the
+embedded model's constrained answers (always (n, 2, 8))."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+
+import numpy as np
+import pytest
+
+from demoforge.lib.llm import FakeBackend, Sampling
+from demoforge.lib.llm.cache import cache_key
+from demoforge.lib.llm.grammar import (
+    MAX_ROWS, actions_gbnf, actions_json_schema, opened_prefix, response_format,
+)
+from demoforge.lib.llm.prompting import build_prompt, format_actions, parse_actions
+
+_HAVE_LLAMA = importlib.util.find_spec("llama_cpp") is not None
+needs_llama = pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
+                                 "install requirements/llm.txt (scripts/setup_llm.sh)")
+
+
+def demo(shift: float = 0.0, n: int = 5, seed: int = 0):
+    """A small synthetic example (keypoints, initial poses, actions) with a gripper closing midway."""
+    rng = np.random.default_rng(seed)
+    kp = rng.uniform(-0.3, 0.3, size=(11, 3)) + shift
+    acts = np.zeros((n, 2, 8))
+    acts[:, :, :3] = np.linspace(0, 0.1, n)[:, None, None] + np.array([[-0.2, 0.1, 0.15], [0.2, 0.1, 0.15]]) + shift
+    acts[:, :, 6] = 1.0
+    acts[:, :, 7] = 1.0
+    acts[n // 2:, 1, 7] = 0.0
+    return kp, acts[0], acts
+
+
+def real_prompts():
+    """Three short real prompts (1 example each, 2-3 waypoints): uniform and keyframe encodings."""
+    a, b, c = demo(0.0, seed=0), demo(0.05, seed=1), demo(-0.04, n=7, seed=2)
+    return [build_prompt([a], a[0] + 0.01, a[1], n_waypoints=2),
+            build_prompt([b], b[0] - 0.02, b[1], n_waypoints=3),
+            build_prompt([c], c[0] + 0.02, c[1], n_waypoints=2)]
+
+
+# ------------------------------------------------------------------------------------------------
+# the grammar text and the JSON schema (no model)
+# ------------------------------------------------------------------------------------------------
+
+_GBNF_TOKEN = re.compile(r'"(?:\\.|[^"\\])*"|\[[^\]]*\]|[A-Za-z_]+|\{\d+(?:,\d+)?\}|[()|?*+]|\s+')
+
+
+def gbnf_regex(grammar: str) -> re.Pattern:
+    """A non-recursive GBNF grammar's language as a regex: the grammar itself is checked, not a copy."""
+    rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
+    rules = {k.strip(): v for k, v in rules.items()}
+
+    def conv(name: str) -> str:
+        out = []
+        for t in _GBNF_TOKEN.findall(rules[name]):
+            if t.isspace():
+                continue
+            if t.startswith('"'):
+                out.append(re.escape(json.loads(t)))
+            elif t[0].isalpha() or t[0] == "_":
+                out.append(f"(?:{conv(t)})")
+            else:
+                out.append(t)
+        return "".join(out)
+
+    return re.compile(conv("root"))
+
+
+def test_grammar_counts_exactly_n_waypoints_and_matches_the_prompt_format():
+    g = gbnf_regex(actions_gbnf(4, precision=3))
+    # what the prompt shows for an example is a word of the grammar's language; other counts are not
+    text = format_actions(demo(n=4)[2], 3)
+    assert g.fullmatch(text)
+    assert not g.fullmatch(format_actions(demo(n=5)[2], 3)) and not g.fullmatch(format_actions(demo(n=3)[2], 3))
+    bad = text.replace("],[", ",1],[", 1)  # a ninth number in the first arm
+    assert not g.fullmatch(bad) and not g.fullmatch(text.replace(",1]", ",0.5]", 1))  # gripper 0/1 only
+    assert not g.fullmatch(text.replace("0.15", "0.15001", 1)) and not g.fullmatch(text.replace("0.15", "100.15", 1))
+    # continuing after the prompt's opened "[[[": the grammar starts inside the first arm
+    assert gbnf_regex(actions_gbnf(4, prefix="[[[")).fullmatch(text[3:])
+    assert gbnf_regex(actions_gbnf(None)).fullmatch(text)
+    assert opened_prefix("Action Sequence:\n[[[") == "[[[" and opened_prefix("x") == ""
+    assert "more{0,63}" in actions_gbnf(None) and MAX_ROWS == 64
+    assert "more" not in actions_gbnf(1).splitlines()[0]
+    with pytest.raises(ValueError):
+        actions_gbnf(0)
+    with pytest.raises(ValueError):
+        actions_gbnf(2, prefix="x")
+
+
+def test_json_schema_fixes_the_shape_and_parse_actions_reads_its_answers():
+    s = actions_json_schema(3)
+    a = s["properties"]["actions"]
+    assert (a["minItems"], a["maxItems"]) == (3, 3)
+    assert (a["items"]["minItems"], a["items"]["maxItems"]) == (2, 2)
+    assert (a["items"]["items"]["minItems"], a["items"]["items"]["maxItems"]) == (8, 8)
+    assert s["required"] == ["actions"] and s["additionalProperties"] is False
+    assert (actions_json_schema(None)["properties"]["actions"]["minItems"],
+            actions_json_schema(None)["properties"]["actions"]["maxItems"]) == (1, MAX_ROWS)
+    rf = response_format(3)
+    assert rf["type"] == "json_schema" and rf["json_schema"]["schema"] == s
+    # a JSON answer of that schema parses with the tolerant parser as it is (no reader of its own)
+    acts = demo(n=3)[2]
+    res = parse_actions(json.dumps({"actions": acts.tolist()}), expected_waypoints=3, prefix="[[[")
+    assert res.status == "ok" and res.actions.shape == (3, 2, 8) and res.detail == ""
+    assert np.allclose(res.actions[..., :3], acts[..., :3])
+
+
+def test_structured_is_part_of_the_cache_key():
+    b = FakeBackend(["x"])
+    p = real_prompts()[0]
+    free, structured = Sampling(), Sampling(structured=True)
+    assert cache_key(b, p, free) != cache_key(b, p, structured)
+    assert cache_key(b, p, structured) == cache_key(b, p, Sampling(structured=True))
+    assert Sampling().structured is False and structured.to_dict()["structured"] is True
+
+
+# ------------------------------------------------------------------------------------------------
+# the real embedded model
+# ------------------------------------------------------------------------------------------------
+
+@needs_llama
+def test_gbnf_grammar_compiles_in_llama_cpp():
+    """LlamaGrammar.from_string only stores the text; llama.cpp parses it when the sampler is built,
+    and a bad grammar makes llama_sampler_init_grammar return NULL."""
+    import llama_cpp
+    from demoforge.lib.llm.local_backend import LocalBackend
+
+    vocab = llama_cpp.llama_model_get_vocab(LocalBackend(n_ctx=4096).llm.model)
+    for n, prefix in ((2, "[[["), (3, ""), (None, "[[[")):
+        s = llama_cpp.llama_sampler_init_grammar(vocab, actions_gbnf(n, 3, prefix).encode(), b"root")
+        assert s, f"llama.cpp rejected the grammar for n={n}, prefix={prefix!r}"
+        llama_cpp.llama_sampler_free(s)
+    assert not llama_cpp.llama_sampler_init_grammar(vocab, b'root ::= "a" (', b"root")  # the check can fail
+
+
+@pytest.mark.slow
+@needs_llama
+def test_structured_greedy_answers_of_the_embedded_model_always_parse():
+    from demoforge.lib.llm.local_backend import LocalBackend
+
+    b = LocalBackend(n_ctx=4096)
+    for p in real_prompts():
+        n = p.n_waypoints
+        c = b.complete(p, Sampling(temperature=0.0, max_tokens=60 * n, seed=0, stop=p.stop, structured=True))
+        res = parse_actions(c.text, expected_waypoints=n, prefix=p.answer_prefix)
+        assert res.status == "ok" and res.actions.shape == (n, 2, 8), (res.status, res.detail, c.text)
+        assert c.finish_reason == "stop", c.text  # the grammar closed the list; nothing ran into max_tokens
+        assert res.detail == ""
+
+
+# ------------------------------------------------------------------------------------------------
+# the CLI flags reach the flows
+# ------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("command, module", [("llm-eval", "demoforge.cli.evaluation"), ("table3", "demoforge.cli.table3")])
+def test_structured_and_base_url_flags_reach_the_flow(command, module, monkeypatch, tmp_path):
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+
+    seen = []
+
+    def fake_run_flow(flow, warehouse, **kwargs):
+        seen.append(kwargs)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(f"{module}.run_flow", fake_run_flow)
+    base = ["--warehouse", str(tmp_path), command, "--task", "pouring"]
+    openai = ["--backend", "openai", "--base-url", "http://127.0.0.1:9/v1", "--model", "m", "--api-mode", "completions"]
+    runs = [(base + openai + ["--free"], {}), (base + openai, {"DEMOFORGE_LLM_STRUCTURED": "1"}),
+            (base + ["--backend", "local"], {"DEMOFORGE_LLM_STRUCTURED": None})]
+    for args, env in runs:
+        r = CliRunner().invoke(app, args, env=env)
+        assert r.exit_code != 0 and "stop here" in r.output, r.output
+    assert [k["structured"] for k in seen] == [False, True, None]  # None: the default (on for local)
+    assert seen[0]["backend_options"] == {"mode": "completions", "model": "m", "base_url": "http://127.0.0.1:9/v1"}
+    assert seen[2]["backend_options"] == {}
+
+
+def test_llm_predict_asks_for_structured_answers_by_default_only_from_the_local_backend():
+    from demoforge.tasks.llm_eval import llm_predict
+
+    class LocalLike(FakeBackend):
+        name = "local"
+
+    ex = demo(n=4)
+    for cls, structured, expected in ((LocalLike, None, True), (FakeBackend, None, False),
+                                      (LocalLike, False, False), (FakeBackend, True, True)):
+        got = []
+        b = cls(lambda p, s: got.append(s.structured) or "")
+        llm_predict(b, [ex], ex[0] + 0.01, ex[1], n_steps=20, n_waypoints=2, structured=structured)
+        assert got == [expected], (cls.__name__, structured)
