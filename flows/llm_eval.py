@@ -27,11 +27,13 @@ def llm_eval(
     precision: int = 3,
     max_tokens: int | None = None,
     structured: bool | None = None,
+    number_format: str | None = None,
 ) -> list[Manifest]:
     """Predict trajectories for `trials` seeded query scenes per take and strategy and judge each in
     MuJoCo. Strategies: single / random / retrieval (the thesis's three prompts, through `backend`),
     and the LLM-free baselines replay_top1 and transform_demo. Answers are cached: a re-run is free.
-    `structured`: grammar / JSON-schema constrained answers (None: on for the local backend)."""
+    `structured`: grammar / JSON-schema constrained answers (None: on for the local backend).
+    `number_format`: thesis (None: metres, Appendix A) or compact (mm / hundredths as integers)."""
     from demoforge.schemas.catalog import query
 
     logger = get_run_logger()
@@ -54,7 +56,7 @@ def llm_eval(
             m = run_stage(llm_trials, warehouse, task=task, take=take, strategy=strategy, warehouse=warehouse,
                           backend=backend, backend_options=backend_options or {}, trials=trials, seed=seed,
                           n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens,
-                          structured=structured)
+                          structured=structured, number_format=number_format)
             logger.info("%s %s %s: %d trials", task, take, strategy, m.rows)
             out.append(m)
     return out

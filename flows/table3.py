@@ -41,6 +41,7 @@ def table3(
     precision: int = 3,
     max_tokens: int | None = None,
     structured: bool | None = None,
+    number_format: str | None = None,
     take_dirs: Sequence[str] | None = None,
     show_progress: bool = True,
 ) -> list[Manifest]:
@@ -98,6 +99,7 @@ def table3(
                                   backend=backend if llm else "none", backend_options=(backend_options or {}) if llm else {},
                                   n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens if llm else None,
                                   structured=structured if llm else None,
+                                  number_format=number_format if llm else None,
                                   policy_checkpoint=ck if strategy == POLICY else None, show_progress=show_progress)
                     logger.info("%s %s take %d (%s) %s: %d trials", task, protocol, i, db["take"], strategy, m.rows)
                     out.append(m)

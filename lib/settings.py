@@ -43,6 +43,7 @@ VARIABLES: dict[str, str] = {
     # the LLM
     "DEMOFORGE_LLM_BACKEND": "local (embedded Gemma 3 270M) or openai",
     "DEMOFORGE_LLM_MODEL": "model name of the openai backend",
+    "DEMOFORGE_LLM_NUMBER_FORMAT": "thesis (metres, Appendix A) or compact (integers in mm and hundredths)",
     "DEMOFORGE_LLM_STRUCTURED": "1/0: grammar / JSON-schema constrained answers (default: on for local, off for openai)",
     "DEMOFORGE_LLM_TASKS": "tasks of the prompting evaluation in `evaluate`",
     # `demoforge evaluate`'s sizes

@@ -57,11 +57,11 @@ def _episode_data(warehouse: str, task: str, take: str):
             "length": np.asarray(ep.column("length").to_numpy())}
 
 
-@stage_task(name="llm_trials", version=LLM_EVAL_VERSION)
+@stage_task(name="llm_trials", version=LLM_EVAL_VERSION, key_optional=("number_format",))
 def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
                backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
                n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
-               temperature: float = 0.0, structured: bool | None = None) -> Manifest:
+               temperature: float = 0.0, structured: bool | None = None, number_format: str | None = None) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check.
     `structured`: constrained answers (see llm_predict; None: on for the local backend)."""
     from demoforge.tasks.augment import episode_actions
@@ -104,7 +104,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
             examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints, precision=precision,
                                           max_tokens=max_tokens, temperature=temperature, seed=seed,
-                                          structured=structured)
+                                          structured=structured, number_format=number_format)
             row.update(fields)
             if fields["parse_status"] == "llm_error":
                 row.update(success=False, failure_reason="llm_error", sim_detail="")
@@ -124,7 +124,7 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
 def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int,
                 n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
                 temperature: float = 0.0, seed: int = 0,
-                structured: bool | None = None) -> tuple[np.ndarray | None, dict]:
+                structured: bool | None = None, number_format: str | None = None) -> tuple[np.ndarray | None, dict]:
     """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt (the
     examples ordered with the most similar one last, next to the new input) -> the backend's answer ->
     parsed actions brought to n_steps (None when the answer does not parse), and the llm_trials fields
@@ -138,7 +138,8 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     from demoforge.lib.llm.prompting import build_prompt, order_by_similarity, parse_actions
 
     examples = order_by_similarity(examples, query_keypoints)
-    prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision)
+    prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision,
+                          number_format=number_format)
     fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
               "raw_answer": "", "parse_status": "ok", "parse_detail": ""}
     sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
@@ -157,7 +158,7 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     fields.update(parse_status=parsed.status, parse_detail=parsed.detail)
     if not parsed.ok:
         return None, fields
-    return decode_answer(prompt, parsed.actions, n_steps), fields
+    return decode_answer(prompt, prompt.read_answer(parsed.actions), n_steps), fields
 
 
 def decode_answer(prompt, answer: np.ndarray, n_steps: int) -> np.ndarray:

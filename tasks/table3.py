@@ -49,12 +49,14 @@ def nearest_source(source, query_keypoints: np.ndarray):
         else source
 
 
-@stage_task(name="table3_trials", version=TABLE3_VERSION, key_ignore=("show_progress",))
+@stage_task(name="table3_trials", version=TABLE3_VERSION, key_ignore=("show_progress",),
+            key_optional=("number_format",))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
                   backend_options: dict | None = None, n_waypoints: int | None = 20, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
-                  show_progress: bool = True, structured: bool | None = None) -> Manifest:
+                  show_progress: bool = True, structured: bool | None = None,
+                  number_format: str | None = None) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
     `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
     are cached by the backend, so a re-run after an interruption pays only the robot checks."""
@@ -123,7 +125,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
             examples = [(db["keypoints"][pos[i]], db["initial"][pos[i]], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints,
                                           precision=precision, max_tokens=max_tokens, seed=seed,
-                                          structured=structured)
+                                          structured=structured, number_format=number_format)
             row.update(fields)
         elif strategy in ("replay_original", "replay_top1"):
             actions = episode_actions(warehouse, task, database, ids)[ids[0]]

@@ -137,3 +137,11 @@ def llm_backend_options(backend: str, model: str | None, base_url: str | None, a
     if base_url:
         options["base_url"] = base_url
     return options
+
+
+def check_number_format(name: str | None) -> None:
+    """--number-format names one of demoforge.lib.llm.number_format's formats (else a one-line error)."""
+    from demoforge.lib.llm.number_format import NUMBER_FORMATS
+
+    if name is not None and name not in NUMBER_FORMATS:
+        raise fail(f"--number-format must be one of {', '.join(NUMBER_FORMATS)}, got {name!r}")

@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail, llm_backend_options
+from demoforge.cli.root import check_number_format, current_warehouse, fail, llm_backend_options
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -29,6 +29,7 @@ def table3_cmd(
     structured: Optional[bool] = typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain the answer to the action-list syntax with the expected waypoint count (local: a llama.cpp grammar; openai: a JSON schema in chat mode, a `grammar` field in completions mode). Default: on for local, off for openai."),
     base_url: Optional[str] = typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com)."),
     api_mode: str = typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models)."),
+    number_format: Optional[str] = typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", help="How the prompt writes numbers: thesis (default: metres, Appendix A) or compact (positions in mm, quaternions x 100, as integers: about half the tokens)."),
 ) -> None:
     """Run the thesis's Table 3 grid: takes x query scenes x strategies, judged in MuJoCo.
 
@@ -48,13 +49,15 @@ def table3_cmd(
     if bad:
         raise fail(f"unknown protocol or strategy {bad}: protocols {', '.join(PROTOCOLS)}; "
                    f"strategies {', '.join(ALL_STRATEGIES)}")
+    check_number_format(number_format)
     if llm_scenes is not None and llm_scenes > scenes:
         raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
     try:
         run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, takes=takes, scenes=scenes,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=llm_backend_options(backend, model, base_url, api_mode), seed=seed, episodes=episodes,
-                 policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured)
+                 policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured,
+                 number_format=number_format)
     except ValueError as e:
         raise fail(str(e))
     where = "WHERE task = ? AND list_contains(?, protocol)"

@@ -22,7 +22,7 @@ from functools import lru_cache
 from typing import Any
 
 __all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
-           "structured_grammar", "opened_prefix"]
+           "structured_grammar", "prompt_gbnf", "opened_prefix"]
 
 MAX_ROWS = 64
 _OPEN = "[[["  # outer list, first waypoint, its left arm
@@ -39,13 +39,17 @@ def _rows_spec(n_keyframes: int | None, max_rows: int) -> tuple[int, int]:
     return n, n
 
 
-def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS) -> str:
+def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS,
+                 int_digits: int = 2) -> str:
     """GBNF grammar of an (n_keyframes, 2, 8) action list written as the prompt writes it.  ``prefix``
-    must be a prefix of ``[[[`` (``""``: the answer starts from scratch, e.g. a chat answer)."""
+    must be a prefix of ``[[[`` (``""``: the answer starts from scratch, e.g. a chat answer);
+    ``int_digits``: most digits before the point (2 for metres, 4 for the compact format's mm)."""
     if not _OPEN.startswith(prefix):
         raise ValueError(f"prefix must be a prefix of {_OPEN!r}, got {prefix!r}")
     if int(precision) < 0:
         raise ValueError("precision must be >= 0")
+    if int(int_digits) < 1:
+        raise ValueError("int_digits must be >= 1")
     lo, hi = _rows_spec(n_keyframes, max_rows)
     rest = _OPEN[len(prefix):]
     head = f'"{rest}" ' if rest else ""
@@ -61,7 +65,7 @@ def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", 
         f'root ::= {head}arm "],[" arm "]]"{more} "]"',
         'more ::= "," "\\n"? "[[" arm "],[" arm "]]"',
         'arm  ::= num "," num "," num "," num "," num "," num "," num "," grip',
-        f'num  ::= "-"? [0-9] [0-9]?{dec}',
+        f'num  ::= "-"? [0-9]' + ' [0-9]?' * (int(int_digits) - 1) + dec,
         'grip ::= "0" | "1"',
         "",
     ])
@@ -86,18 +90,34 @@ def response_format(n_keyframes: int | None, max_rows: int = MAX_ROWS) -> dict:
 
 
 @lru_cache(maxsize=32)
-def llama_grammar(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS):
+def llama_grammar(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS,
+                  int_digits: int = 2):
     """The compiled ``llama_cpp.LlamaGrammar`` of :func:`actions_gbnf` (cached per row count)."""
     from llama_cpp import LlamaGrammar
 
-    return LlamaGrammar.from_string(actions_gbnf(n_keyframes, precision, prefix, max_rows), verbose=False)
+    return LlamaGrammar.from_string(actions_gbnf(n_keyframes, precision, prefix, max_rows, int_digits), verbose=False)
+
+
+def prompt_gbnf(prompt: Any, text: str) -> str:
+    """The GBNF grammar of ``prompt``'s answer, as :func:`structured_grammar` compiles it (for servers
+    that take the grammar as text)."""
+    n, precision, prefix, int_digits = _prompt_spec(prompt, text)
+    return actions_gbnf(n, precision, prefix, MAX_ROWS, int_digits)
+
+
+def _prompt_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
+    from demoforge.lib.llm.number_format import get_number_format
+
+    n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
+    fmt = get_number_format(getattr(prompt, "number_format", None))
+    return n, int(getattr(prompt, "precision", 3)), opened_prefix(text), fmt.int_digits
 
 
 def structured_grammar(prompt: Any, text: str):
     """The compiled grammar for ``prompt``: its answer's waypoint count (``prompt.n_waypoints``; 0 or
     absent: 1..MAX_ROWS), its precision, and whatever part of ``[[[`` the completion text already opened."""
-    n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
-    return llama_grammar(n, int(getattr(prompt, "precision", 3)), opened_prefix(text))
+    n, precision, prefix, int_digits = _prompt_spec(prompt, text)
+    return llama_grammar(n, precision, prefix, MAX_ROWS, int_digits)
 
 
 def opened_prefix(text: str) -> str:

@@ -31,6 +31,7 @@ class NumberFormat:
     rotation_scale: float  # written value = quaternion component x this
     decimals: int | None  # None: the prompt's own precision; else fixed (0: integers)
     system_note: str  # appended to the system prompt ("" keeps Appendix A word for word)
+    int_digits: int  # most digits before the point an answer needs (bounds the structured grammar)
 
     def precision(self, requested: int) -> int:
         return int(requested) if self.decimals is None else self.decimals
@@ -66,10 +67,10 @@ class NumberFormat:
 
 
 NUMBER_FORMATS = {
-    "thesis": NumberFormat("thesis", 1.0, 1.0, None, ""),
+    "thesis": NumberFormat("thesis", 1.0, 1.0, None, "", 2),
     "compact": NumberFormat(
         "compact", 1000.0, 100.0, 0,
-        "Numbers are integers: positions in millimetres, quaternion components multiplied by 100."),
+        "Numbers are integers: positions in millimetres, quaternion components multiplied by 100.", 4),
 }
 DEFAULT_NUMBER_FORMAT = "thesis"
 

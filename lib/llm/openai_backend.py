@@ -149,8 +149,7 @@ class OpenAIBackend(LLMBackend):
             if self.mode == "chat":
                 body["response_format"] = grammar.response_format(n)
             else:
-                body["grammar"] = grammar.actions_gbnf(n, int(getattr(prompt, "precision", 3)),
-                                                       grammar.opened_prefix(body["prompt"]))
+                body["grammar"] = grammar.prompt_gbnf(prompt, body["prompt"])
         body.update(self.extra_body)
         return self.base_url + path, body
 

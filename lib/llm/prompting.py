@@ -312,6 +312,7 @@ class Prompt:
     # keyframes: the last (most similar) example's keyframe times as fractions of its length, the time
     # curve an answer is decoded on (demoforge.lib.trajectories.keyframes.answer_times)
     keyframe_times: tuple[float, ...] = ()
+    number_format: str = "thesis"  # demoforge.lib.llm.number_format: how the numbers are written
 
     def __hash__(self) -> int:
         return hash(self.content_hash)
@@ -328,6 +329,14 @@ class Prompt:
     def hash(self) -> str:
         return self.content_hash
 
+    def read_answer(self, actions: np.ndarray) -> np.ndarray:
+        """A parsed (n, 2, 8) answer in metres and unit quaternions (the thesis format: as it is)."""
+        if self.number_format == "thesis":
+            return actions
+        from demoforge.lib.llm.number_format import get_number_format
+
+        return get_number_format(self.number_format).decode_poses(actions)
+
     def render(self) -> str:
         """Human-readable dump (golden files): system, user, completion text."""
         return (f"=== SYSTEM ===\n{self.system}\n=== USER ===\n{self.user}\n"
@@ -340,9 +349,9 @@ def _hash_prompt(messages: Sequence[dict], text: str, encoding: str = "uniform")
     return hashlib.sha256(blob.encode("utf-8")).hexdigest()
 
 
-def _scene_block(kp: np.ndarray, init: np.ndarray, precision: int) -> str:
-    return (f"Input Keypoints:\n{format_keypoints(kp, precision)}\n# shape: ({kp.shape[0]}, 3)\n"
-            f"Initial Gripper Poses:\n{format_poses(init, precision)}\n# shape: (2, 8)\n")
+def _scene_block(kp: np.ndarray, init: np.ndarray, precision: int, fmt: Any) -> str:
+    return (f"Input Keypoints:\n{format_keypoints(fmt.encode_points(kp), precision)}\n# shape: ({kp.shape[0]}, 3)\n"
+            f"Initial Gripper Poses:\n{format_poses(fmt.encode_poses(init), precision)}\n# shape: (2, 8)\n")
 
 
 def order_by_similarity(examples: Sequence[Any], query_keypoints: Any) -> list[Example]:
@@ -375,13 +384,19 @@ def _encode_examples(exs: Sequence[Example], encoding: str, n_waypoints: int | N
 
 def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: Any,
                  n_waypoints: int | None = None, precision: int = 3, encoding: str | None = None,
-                 pos_tol_m: float = 0.005, rot_tol_rad: float = 0.05) -> Prompt:
+                 pos_tol_m: float = 0.005, rot_tol_rad: float = 0.05, number_format: str | None = None) -> Prompt:
     """The thesis's prompt (Appendix A) for ``examples`` (Example, (kp, init, actions) tuples or mappings
     with keys keypoints / initial / actions) and the query scene.  Each example's action sequence is
     written as ``encoding`` says (module docstring): ``"keyframes"`` (default when ``n_waypoints`` is
     None; tolerances ``pos_tol_m`` / ``rot_tol_rad``), ``"uniform"`` (default when ``n_waypoints`` is
     given: resampled to it) or ``"raw"``.  The examples are written in the given order (see
-    :func:`order_by_similarity`)."""
+    :func:`order_by_similarity`).  ``number_format``: ``thesis`` (default, metres) or ``compact``
+    (integers in mm and hundredths, one sentence added to the system prompt; see
+    demoforge.lib.llm.number_format, and :meth:`Prompt.read_answer` for reading an answer back)."""
+    from demoforge.lib.llm.number_format import get_number_format
+
+    fmt = get_number_format(number_format)
+    precision = fmt.precision(precision)
     exs = [Example.coerce(e) for e in examples]
     qkp = np.asarray(query_keypoints, dtype=np.float64)
     qinit = np.asarray(query_initial, dtype=np.float64)
@@ -404,11 +419,12 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     answer_est = 0
     for i, (e, acts) in enumerate(zip(exs, blocks)):
         n_out = acts.shape[0]
-        answer_est = max(answer_est, approx_token_count(format_actions(acts, precision)))
-        parts.append(f"** Demo {i} **\n" + _scene_block(e.keypoints, e.initial, precision)
-                     + f"Action Sequence:\n{format_actions(acts, precision)}\n# shape: ({acts.shape[0]}, 2, 8)\n")
-    parts.append("** New Input **\n" + _scene_block(qkp, qinit, precision))
-    system = SYSTEM_PROMPT.format(k=k)
+        written = format_actions(fmt.encode_poses(acts), precision)
+        answer_est = max(answer_est, approx_token_count(written))
+        parts.append(f"** Demo {i} **\n" + _scene_block(e.keypoints, e.initial, precision, fmt)
+                     + f"Action Sequence:\n{written}\n# shape: ({acts.shape[0]}, 2, 8)\n")
+    parts.append("** New Input **\n" + _scene_block(qkp, qinit, precision, fmt))
+    system = SYSTEM_PROMPT.format(k=k) + (f"\n{fmt.system_note}" if fmt.system_note else "")
     user = "".join(parts)
     text = f"{system}\n\n{user}Action Sequence:\n{ANSWER_PREFIX}"
     messages = ({"role": "system", "content": system}, {"role": "user", "content": user})
@@ -417,7 +433,8 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     return Prompt(messages=messages, text=text, n_examples=len(exs),
                   n_waypoints=n_answer, precision=int(precision), n_keypoints=k,
                   content_hash=_hash_prompt(messages, text, enc),
-                  answer_tokens_estimate=int(answer_est * 1.25) + 16, encoding=enc, keyframe_times=kf_times)
+                  answer_tokens_estimate=int(answer_est * 1.25) + 16, encoding=enc, keyframe_times=kf_times,
+                  number_format=fmt.name)
 
 
 # --------------------------------------------------------------------------------------------
