@@ -1,9 +1,9 @@
 """How the numbers of a prompt are written: the thesis's metres, or a compact integer format.
 
-Gemma's tokenizer splits numbers into single digits, so a pose costs one token per digit, sign,
-point and comma: ``[0.412,-0.103,0.221,0,0.707,0,0.707,1]`` is 40 tokens. Writing positions in whole
+Gemma's tokenizer splits numbers into single digits, so a pose costs about one token per digit, sign,
+point and comma: ``[0.412,-0.103,0.221,0,0.707,0,0.707,1]`` is 37 tokens. Writing positions in whole
 millimetres and quaternion components in hundredths drops the ``0.`` of every number:
-``[412,-103,221,0,71,0,71,1]`` is 24 tokens, with 0.5 mm and about 0.6 degrees of rounding.
+``[412,-103,221,0,71,0,71,1]`` is 25 tokens, with 0.5 mm and about 0.6 degrees of rounding.
 
 * ``thesis``  (default): metres and unit quaternions, rounded to the prompt's ``precision``
   decimals (Appendix A's layout).
