@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-TABLE3_VERSION = "3"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers
+TABLE3_VERSION = "4"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples
 LLM_STRATEGIES = ("single", "random", "retrieval")
 FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
 POLICY = "policy"
@@ -114,7 +114,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
             ids = [original]
         elif strategy == "replay_top1":
             ids = top[:1]
-        elif strategy == "knn_blend":
+        elif strategy in ("retrieval", "knn_blend"):  # the thesis's 3 retrieved examples / their blend
             ids = top
         else:
             ids = []

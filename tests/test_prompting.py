@@ -410,3 +410,12 @@ def test_format_parse_round_trip(a, precision, continuation):
     assert np.allclose(res.actions[:, :, 3:7], qr / np.linalg.norm(qr, axis=-1, keepdims=True), atol=1e-12)
     assert np.array_equal(res.actions[:, :, 7], a[:, :, 7])
     assert np.all(np.abs(res.actions[:, :, :3] - a[:, :, :3]) <= 0.5 * 10.0 ** -precision + 1e-12)
+
+
+def test_a_prompt_without_examples_is_refused():
+    from demoforge.lib.llm.prompting import build_prompt
+    from tests.test_llm_grammar import demo
+
+    ex = demo(n=4)
+    with pytest.raises(ValueError, match="at least one example"):
+        build_prompt([], ex[0], ex[1], n_waypoints=4)

@@ -98,15 +98,19 @@ def test_table3_grid_end_to_end(prefect_api, warehouse, trash_take):
     from demoforge.schemas.catalog import query
 
     table3(str(warehouse), task="trash_in_bin", protocols=["thesis"], takes=1, scenes=2, llm_scenes=1,
-           strategies=["single", "replay_original", "replay_top1", "knn_blend", "transform_demo"],
+           strategies=["single", "retrieval", "replay_original", "replay_top1", "knn_blend", "transform_demo"],
            backend="fake", backend_options={"responses": ["no trajectory here"]}, episodes=200,
            take_dirs=[str(trash_take)], show_progress=False)
     rows = query("SELECT * FROM table3_trials ORDER BY strategy, scene", warehouse).to_pylist()
     by = {}
     for r in rows:
         by.setdefault(r["strategy"], []).append(r)
-    assert {k: len(v) for k, v in by.items()} == {"single": 1, "replay_original": 2, "replay_top1": 2,
-                                                   "knn_blend": 2, "transform_demo": 2}
+    assert {k: len(v) for k, v in by.items()} == {"single": 1, "retrieval": 1, "replay_original": 2,
+                                                   "replay_top1": 2, "knn_blend": 2, "transform_demo": 2}
+    # the 3 Retrieved prompt holds the scene's three nearest episodes (those knn_blend blends), and so
+    # about three times the one-example prompt
+    assert by["retrieval"][0]["example_ids"] == by["knn_blend"][0]["example_ids"]
+    assert by["retrieval"][0]["prompt_tokens"] > 2.5 * by["single"][0]["prompt_tokens"]
     assert all(r["protocol"] == "thesis" and r["take_index"] == 1 and r["nearest_mse"] > 0 for r in rows)
     # the scripted LLM answer does not parse: a failed trial, not a crash
     assert by["single"][0]["success"] is False and by["single"][0]["parse_status"] != "ok"

@@ -398,6 +398,8 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     fmt = get_number_format(number_format)
     precision = fmt.precision(precision)
     exs = [Example.coerce(e) for e in examples]
+    if not exs:  # the thesis's prompts all show demonstrations; none means the caller lost them
+        raise ValueError("a prompt needs at least one example (demonstration); none were given")
     qkp = np.asarray(query_keypoints, dtype=np.float64)
     qinit = np.asarray(query_initial, dtype=np.float64)
     if qkp.ndim != 2 or qkp.shape[1] != 3:
