@@ -124,4 +124,3 @@ def test_the_embedded_model_answers_a_compact_prompt_in_shape_under_the_grammar(
     res = parse_actions(c.text, expected_waypoints=2, prefix=p.answer_prefix)
     assert res.status == "ok" and res.actions.shape == (2, 2, 8), (res.status, c.text)
     assert "." not in c.text and c.finish_reason == "stop", c.text
-
