@@ -38,6 +38,26 @@ def test_keypoints_input_matches_poses():
     assert np.allclose(r1.object_poses[0], r2.object_poses[0], atol=1e-6)
 
 
+def test_on_frame_sees_every_recorded_frame_of_its_own_call_only():
+    """The per-frame callback is an argument of execute (not a module global): it sees the MjData of
+    each recorded frame of its own call, and changes nothing in the result."""
+    d, obj, act = _demo("pouring", 0)
+    plain = execute("pouring", obj, act, options=SimOptions(keep_trajectory=True))
+    first, second = [], []
+    r1 = execute("pouring", obj, act, options=SimOptions(keep_trajectory=True),
+                 on_frame=lambda data: first.append(data.qpos.copy()))
+    r2 = execute("pouring", obj, act[: len(act) // 2], options=SimOptions(keep_trajectory=True),
+                 on_frame=lambda data: second.append(data.time))
+    r3 = execute("pouring", obj, act)  # no callback: nothing is left installed from the calls before
+    # every recorded frame (the actions' and the settling ones after them)
+    assert len(first) == len(r1.gripper_poses) == len(plain.gripper_poses) > r1.n_frames
+    assert len(second) == len(r2.gripper_poses) < len(first)
+    assert r1.success and r3.success and np.array_equal(r1.gripper_poses, plain.gripper_poses)
+    assert np.array_equal(r1.object_poses, plain.object_poses)
+    assert len({q.tobytes() for q in first}) > len(first) // 2  # the live state, frame by frame
+    assert second == sorted(second) and len(set(second)) == len(second)  # one call per frame, in time order
+
+
 def _lid_case():
     d, obj, act = _demo("open_container", 0)
     return d, obj, act.copy()

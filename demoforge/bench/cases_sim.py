@@ -57,7 +57,7 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
     import mujoco
     import numpy as np
 
-    from demoforge.lib.sim import executor, execute
+    from demoforge.lib.sim import execute
     from demoforge.lib.sim.scene import get_scene
 
     opt = sim_options or options()[0]
@@ -67,13 +67,15 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
     T = mujoco.mjtTimer
     acc = dict.fromkeys(("wall", "physics", "collision", "constraint_make", "solver", "steps"), 0.0)
     ncon, nefc = [], []
-    hook_before = executor._FRAME_HOOK
     mujoco.set_mjcb_time(time.perf_counter)  # MuJoCo's timers stay zero without a clock callback
-    executor._FRAME_HOOK = lambda d: (ncon.append(d.ncon), nefc.append(d.nefc))
+    def count_constraints(d):
+        ncon.append(d.ncon)
+        nefc.append(d.nefc)
+
     try:
         for obj, act in eps:
             t0 = time.perf_counter()
-            r = execute(task_name, obj, act, options=opt)
+            r = execute(task_name, obj, act, options=opt, on_frame=count_constraints)
             acc["wall"] += time.perf_counter() - t0
             tm = sc.data.timer  # reset by mj_resetData at the episode's start: this episode only
             acc["physics"] += tm[T.mjTIMER_STEP].duration
@@ -83,7 +85,6 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
             acc["steps"] += r.physics_steps
     finally:
         mujoco.set_mjcb_time(None)
-        executor._FRAME_HOOK = hook_before
     out = {k: v / len(eps) for k, v in acc.items()}
     out["physics_other"] = out["physics"] - out["collision"] - out["constraint_make"] - out["solver"]
     out["python"] = out["wall"] - out["physics"]

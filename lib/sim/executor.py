@@ -214,8 +214,10 @@ class _FingerCommand:
 
 # ------------------------------------------------------------------ one episode
 def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
-            options: SimOptions | None = None) -> SimResult:
-    """Run one episode; never raises for bad actions or object input (-> failure "invalid_action")."""
+            options: SimOptions | None = None, on_frame: Callable[[Any], None] | None = None) -> SimResult:
+    """Run one episode; never raises for bad actions or object input (-> failure "invalid_action").
+    ``on_frame``: called with the MjData at every recorded frame (a renderer keeps qpos, the benchmark
+    counts contacts); it must not change the data."""
     t_wall = time.perf_counter()
     opt = options or SimOptions()
     reason = validate_actions(actions, opt.quat_tol)
@@ -231,10 +233,11 @@ def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.
             reason = f"bad object input: {e}"
     if reason is not None:
         return _invalid(task_name, reason, t_wall)
-    return _run(sc, obj0, np.asarray(actions, float), float(fps), opt, t_wall)
+    return _run(sc, obj0, np.asarray(actions, float), float(fps), opt, t_wall, on_frame)
 
 
-def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float) -> SimResult:
+def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float,
+         on_frame: Callable[[Any], None] | None = None) -> SimResult:
     mj, m, d = sc.mj, sc.model, sc.data
     spec = sc.spec
     n = actions.shape[0]
@@ -293,11 +296,9 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     mocap = _as_index(sc.mocap)
     act = _as_index(sc.act)
 
-    hook = _FRAME_HOOK
-
     def record(i):
-        if hook is not None:
-            hook(d)
+        if on_frame is not None:
+            on_frame(d)
         hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
         hist[i, :, :3, 3] = d.xpos[obj_body]
         gp[i, :, :3] = d.xpos[base_body]
@@ -406,7 +407,6 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     return res if opt.keep_trajectory else res.strip()
 
 
-_FRAME_HOOK = None  # render.py: callable(data) per recorded frame
 
 
 def _as_index(ids):

@@ -51,15 +51,9 @@ def render_episode(task_name: str, object_poses, actions, out_mp4, fps: float = 
 
 
 def _resimulate_states(task_name, obj0, actions, fps, opt):
-    """(qpos per recorded frame, SimResult): execute with a frame hook."""
-    from . import executor
-
+    """(qpos per recorded frame, SimResult): execute, keeping the state of every recorded frame."""
     states: list[np.ndarray] = []
-    executor._FRAME_HOOK = lambda d: states.append(d.qpos.copy())
-    try:
-        res = execute(task_name, obj0, actions, fps, opt)
-    finally:
-        executor._FRAME_HOOK = None
+    res = execute(task_name, obj0, actions, fps, opt, on_frame=lambda d: states.append(d.qpos.copy()))
     return states, res
 
 
