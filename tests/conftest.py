@@ -137,9 +137,3 @@ def ingested_warehouse(_ingested_trash, monkeypatch):
     shutil.copytree(pristine, live)
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(live))
     return live
-
-
-def pytest_collection_modifyitems(config, items):
-    # The long end-to-end files (marked slow) first: `make test` runs two pytest-xdist workers that
-    # take whole files, and a 4-minute file handed out last would leave the other worker idle.
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
