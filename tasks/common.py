@@ -197,7 +197,7 @@ def stage_task(*, name: str, version: str, key_ignore: tuple[str, ...] = (), key
 
     ``version`` is the code-version salt: bump it when the stage's logic changes so old cache
     entries stop matching. ``key_ignore`` names inputs left out of the cache key because they cannot
-    change the result (how many worker processes, whether a progress bar is shown). ``key_optional``
+    change the result (how many worker processes; ``PRESENTATION_ONLY`` inputs are left out of every key). ``key_optional``
     names inputs left out of the key while their value is None: a parameter added to a stage later
     (e.g. a table ``variant``) keeps the keys, and so the cached results, of every call without it.
     """

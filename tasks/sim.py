@@ -62,7 +62,7 @@ def _outcome_columns(r) -> dict:
             "detail": str(r.detail or ""), "wall_s": float(r.wall_s or 0.0)}
 
 
-@stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
+@stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers",))
 def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
                    source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
     """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
@@ -83,7 +83,7 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
     return Manifest.from_written("sim_results", written)
 
 
-@stage_task(name="stability_chunk", version=SIM_VERSION, key_ignore=("workers", "show_progress"))
+@stage_task(name="stability_chunk", version=SIM_VERSION, key_ignore=("workers",))
 def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: list[int], repeats: int,
                     jitter_m: float, seed: int, warehouse: str, source: list[Path], scene: str, workers: int = 2,
                     show_progress: bool = True) -> Manifest:

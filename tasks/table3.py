@@ -49,8 +49,7 @@ def nearest_source(source, query_keypoints: np.ndarray):
         else source
 
 
-@stage_task(name="table3_trials", version=TABLE3_VERSION, key_ignore=("show_progress",),
-            key_optional=("number_format",))
+@stage_task(name="table3_trials", version=TABLE3_VERSION, key_optional=("number_format",))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
                   backend_options: dict | None = None, n_waypoints: int | None = 20, precision: int = 3,

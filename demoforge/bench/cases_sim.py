@@ -67,11 +67,12 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
     T = mujoco.mjtTimer
     acc = dict.fromkeys(("wall", "physics", "collision", "constraint_make", "solver", "steps"), 0.0)
     ncon, nefc = [], []
-    mujoco.set_mjcb_time(time.perf_counter)  # MuJoCo's timers stay zero without a clock callback
+
     def count_constraints(d):
         ncon.append(d.ncon)
         nefc.append(d.nefc)
 
+    mujoco.set_mjcb_time(time.perf_counter)  # MuJoCo's timers stay zero without a clock callback
     try:
         for obj, act in eps:
             t0 = time.perf_counter()

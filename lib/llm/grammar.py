@@ -21,8 +21,10 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import Any
 
+from demoforge.lib.llm.number_format import get_number_format
+
 __all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
-           "structured_grammar", "prompt_gbnf", "opened_prefix"]
+           "structured_grammar", "prompt_gbnf", "answer_rows", "opened_prefix"]
 
 MAX_ROWS = 64
 _OPEN = "[[["  # outer list, first waypoint, its left arm
@@ -105,12 +107,14 @@ def prompt_gbnf(prompt: Any, text: str) -> str:
     return actions_gbnf(n, precision, prefix, MAX_ROWS, int_digits)
 
 
-def _prompt_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
-    from demoforge.lib.llm.number_format import get_number_format
+def answer_rows(prompt: Any) -> int | None:
+    """The waypoint count ``prompt`` asks for (``prompt.n_waypoints``), None when it fixes none."""
+    return int(getattr(prompt, "n_waypoints", 0) or 0) or None
 
-    n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
+
+def _prompt_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
     fmt = get_number_format(getattr(prompt, "number_format", None))
-    return n, int(getattr(prompt, "precision", 3)), opened_prefix(text), fmt.int_digits
+    return answer_rows(prompt), int(getattr(prompt, "precision", 3)), opened_prefix(text), fmt.int_digits
 
 
 def structured_grammar(prompt: Any, text: str):

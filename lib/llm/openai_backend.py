@@ -145,9 +145,8 @@ class OpenAIBackend(LLMBackend):
         if sampling.structured and self.structured_supported is not False:
             from demoforge.lib.llm import grammar
 
-            n = int(getattr(prompt, "n_waypoints", 0) or 0) or None
             if self.mode == "chat":
-                body["response_format"] = grammar.response_format(n)
+                body["response_format"] = grammar.response_format(grammar.answer_rows(prompt))
             else:
                 body["grammar"] = grammar.prompt_gbnf(prompt, body["prompt"])
         body.update(self.extra_body)

@@ -47,6 +47,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from demoforge.lib.geometry import interpolate_poses, quat_normalize
+from demoforge.lib.llm.number_format import get_number_format
 # the answer parser, re-exported (callers read a prompt's answer from here); ANSWER_PREFIX: what a
 # completion prompt opens and the parser expects it to continue
 from demoforge.lib.llm.parsing import ANSWER_PREFIX, PARSE_STATUSES, ParseResult, parse_actions
@@ -322,8 +323,6 @@ class Prompt:
         """A parsed (n, 2, 8) answer in metres and unit quaternions (the thesis format: as it is)."""
         if self.number_format == "thesis":
             return actions
-        from demoforge.lib.llm.number_format import get_number_format
-
         return get_number_format(self.number_format).decode_poses(actions)
 
     def render(self) -> str:
@@ -382,8 +381,6 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     :func:`order_by_similarity`).  ``number_format``: ``thesis`` (default, metres) or ``compact``
     (integers in mm and hundredths, one sentence added to the system prompt; see
     demoforge.lib.llm.number_format, and :meth:`Prompt.read_answer` for reading an answer back)."""
-    from demoforge.lib.llm.number_format import get_number_format
-
     fmt = get_number_format(number_format)
     precision = fmt.precision(precision)
     exs = [Example.coerce(e) for e in examples]

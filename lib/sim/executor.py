@@ -407,8 +407,6 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     return res if opt.keep_trajectory else res.strip()
 
 
-
-
 def _as_index(ids):
     """A slice for contiguous ids (cheaper MjData writes than fancy indexing), else the array."""
     ids = np.asarray(ids)
