@@ -20,6 +20,10 @@
   (the window before the prefix's end is gone, and llama-cpp-python does not notice: after a
   1,500-token answer, the next prompt's greedy answer differed from the same prompt on a fresh cache),
   so every completion then starts from an empty cache.
+* Greedy structured answers (``Sampling(structured=True, temperature=0)``) are decoded by
+  :mod:`demoforge.lib.llm.structured_decoding`: the tokens llama.cpp's grammar sampler would pick,
+  without testing Gemma's 262k-token vocabulary at every step (``structured_decoder="gbnf"`` keeps the
+  grammar sampler). Sampling at a temperature uses the grammar sampler.
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ from typing import Any
 from demoforge.lib.llm import Completion, LLMBackend, LLMError, Sampling
 
 GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
+# greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding, the same tokens) or "gbnf"
+# (llama.cpp's grammar sampler, kept as the reference and the benchmark's baseline)
+STRUCTURED_DECODERS = ("fast", "gbnf")
 MODEL_ID = "gemma-3-270m-q4_k_m"
 
 _LOCK = threading.RLock()
@@ -125,7 +132,12 @@ class LocalBackend(LLMBackend):
     name = "local"
 
     def __init__(self, model_path: str | os.PathLike | None = None, n_ctx: int = 16384,
-                 n_threads: int | None = None, n_batch: int = 512, swa_full: bool = False):
+                 n_threads: int | None = None, n_batch: int = 512, swa_full: bool = False,
+                 structured_decoder: str = "fast"):
+        if structured_decoder not in STRUCTURED_DECODERS:
+            raise ValueError(f"structured_decoder must be one of {', '.join(STRUCTURED_DECODERS)}, "
+                             f"got {structured_decoder!r}")
+        self.structured_decoder = structured_decoder
         self.model_path = Path(model_path) if model_path is not None else None
         self.model = MODEL_ID if model_path is None else Path(model_path).stem
         self.n_ctx = int(n_ctx)
@@ -184,6 +196,8 @@ class LocalBackend(LLMBackend):
             max_tokens = min(int(sampling.max_tokens), n_ctx - n_prompt)
             if not self.swa_full:
                 llm.reset()  # no prefix reuse: the windowed cache no longer holds what it would need
+            if sampling.structured and float(sampling.temperature) == 0.0 and self.structured_decoder == "fast":
+                return self._complete_fast(llm, prompt, text, max_tokens)
             grammar = None
             if sampling.structured:
                 from demoforge.lib.llm.grammar import structured_grammar
@@ -205,3 +219,19 @@ class LocalBackend(LLMBackend):
             latency_s=dt, finish_reason=choice.get("finish_reason"),
             backend=self.name, model=self.model, usage_source="tokenizer",
         )
+
+    def _complete_fast(self, llm, prompt: Any, text: str, max_tokens: int) -> Completion:
+        """A greedy structured answer by demoforge.lib.llm.structured_decoding: the grammar path's answer
+        token for token, without testing the whole vocabulary at every step."""
+        from demoforge.lib.llm.grammar import MAX_ROWS
+        from demoforge.lib.llm.structured_decoding import greedy_structured, language_for_prompt
+
+        # the prompt's tokens as create_completion builds them (BOS, then special tokens parsed)
+        tokens = llm.tokenize(text.encode("utf-8"), add_bos=True, special=True)
+        t0 = time.perf_counter()
+        r = greedy_structured(llm, tokens, language_for_prompt(prompt, text, MAX_ROWS), max_tokens,
+                              reuse_prefix=self.swa_full)
+        dt = time.perf_counter() - t0
+        return Completion(text=r.text, prompt_tokens=r.prompt_tokens, completion_tokens=len(r.tokens),
+                          latency_s=dt, finish_reason=r.finish_reason, backend=self.name, model=self.model,
+                          usage_source="tokenizer")
