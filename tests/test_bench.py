@@ -83,3 +83,10 @@ def test_bench_flow_writes_rows_queryable_in_sql(prefect_api, warehouse):
                for r in t.to_pylist())
     with pytest.raises(ValueError, match="unknown benchmark stage"):
         run_benchmarks(str(warehouse), stages=["nope"], quick=True)
+
+
+def test_the_help_names_every_registered_stage():
+    from demoforge.cli.benchmarks import STAGES
+
+    assert sorted(STAGES) == sorted(CASE_FACTORIES)
+    assert "llm" in CASE_FACTORIES

@@ -337,3 +337,10 @@ def _policy_cases(quick: bool) -> list[BenchCase]:
     from demoforge.bench.cases_policy import cases
 
     return cases(quick)
+
+
+@register("llm")
+def _llm_cases(quick: bool) -> list[BenchCase]:
+    from demoforge.bench.cases_llm import cases
+
+    return cases(quick)

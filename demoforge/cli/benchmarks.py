@@ -10,10 +10,15 @@ from demoforge.cli.root import current_warehouse, fail
 
 app = typer.Typer()
 
+# the registered stages (demoforge.bench.run.CASE_FACTORIES; tests/test_bench.py keeps the two equal)
+STAGES = ("warehouse", "geometry", "synth", "ingest", "augmentation", "retrieval", "sim", "detection", "hamer",
+          "exports", "policy", "llm")
+STAGE_HELP = f"Only these stages (repeatable): {', '.join(STAGES)}. The llm stage takes minutes."
+
 
 @app.command()
 def bench(
-    stage: Optional[List[str]] = typer.Option(None, "--stage", "-s", help="Only these stages (repeatable)."),
+    stage: Optional[List[str]] = typer.Option(None, "--stage", "-s", help=STAGE_HELP),
     quick: bool = typer.Option(False, help="Smaller inputs, for a fast smoke run."),
 ) -> None:
     """Benchmark every stage against a straightforward baseline; rows go to the `benchmarks` table."""
@@ -23,12 +28,12 @@ def bench(
         rows = run_benchmarks(str(current_warehouse()), stages=stage, quick=quick)
     except ValueError as e:
         raise fail(str(e))
-    header = f"{'stage':<12} {'case':<44} {'size':>9} {'unit':<9} {'seconds':>9} {'baseline s':>10} {'ratio':>8}"
+    header = f"{'stage':<12} {'case':<52} {'size':>9} {'unit':<9} {'seconds':>9} {'baseline s':>10} {'ratio':>8}"
     typer.echo(header)
     typer.echo("-" * len(header))
     for r in rows:
         typer.echo(
-            f"{r['stage']:<12} {r['case_name'][:44]:<44} {r['size']:>9} {r['unit']:<9} "
+            f"{r['stage']:<12} {r['case_name'][:52]:<52} {r['size']:>9} {r['unit']:<9} "
             f"{r['seconds']:>9.4f} {r['baseline_seconds']:>10.4f} {r['ratio']:>7.1f}x"
         )
     if rows:

@@ -1,0 +1,117 @@
+"""Benchmark cases of the embedded LLM (registered in demoforge/bench/run.py as stage "llm").
+
+trial   fast     = one Table 3 "3 Retrieved" trial's prompt and greedy structured answer with the local
+                   backend's fast decoder (demoforge.lib.llm.structured_decoding).
+        baseline = the same prompts answered under llama.cpp's GBNF grammar sampler (the backend's
+                   decoder until 2026-11-25). Both give the same text (checked).
+        Prompts: a pouring database (the scripted demonstration augmented, 2,000 episodes), query
+        scenes drawn from the same sampler with another seed, their three nearest episodes as
+        examples, 20 uniform waypoints, the thesis's and the compact number format. Seconds per
+        trial = seconds / size.
+tokens  decoding alone: a one-example compact prompt evaluated once (its state restored before each
+        answer), the answer cut at `size` tokens; items per second = answer tokens per second.
+The model is loaded before timing. No case when llama-cpp-python is not installed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demoforge.bench.timing import BenchCase
+
+
+def _prompts(n: int, number_format: str, n_examples: int = 3):
+    from demoforge.lib.llm.prompting import build_prompt, order_by_similarity
+    from demoforge.lib.task_library import get_task
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+    from demoforge.lib.trajectories.retrieval import KeypointIndex
+
+    spec = get_task("pouring")
+    source = from_scripted_demo(spec, spec.scripted_demo(0))
+    db = generate_episodes(source, n=1_999, n_mirrored=999, seed=0, materialize=True)
+    queries = generate_episodes(source, n=n, n_mirrored=0, seed=12_345, materialize=True)
+    index = KeypointIndex(db.keypoints)
+    prompts = []
+    for q in range(n):
+        kp = queries.keypoints[q + 1]  # episode 0 is the unmoved demonstration
+        top = np.asarray(index.query(kp, k=n_examples).ids).ravel()
+        examples = [(db.keypoints[i], db.initial[i], db.actions[i, : db.lengths[i]]) for i in top]
+        prompts.append(build_prompt(order_by_similarity(examples, kp), kp, queries.initial[q + 1], n_waypoints=20,
+                                    number_format=number_format))
+    return prompts
+
+
+def _answer_setup(prompts, max_tokens: int | None = None):
+    from demoforge.lib.llm import Sampling
+    from demoforge.lib.llm.local_backend import LocalBackend
+
+    fast_backend, gbnf_backend = LocalBackend(), LocalBackend(structured_decoder="gbnf")
+    fast_backend.llm  # load (once per process) outside the timed calls
+
+    def answer(backend):
+        def go():
+            out = []
+            for p in prompts:
+                s = Sampling(temperature=0.0, max_tokens=max_tokens or p.answer_tokens_estimate, seed=0,
+                             stop=tuple(p.stop), structured=True)
+                out.append(backend.complete(p, s).text)
+            return out
+        return go
+
+    return answer(fast_backend), answer(gbnf_backend)
+
+
+def _same_text(fast: list[str], baseline: list[str]) -> None:
+    if fast != baseline:
+        raise AssertionError("the fast decoder's answers differ from the grammar sampler's")
+
+
+def cases(quick: bool) -> list[BenchCase]:
+    try:
+        import llama_cpp  # noqa: F401
+    except ImportError:
+        return []
+    n = 1 if quick else 2
+    out = []
+    for fmt in ("thesis", "compact"):
+        cache: dict = {}
+
+        def setup(size: int, fmt=fmt, cache=cache):
+            if size not in cache:
+                cache[size] = _prompts(size, fmt)
+            return _answer_setup(cache[size])
+
+        out.append(BenchCase("llm", f"Table 3 trial ({fmt} numbers, 3 examples, 20 waypoints)", n, "trials",
+                             "llama.cpp GBNF grammar sampler", setup, check=_same_text, repeats=1))
+    n_tokens = 128 if quick else 512
+    out.append(BenchCase("llm", "structured answer tokens, prompt already evaluated", n_tokens, "answer tokens",
+                         "llama.cpp GBNF grammar sampler", _tokens_setup, check=_same_text, repeats=1))
+    return out
+
+
+def _tokens_setup(size: int):
+    """Decoding alone: the prompt is evaluated once, its state saved and restored before each answer,
+    so both decoders re-evaluate only the prompt's last token (for its logits) and then answer."""
+    from demoforge.lib.llm.grammar import MAX_ROWS, structured_grammar
+    from demoforge.lib.llm.local_backend import LocalBackend
+    from demoforge.lib.llm.structured_decoding import greedy_structured, language_for_prompt
+
+    prompt = _prompts(1, "compact", n_examples=1)[0]  # its 20-waypoint answer is ~1,000 tokens: cut at size
+    llm = LocalBackend().llm
+    tokens = llm.tokenize(prompt.text.encode("utf-8"), add_bos=True, special=True)
+    llm.reset()
+    llm.eval(tokens)
+    state = llm.save_state()
+
+    def fast():
+        llm.load_state(state)
+        r = greedy_structured(llm, tokens, language_for_prompt(prompt, prompt.text, MAX_ROWS), size, reuse_prefix=True)
+        return [r.text]
+
+    def baseline():
+        llm.load_state(state)
+        out = llm.create_completion(prompt=prompt.text, max_tokens=size, temperature=0.0, seed=0,
+                                    grammar=structured_grammar(prompt, prompt.text))
+        return [out["choices"][0]["text"]]
+
+    return fast, baseline
