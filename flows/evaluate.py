@@ -59,6 +59,8 @@ def evaluate(
     grid_scenes: int = 5,
     llm_backend: str = "local",
     llm_options: dict | None = None,
+    llm_structured: bool | None = None,
+    llm_number_format: str | None = None,
     variation_trials: int = 2,
     policy_tasks: Sequence[str] = ("pouring",),
     policy_epochs: int = 6,
@@ -125,7 +127,7 @@ def evaluate(
                      llm_scenes=min(trials, grid_scenes), backend=llm_backend, backend_options=llm_options or {},
                      strategies=[s for s in ALL_STRATEGIES if s != POLICY or with_policy], seed=seed,
                      episodes=episodes, policy_epochs=policy_epochs, policy_waypoints=policy_waypoints,
-                     take_dirs=[first_take[llm_task]])
+                     take_dirs=[first_take[llm_task]], structured=llm_structured, number_format=llm_number_format)
     from demoforge.flows.policy import evaluate_policy, train_policy
     from demoforge.tasks.policy import checkpoint_row
 
@@ -163,6 +165,8 @@ def evaluate(
                                                    "llm_tasks": list(llm_tasks), "trials": trials,
                                                    "grid_scenes": grid_scenes,
                                                    "llm_backend": llm_backend,
+                                                   "llm_structured": llm_structured,
+                                                   "llm_number_format": llm_number_format or "thesis",
                                                    "variation_trials": variation_trials,
                                                    "policy_epochs": policy_epochs, "policy_trials": policy_trials,
                                                    "policy_waypoints": policy_waypoints,

@@ -194,3 +194,24 @@ def test_llm_predict_asks_for_structured_answers_by_default_only_from_the_local_
         b = cls(lambda p, s: got.append(s.structured) or "")
         llm_predict(b, [ex], ex[0] + 0.01, ex[1], n_steps=20, n_waypoints=2, structured=structured)
         assert got == [expected], (cls.__name__, structured)
+
+
+def test_evaluate_passes_structured_and_number_format_to_its_flow(monkeypatch, tmp_path):
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+
+    seen = []
+
+    def fake_run_flow(flow, *args, **kwargs):
+        seen.append(kwargs)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr("demoforge.cli.pipeline.run_flow", fake_run_flow)
+    base = ["--warehouse", str(tmp_path), "evaluate", "--fresh", "--detector", "simulated"]
+    for args, env in [(["--free", "--number-format", "compact"], {}), ([], {"DEMOFORGE_LLM_NUMBER_FORMAT": "thesis"})]:
+        r = CliRunner().invoke(app, base + args, env=env)
+        assert r.exit_code != 0 and "stop here" in r.output, r.output
+    assert [(k["llm_structured"], k["llm_number_format"]) for k in seen] == [(False, "compact"), (None, "thesis")]
+    r = CliRunner().invoke(app, base + ["--number-format", "hex"])
+    assert r.exit_code == 2 and "--number-format must be one of" in r.output and "Traceback" not in r.output
