@@ -94,10 +94,11 @@ def _tokens_setup(size: int):
     so both decoders re-evaluate only the prompt's last token (for its logits) and then answer."""
     from demoforge.lib.llm.grammar import MAX_ROWS, structured_grammar
     from demoforge.lib.llm.local_backend import LocalBackend
-    from demoforge.lib.llm.structured_decoding import greedy_structured, language_for_prompt
+    from demoforge.lib.llm.structured_decoding import action_tokens, greedy_structured, language_for_prompt
 
     prompt = _prompts(1, "compact", n_examples=1)[0]  # its 20-waypoint answer is ~1,000 tokens: cut at size
     llm = LocalBackend().llm
+    action_tokens(llm)  # the vocabulary scan (~0.6 s, once per model) outside the timed calls
     tokens = llm.tokenize(prompt.text.encode("utf-8"), add_bos=True, special=True)
     llm.reset()
     llm.eval(tokens)
