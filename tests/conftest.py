@@ -4,6 +4,7 @@
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -108,6 +109,28 @@ def pytest_xdist_make_scheduler(config, log):
 
     config.option.loadscopereorder = False  # the collection's order, set above
     return SuiteScheduling(config, log)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _embedded_llm_on_one_core(request):
+    """Under xdist, the embedded-LLM files run on one core of their own. llama.cpp starts one thread per
+    core this process may use (demoforge.lib.llm.local_backend: its CPU affinity) and its threads wait
+    for each other at every step; with the other worker busy on the same 2 cores, a thread that is not
+    scheduled stalls the rest (test_llm_backends: 29 s alone, 170 s beside other tests). Pinned to one
+    core, the model runs one thread (the same greedy answers), the llama.cpp server these files start
+    too; the other worker keeps the other core. Module scope: before the files' module fixtures."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if request.module.__file__ is None or Path(request.module.__file__).name not in EMBEDDED_LLM \
+            or workers < 2 or not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    cpus = os.sched_getaffinity(0)
+    if len(cpus) > 1:
+        os.sched_setaffinity(0, {max(cpus)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, cpus)
 
 
 def require_mediapipe_model():
