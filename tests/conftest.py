@@ -1,6 +1,8 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
 
+import contextlib
+import fcntl
 import os
 import shutil
 import tempfile
@@ -173,13 +175,35 @@ def warehouse(tmp_path, monkeypatch):
     return root
 
 
+@contextlib.contextmanager
+def _run_wide_folder(tmp_path_factory, name: str):
+    """A folder shared by every pytest-xdist worker of this run (in the run's base temporary folder;
+    without xdist, in the session's), held under an exclusive file lock: the first worker to get here
+    makes what goes in it, the others wait for it and reuse it."""
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
+    folder.mkdir(exist_ok=True)
+    with open(folder.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield folder
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session")
 def trash_take(tmp_path_factory):
-    """A full synthetic trash_in_bin take (about 240 frames), rendered once per test session."""
+    """A full synthetic trash_in_bin take (about 240 frames), rendered once per test run: the xdist
+    workers share it (read only, as every test uses it), so it is rendered, and its 300 MB hashed
+    (the folder digests remembered on disk, keyed by path), once instead of once per worker."""
     from demoforge.lib.synth.take import generate_take
 
-    out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
-    generate_take("trash_in_bin", 0, False, out, video=False)
+    with _run_wide_folder(tmp_path_factory, "shared_takes") as folder:
+        out, done = folder / "synth_trash_in_bin_s0000", folder / "synth_trash_in_bin_s0000.done"
+        if not done.is_file():
+            shutil.rmtree(out, ignore_errors=True)  # a render cut short
+            generate_take("trash_in_bin", 0, False, out, video=False)
+            done.touch()
     return out
 
 
