@@ -1,9 +1,12 @@
 """Shared fixtures. Real Prefect (one temporary API server per test session), real DuckDB."""
 
 
+import contextlib
+import fcntl
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -64,6 +67,74 @@ def pytest_terminal_summary(terminalreporter):
             f"(reasons in the short test summary): the run fails", red=True, bold=True)
 
 
+# Scheduling under `make test` (pytest-xdist, `--dist loadfile`: whole files per worker). xdist alone
+# hands out the files with the most tests first, so the one-test test_resume.py (the longest file)
+# used to start last and run alone for minutes at the end. The suite orders the files itself, longest
+# first (measured, docs/results/issue-24-tests.md), so the long ones overlap and short files fill in
+# at the end; the files that run the embedded LLM (llama.cpp, one thread per core) form one unit, so
+# no two of them run at the same time on the 2 cores (each ran 3-7 x slower when they did).
+LONGEST_FIRST = (
+    "test_resume.py", "test_bad_inputs.py", "test_ingest_augment_flow.py", "test_annotate.py",
+    "test_dask_runner.py", "test_evaluate.py", "test_table3.py", "test_catalog.py", "test_sim_stability.py",
+    "test_task_library.py", "test_hand_tracking_flow.py", "test_real_detector_flow.py", "test_exports.py",
+    "test_cli_smoke.py", "test_packaging.py", "test_deployments.py", "test_variations.py",
+)
+EMBEDDED_LLM = ("test_llm_backends.py", "test_llm_grammar.py", "test_number_format.py", "test_llm_server.py")
+EMBEDDED_LLM_UNIT = "embedded-llm"
+
+
+def _file_rank(name: str) -> int:
+    if name in EMBEDDED_LLM:  # one unit, placed as one long file (after test_resume.py)
+        return 1
+    if name in LONGEST_FIRST:
+        return 2 * LONGEST_FIRST.index(name)
+    return 2 * len(LONGEST_FIRST)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files in the order above (a stable sort: the tests of a file stay together and in order)."""
+    items.sort(key=lambda item: _file_rank(item.path.name))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`--dist loadfile` with the suite's own order (not xdist's most-tests-first) and the embedded-LLM
+    files as one work unit."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SuiteScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            scope = super()._split_scope(nodeid)
+            return EMBEDDED_LLM_UNIT if scope.rsplit("/", 1)[-1] in EMBEDDED_LLM else scope
+
+    config.option.loadscopereorder = False  # the collection's order, set above
+    return SuiteScheduling(config, log)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _embedded_llm_on_one_core(request):
+    """Under xdist, the embedded-LLM files run on one core of their own. llama.cpp starts one thread per
+    core this process may use (demoforge.lib.llm.local_backend: its CPU affinity) and its threads wait
+    for each other at every step; with the other worker busy on the same 2 cores, a thread that is not
+    scheduled stalls the rest (test_llm_backends: 29 s alone, 170 s beside other tests). Pinned to one
+    core, the model runs one thread (the same greedy answers), the llama.cpp server these files start
+    too; the other worker keeps the other core. Module scope: before the files' module fixtures."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if request.module.__file__ is None or Path(request.module.__file__).name not in EMBEDDED_LLM \
+            or workers < 2 or not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    cpus = os.sched_getaffinity(0)
+    if len(cpus) > 1:
+        os.sched_setaffinity(0, {max(cpus)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, cpus)
+
+
 def require_mediapipe_model():
     """Skip, saying how to provide it, when the MediaPipe package or its hand-landmarker model file is
     absent; once both are there, every error of the detector is the test's to report."""
@@ -104,13 +175,35 @@ def warehouse(tmp_path, monkeypatch):
     return root
 
 
+@contextlib.contextmanager
+def _run_wide_folder(tmp_path_factory, name: str):
+    """A folder shared by every pytest-xdist worker of this run (in the run's base temporary folder;
+    without xdist, in the session's), held under an exclusive file lock: the first worker to get here
+    makes what goes in it, the others wait for it and reuse it."""
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
+    folder.mkdir(exist_ok=True)
+    with open(folder.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield folder
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session")
 def trash_take(tmp_path_factory):
-    """A full synthetic trash_in_bin take (about 240 frames), rendered once per test session."""
+    """A full synthetic trash_in_bin take (about 240 frames), rendered once per test run: the xdist
+    workers share it (read only, as every test uses it), so it is rendered, and its 300 MB hashed
+    (the folder digests remembered on disk, keyed by path), once instead of once per worker."""
     from demoforge.lib.synth.take import generate_take
 
-    out = tmp_path_factory.mktemp("takes") / "synth_trash_in_bin_s0000"
-    generate_take("trash_in_bin", 0, False, out, video=False)
+    with _run_wide_folder(tmp_path_factory, "shared_takes") as folder:
+        out, done = folder / "synth_trash_in_bin_s0000", folder / "synth_trash_in_bin_s0000.done"
+        if not done.is_file():
+            shutil.rmtree(out, ignore_errors=True)  # a render cut short
+            generate_take("trash_in_bin", 0, False, out, video=False)
+            done.touch()
     return out
 
 

@@ -43,8 +43,11 @@ def raw_take(pouring_take, tmp_path):
     return out
 
 
-def _cli(*args: str, warehouse: Path, timeout: int = 600) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(warehouse), "MUJOCO_GL": "egl"}
+def _cli(*args: str, warehouse: Path, timeout: int = 600, api: dict | None = None) -> subprocess.CompletedProcess:
+    """`demoforge ARGS` in a process of its own; ``api``: the session's Prefect API (prefect_api_env) for a
+    command that runs a flow, instead of a temporary server of its own."""
+    env = {**os.environ, **(api or {}), "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(warehouse),
+           "MUJOCO_GL": "egl"}
     return subprocess.run([sys.executable, "-m", "demoforge.cli", *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=timeout)
 
@@ -166,32 +169,36 @@ def test_annotation_status_needs_every_keypoint_of_the_task(raw_take):
 
 # ------------------------------------------------------------------------------------------------ CLI
 
-def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path):
+def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path, prefect_api_env):
     wh = tmp_path / "wh"
-    _one_line_error(_cli("ingest", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
-    _one_line_error(_cli("augment", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
-    _one_line_error(_cli("annotate", str(tmp_path / "nowhere"), warehouse=wh), "no such take folder")
-    _one_line_error(_cli("ingest-folder", str(tmp_path / "nowhere"), warehouse=wh), "no such folder")
+
+    def cli(*args):  # the session's Prefect API: a command that fails inside a flow starts no server of its own
+        return _cli(*args, warehouse=wh, api=prefect_api_env)
+
+    _one_line_error(cli("ingest", str(tmp_path / "nowhere")), "no such take folder")
+    _one_line_error(cli("augment", str(tmp_path / "nowhere")), "no such take folder")
+    _one_line_error(cli("annotate", str(tmp_path / "nowhere")), "no such take folder")
+    _one_line_error(cli("ingest-folder", str(tmp_path / "nowhere")), "no such folder")
     cam = json.loads((raw_take / "camera.json").read_text())
     (raw_take / "camera.json").write_text("{broken")
-    _one_line_error(_cli("ingest", str(raw_take), warehouse=wh), "camera.json", "not valid JSON")
+    _one_line_error(cli("ingest", str(raw_take)), "camera.json", "not valid JSON")
     (raw_take / "camera.json").unlink()
-    _one_line_error(_cli("augment", str(raw_take), warehouse=wh), "camera.json is missing")
+    _one_line_error(cli("augment", str(raw_take)), "camera.json is missing")
     (raw_take / "camera.json").write_text(json.dumps(cam))
     (raw_take / "annotations.json").write_text(json.dumps({"object_keypoints_2d": {"frame": 0, "names": ["a"]}}))
-    _one_line_error(_cli("ingest", str(raw_take), warehouse=wh), "annotations.json", "lacks key 'uv'")
-    _one_line_error(_cli("annotate", str(raw_take), "--task", "pouring", warehouse=wh), "annotations.json")
+    _one_line_error(cli("ingest", str(raw_take)), "annotations.json", "lacks key 'uv'")
+    _one_line_error(cli("annotate", str(raw_take), "--task", "pouring"), "annotations.json")
     (raw_take / "annotations.json").unlink()
-    _one_line_error(_cli("annotate", str(raw_take), "--task", "juggling", warehouse=wh), "unknown task 'juggling'")
-    _one_line_error(_cli("annotate", str(raw_take), "--task", "custom", warehouse=wh), "--keypoints")
+    _one_line_error(cli("annotate", str(raw_take), "--task", "juggling"), "unknown task 'juggling'")
+    _one_line_error(cli("annotate", str(raw_take), "--task", "custom"), "--keypoints")
     assert not (wh / "frames").exists()  # nothing ran
 
 
-def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_path):
+def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_path, prefect_api_env):
     from demoforge.schemas.catalog import query
 
     wh = tmp_path / "wh"
-    r = _cli("ingest", str(raw_take), warehouse=wh)
+    r = _cli("ingest", str(raw_take), warehouse=wh, api=prefect_api_env)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "Traceback" not in r.stderr
     warn = f"warning: object_keypoints: {raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}"
@@ -200,7 +207,7 @@ def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_
     n = query("SELECT count(*) AS n, count(*) FILTER (WHERE valid) AS ok FROM gripper_poses", wh).to_pylist()[0]
     assert n["n"] == 2 * N_FRAMES and n["ok"] > N_FRAMES
     assert not (wh / "object_keypoints").exists()
-    r = _cli("augment", str(raw_take), "-n", "20", "--mirrored", "10", warehouse=wh)
+    r = _cli("augment", str(raw_take), "-n", "20", "--mirrored", "10", warehouse=wh, api=prefect_api_env)
     _one_line_error(r, f"{raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}")
     assert not (wh / "episodes").exists()
 
