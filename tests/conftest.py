@@ -79,7 +79,8 @@ LONGEST_FIRST = (
     "test_task_library.py", "test_hand_tracking_flow.py", "test_real_detector_flow.py", "test_exports.py",
     "test_cli_smoke.py", "test_packaging.py", "test_deployments.py", "test_variations.py",
 )
-EMBEDDED_LLM = ("test_llm_backends.py", "test_llm_grammar.py", "test_number_format.py", "test_llm_server.py")
+EMBEDDED_LLM = ("test_llm_backends.py", "test_llm_grammar.py", "test_number_format.py", "test_llm_server.py",
+                "test_structured_decoding.py")
 EMBEDDED_LLM_UNIT = "embedded-llm"
 
 
