@@ -81,7 +81,7 @@ def evaluate(
     far a single verdict can be trusted).
     Table 3 (flows/table3.py, protocol `thesis`, the first take of each of `llm_tasks`): the LLM-free
     baselines and the learned policy on `grid_scenes` query scenes, the three prompts on the first
-    `trials` of them with `llm_backend` (the embedded Gemma 3 270M by default: minutes per trial on 2
+    `trials` of them with `llm_backend` (the embedded Gemma 3 270M by default: about a minute per trial on 2
     cores, so 1 by default; answers are cached). `make table3` runs the full grid.
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
     labelled real photos, and on ARCTIC when `arctic_root` (or $DEMOFORGE_ARCTIC_ROOT) is given."""

@@ -29,7 +29,7 @@ def evaluate(
     sim_episodes: int = typer.Option(20, envvar="DEMOFORGE_SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
     stability_episodes: int = typer.Option(10, envvar="DEMOFORGE_STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
     stability_repeats: int = typer.Option(3, envvar="DEMOFORGE_STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
-    trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes about 35-65 s per trial and strategy; 0 skips them). `make table3` runs the full grid."),
+    trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes about 1 min per trial and strategy with thesis numbers, 35-40 s with --number-format compact; 0 skips them). `make table3` runs the full grid."),
     grid_scenes: int = typer.Option(5, envvar="DEMOFORGE_GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="DEMOFORGE_LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
