@@ -24,7 +24,7 @@ from typing import Any
 from demoforge.lib.llm.number_format import get_number_format
 
 __all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
-           "structured_grammar", "prompt_gbnf", "answer_rows", "opened_prefix"]
+           "structured_grammar", "prompt_gbnf", "answer_rows", "answer_spec", "opened_prefix"]
 
 MAX_ROWS = 64
 _OPEN = "[[["  # outer list, first waypoint, its left arm
@@ -103,7 +103,7 @@ def llama_grammar(n_keyframes: int | None, precision: int = 3, prefix: str = "",
 def prompt_gbnf(prompt: Any, text: str) -> str:
     """The GBNF grammar of ``prompt``'s answer, as :func:`structured_grammar` compiles it (for servers
     that take the grammar as text)."""
-    n, precision, prefix, int_digits = _prompt_spec(prompt, text)
+    n, precision, prefix, int_digits = answer_spec(prompt, text)
     return actions_gbnf(n, precision, prefix, MAX_ROWS, int_digits)
 
 
@@ -112,7 +112,8 @@ def answer_rows(prompt: Any) -> int | None:
     return int(getattr(prompt, "n_waypoints", 0) or 0) or None
 
 
-def _prompt_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
+def answer_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
+    """(waypoint count or None, precision, opened prefix, integer digits) of ``prompt``'s answer."""
     fmt = get_number_format(getattr(prompt, "number_format", None))
     return answer_rows(prompt), int(getattr(prompt, "precision", 3)), opened_prefix(text), fmt.int_digits
 
@@ -120,7 +121,7 @@ def _prompt_spec(prompt: Any, text: str) -> tuple[int | None, int, str, int]:
 def structured_grammar(prompt: Any, text: str):
     """The compiled grammar for ``prompt``: its answer's waypoint count (``prompt.n_waypoints``; 0 or
     absent: 1..MAX_ROWS), its precision, and whatever part of ``[[[`` the completion text already opened."""
-    n, precision, prefix, int_digits = _prompt_spec(prompt, text)
+    n, precision, prefix, int_digits = answer_spec(prompt, text)
     return llama_grammar(n, precision, prefix, MAX_ROWS, int_digits)
 
 

@@ -157,13 +157,11 @@ class ActionListLanguage:
 
 def language_for_prompt(prompt: Any, text: str, max_rows: int) -> ActionListLanguage:
     """The language :func:`demoforge.lib.llm.grammar.structured_grammar` compiles for ``prompt``."""
-    from demoforge.lib.llm.grammar import answer_rows, opened_prefix
-    from demoforge.lib.llm.number_format import get_number_format
+    from demoforge.lib.llm.grammar import answer_spec
 
-    n = answer_rows(prompt)
-    fmt = get_number_format(getattr(prompt, "number_format", None))
+    n, precision, prefix, int_digits = answer_spec(prompt, text)
     lo, hi = (n, n) if n is not None else (1, int(max_rows))
-    return ActionListLanguage(lo, hi, int(getattr(prompt, "precision", 3)), opened_prefix(text), fmt.int_digits)
+    return ActionListLanguage(lo, hi, precision, prefix, int_digits)
 
 
 _PIECES: dict[int, tuple[np.ndarray, list[str], Any]] = {}  # id(model) -> ids, texts, the model
