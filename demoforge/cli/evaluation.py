@@ -9,7 +9,8 @@ import typer
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
-from demoforge.cli.root import check_number_format, current_warehouse, fail, llm_backend_options
+from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
+                                number_format_option, structured_option)
 
 app = typer.Typer()
 
@@ -93,16 +94,15 @@ def llm_eval_cmd(
     seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),
     waypoints: int = typer.Option(20, help="Waypoints per example action sequence in the prompt."),
     precision: int = typer.Option(3, help="Decimals of the numbers in the prompt."),
-    structured: Optional[bool] = typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain the answer to the action-list syntax with the expected waypoint count (local: a llama.cpp grammar; openai: a JSON schema in chat mode, a `grammar` field in completions mode). Default: on for local, off for openai."),
-    base_url: Optional[str] = typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com)."),
-    api_mode: str = typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models)."),
-    number_format: Optional[str] = typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", help="How the prompt writes numbers: thesis (default: metres, Appendix A) or compact (positions in mm, quaternions x 100, as integers: about half the tokens)."),
+    structured: Optional[bool] = structured_option(),
+    base_url: Optional[str] = base_url_option(),
+    api_mode: str = api_mode_option(),
+    number_format: Optional[str] = number_format_option(),
 ) -> None:
     """Predict trajectories with an LLM for new scenes and judge them in MuJoCo (thesis Table 3)."""
     from demoforge.flows.llm_eval import ALL_STRATEGIES, llm_eval
 
     options = llm_backend_options(backend, model, base_url, api_mode)
-    check_number_format(number_format)
     try:
         run_flow(llm_eval, str(current_warehouse()), task=task, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=options, trials=trials, seed=seed, n_waypoints=waypoints, precision=precision, structured=structured,

@@ -13,7 +13,7 @@ from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import current_warehouse, fail, number_format_option, structured_option
 
 app = typer.Typer()
 
@@ -34,8 +34,8 @@ def evaluate(
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="DEMOFORGE_LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     llm_model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model of the openai backend."),
-    structured: Optional[bool] = typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain LLM answers to the action-list syntax (as `demoforge table3 --structured`). Default: on for local, off for openai."),
-    number_format: Optional[str] = typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", help="How prompts write numbers: thesis (default, Appendix A) or compact (integers in mm and quaternions x 100: about 40 % fewer tokens, about half the time per trial)."),
+    structured: Optional[bool] = structured_option(),
+    number_format: Optional[str] = number_format_option(),
     variation_trials: int = typer.Option(2, "--variation-trials", envvar="DEMOFORGE_VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
     policy_epochs: int = typer.Option(6, envvar="DEMOFORGE_POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
@@ -56,9 +56,6 @@ def evaluate(
     if mirror not in ("both", "no", "yes"):
         raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
     from demoforge.flows.evaluate import DETECTORS, detector_problem
-    from demoforge.cli.root import check_number_format
-
-    check_number_format(number_format)
 
     detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
     bad = [d for d in detectors if d not in DETECTORS]

@@ -139,9 +139,28 @@ def llm_backend_options(backend: str, model: str | None, base_url: str | None, a
     return options
 
 
-def check_number_format(name: str | None) -> None:
+def _check_number_format(name: str | None) -> str | None:
     """--number-format names one of demoforge.lib.llm.number_format's formats (else a one-line error)."""
     from demoforge.lib.llm.number_format import NUMBER_FORMATS
 
     if name is not None and name not in NUMBER_FORMATS:
         raise fail(f"--number-format must be one of {', '.join(NUMBER_FORMATS)}, got {name!r}")
+    return name
+
+
+# The LLM commands' shared options (llm-eval, table3; evaluate the first two): declared once, the number
+# format checked while parsing.
+def structured_option():
+    return typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain the answer to the action-list syntax with the expected waypoint count (local: a llama.cpp grammar; openai: a JSON schema in chat mode, a `grammar` field in completions mode). Default: on for local, off for openai.")
+
+
+def number_format_option():
+    return typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", callback=_check_number_format, help="How the prompt writes numbers: thesis (default: metres, Appendix A) or compact (positions in mm, quaternions x 100, as integers: about 40 % fewer tokens and about half the time per trial).")
+
+
+def base_url_option():
+    return typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com).")
+
+
+def api_mode_option():
+    return typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models).")

@@ -6,7 +6,8 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import check_number_format, current_warehouse, fail, llm_backend_options
+from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
+                                number_format_option, structured_option)
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -26,10 +27,10 @@ def table3_cmd(
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=10, help="Episodes per database (the thesis: 10,000)."),
     policy_epochs: int = typer.Option(6, min=1, help="Training epochs of the policy column (the same as `make evaluate`'s, so its checkpoint is shared)."),
     waypoints: int = typer.Option(20, min=2, help="Waypoints per example action sequence in the prompts."),
-    structured: Optional[bool] = typer.Option(None, "--structured/--free", envvar="DEMOFORGE_LLM_STRUCTURED", help="Constrain the answer to the action-list syntax with the expected waypoint count (local: a llama.cpp grammar; openai: a JSON schema in chat mode, a `grammar` field in completions mode). Default: on for local, off for openai."),
-    base_url: Optional[str] = typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com)."),
-    api_mode: str = typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models)."),
-    number_format: Optional[str] = typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", help="How the prompt writes numbers: thesis (default: metres, Appendix A) or compact (positions in mm, quaternions x 100, as integers: about half the tokens)."),
+    structured: Optional[bool] = structured_option(),
+    base_url: Optional[str] = base_url_option(),
+    api_mode: str = api_mode_option(),
+    number_format: Optional[str] = number_format_option(),
 ) -> None:
     """Run the thesis's Table 3 grid: takes x query scenes x strategies, judged in MuJoCo.
 
@@ -49,7 +50,6 @@ def table3_cmd(
     if bad:
         raise fail(f"unknown protocol or strategy {bad}: protocols {', '.join(PROTOCOLS)}; "
                    f"strategies {', '.join(ALL_STRATEGIES)}")
-    check_number_format(number_format)
     if llm_scenes is not None and llm_scenes > scenes:
         raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
     try:
