@@ -50,7 +50,10 @@ _GBNF_TOKEN = re.compile(r'"(?:\\.|[^"\\])*"|\[[^\]]*\]|[A-Za-z_]+|\{\d+(?:,\d+)
 
 
 def gbnf_regex(grammar: str) -> re.Pattern:
-    """A non-recursive GBNF grammar's language as a regex: the grammar itself is checked, not a copy."""
+    """A non-recursive GBNF grammar's language as a regex: the grammar itself is checked, not a copy.
+    Quantifiers are possessive (``?+``, ``{m,n}+``): for the action-list grammar the same language (a
+    number is always followed by a non-digit, a row by ',' or ']'), without exponential backtracking
+    on a string it rejects (a digit could otherwise sit in any of the optional ``[0-9]?`` slots)."""
     rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
     rules = {k.strip(): v for k, v in rules.items()}
 
@@ -63,6 +66,8 @@ def gbnf_regex(grammar: str) -> re.Pattern:
                 out.append(re.escape(json.loads(t)))
             elif t[0].isalpha() or t[0] == "_":
                 out.append(f"(?:{conv(t)})")
+            elif t == "?" or t.startswith("{"):
+                out.append(t + "+")
             else:
                 out.append(t)
         return "".join(out)

@@ -3,8 +3,6 @@ on the real embedded model its answers are the grammar sampler's, token for toke
 
 from __future__ import annotations
 
-import re
-
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -14,15 +12,6 @@ from demoforge.lib.llm.grammar import actions_gbnf
 from demoforge.lib.llm.prompting import build_prompt
 from demoforge.lib.llm.structured_decoding import ActionListLanguage
 from tests.test_llm_grammar import demo, gbnf_regex, needs_llama, real_prompts
-
-
-def grammar_regex(*args) -> re.Pattern:
-    """gbnf_regex of actions_gbnf(*args) with possessive quantifiers: the same language here (a number
-    is always followed by a non-digit, a row by ',' or ']'), without exponential backtracking on the
-    strings it rejects (a digit can sit in any of the optional [0-9]? slots)."""
-    pattern = gbnf_regex(actions_gbnf(*args)).pattern
-    pattern = re.sub(r"(?<!\()\?", "?+", pattern)
-    return re.compile(re.sub(r"(\{\d+(?:,\d+)?\})", r"\1+", pattern))
 
 
 @st.composite
@@ -75,7 +64,7 @@ def near_words(draw):
 @given(near_words())
 def test_the_automaton_accepts_exactly_the_gbnf_grammars_words(case):
     n, precision, int_digits, prefix, text = case
-    grammar = grammar_regex(n, precision, prefix, 4, int_digits)
+    grammar = gbnf_regex(actions_gbnf(n, precision, prefix, 4, int_digits))
     lo, hi = (n, n) if n is not None else (1, 4)
     lang = ActionListLanguage(lo, hi, precision, prefix, int_digits)
     state = lang.advance(lang.start(), text)
