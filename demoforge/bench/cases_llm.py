@@ -41,7 +41,7 @@ def _prompts(n: int, number_format: str, n_examples: int = 3):
     return prompts
 
 
-def _answer_setup(prompts, max_tokens: int | None = None):
+def _answer_setup(prompts):
     from demoforge.lib.llm import Sampling
     from demoforge.lib.llm.local_backend import LocalBackend
 
@@ -52,7 +52,7 @@ def _answer_setup(prompts, max_tokens: int | None = None):
         def go():
             out = []
             for p in prompts:
-                s = Sampling(temperature=0.0, max_tokens=max_tokens or p.answer_tokens_estimate, seed=0,
+                s = Sampling(temperature=0.0, max_tokens=p.answer_tokens_estimate, seed=0,
                              stop=tuple(p.stop), structured=True)
                 out.append(backend.complete(p, s).text)
             return out
