@@ -7,7 +7,7 @@ import numpy as np
 
 from demoforge.lib.llm import get_backend
 from demoforge.lib.llm.prompting import format_actions, format_keypoints
-from demoforge.lib.trajectories.keyframes import encode_keyframes, reconstruction_error
+from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, reconstruction_error, smooth_actions
 from demoforge.tasks.llm_eval import llm_predict
 from tests.test_prompting import hand_episode
 
@@ -35,11 +35,12 @@ def test_keyframe_answer_is_decoded_on_the_nearest_examples_time_curve():
     demos = prompt.user.split("** New Input **")[0]
     assert format_keypoints(exs[0].keypoints) in demos.split("** Demo 2 **")[1]
     assert format_keypoints(exs[1].keypoints) in demos.split("** Demo 1 **")[0]
-    assert prompt.n_waypoints == len(encode_keyframes(exs[0].actions))
-    # decoded to the episode length, within the encoding's tolerance (+ the prompt's 3-decimal rounding)
+    assert prompt.n_waypoints == len(keyframe_actions(exs[0].actions, DEFAULT_KEYFRAMES)[1])
+    # decoded to the episode length, within the encoding's tolerance of the smoothed sequence it encodes
+    # (+ the prompt's 3-decimal rounding)
     assert actions.shape == (40, 2, 8)
-    dp, dq = reconstruction_error(exs[0].actions, actions)
-    assert dp.max() < 0.005 + 1e-3 and dq.max() < 0.05 + 2e-3
+    dp, dq = reconstruction_error(smooth_actions(exs[0].actions, DEFAULT_KEYFRAMES.smooth_sigma_steps), actions)
+    assert dp.max() < DEFAULT_KEYFRAMES.pos_tol_m + 1e-3 and dq.max() < DEFAULT_KEYFRAMES.rot_tol_rad + 2e-3
     assert np.array_equal(actions[:, :, 7], exs[0].actions[:, :, 7])  # open/close at the same steps
 
 

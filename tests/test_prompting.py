@@ -120,16 +120,22 @@ def test_system_prompt_is_the_thesis_appendix_a_word_for_word():
 
 
 def test_keyframe_prompt_is_the_default_and_asks_for_the_last_examples_count():
-    from demoforge.lib.trajectories.keyframes import encode_keyframes
+    from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, KeyframeSettings, keyframe_actions
 
     exs = [hand_episode(0.0, n=40), hand_episode(0.05, n=30)]
     q = hand_episode(0.01)
     p = build_prompt(exs, q.keypoints, q.initial)
     assert p.encoding == "keyframes" and p.version == PROMPT_VERSION == "appendix-a-v2-keyframes"
-    idx = [encode_keyframes(e.actions) for e in exs]
-    for e, i in zip(exs, idx):
+    kf = [keyframe_actions(e.actions, DEFAULT_KEYFRAMES) for e in exs]
+    idx = [i for _, i in kf]
+    for (values, i) in kf:
         assert f"# shape: ({len(i)}, 2, 8)" in p.user
-        assert format_actions(e.actions[i]) in p.user  # the keyframes themselves, unchanged
+        assert format_actions(values) in p.user  # the keyframes of the smoothed sequence
+    # other settings (a task's own) write other keyframes
+    fine_settings = KeyframeSettings(0.0002, 0.002, 1.0)
+    fine = build_prompt(exs, q.keypoints, q.initial, keyframes=fine_settings)
+    assert fine.n_waypoints > p.n_waypoints
+    assert format_actions(keyframe_actions(exs[-1].actions, fine_settings)[0]) in fine.user
     assert p.n_waypoints == len(idx[-1]) and np.allclose(p.keyframe_times, idx[-1] / 29)
     # explicit waypoints keep today's uniform resampling; the encodings never share a content hash
     u = build_prompt(exs, q.keypoints, q.initial, n_waypoints=6)

@@ -19,8 +19,9 @@ What was filled in or changed where the thesis text is garbled or elided (docume
   - Numbers are rounded (default 3 decimals, trailing zeros stripped, gripper state as 0/1) and
     written compactly, one keypoint / one waypoint per line, instead of Python's full float repr.
   - Action sequences (``encoding``): ``"keyframes"`` (the default when no ``n_waypoints`` is given)
-    writes each example's keyframes (``demoforge.lib.trajectories.keyframes``: the steps that keep
-    linear / slerp reconstruction within 5 mm and 0.05 rad, gripper instants and boundaries kept);
+    writes each example's keyframes (``demoforge.lib.trajectories.keyframes.keyframe_actions``: the
+    sequence smoothed over time, then the steps that keep linear / slerp reconstruction within the
+    tolerances of ``DEFAULT_KEYFRAMES``, gripper instants kept);
     the answer is asked for with the count of the most similar example (the last one) and decoded on
     its time curve (:attr:`Prompt.keyframe_times`).  ``"uniform"`` time-resamples every sequence to
     ``n_waypoints`` waypoints (KAT used ~20, see :func:`resample_actions`); ``"raw"`` writes the
@@ -352,31 +353,31 @@ def order_by_similarity(examples: Sequence[Any], query_keypoints: Any) -> list[E
     return [exs[i] for i in order]
 
 
-def _encode_examples(exs: Sequence[Example], encoding: str, n_waypoints: int | None, pos_tol_m: float,
-                     rot_tol_rad: float) -> tuple[list[np.ndarray], tuple[float, ...]]:
+def _encode_examples(exs: Sequence[Example], encoding: str, n_waypoints: int | None,
+                     keyframes: Any) -> tuple[list[np.ndarray], tuple[float, ...]]:
     """Each example's action block and the keyframe time fractions of the last example."""
     if encoding == "uniform":
         return [resample_actions(e.actions, n_waypoints) for e in exs], ()
     if encoding == "raw":
         return [np.asarray(e.actions, np.float64) for e in exs], ()
-    from demoforge.lib.trajectories.keyframes import encode_keyframes, keyframe_fractions
+    from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, keyframe_fractions
 
     blocks, times = [], ()
     for e in exs:
         a = np.asarray(e.actions, np.float64)
-        idx = encode_keyframes(a, pos_tol_m, rot_tol_rad)
-        blocks.append(a[idx])
+        values, idx = keyframe_actions(a, keyframes or DEFAULT_KEYFRAMES)
+        blocks.append(values)
         times = tuple(float(x) for x in keyframe_fractions(idx, len(a)))
     return blocks, times
 
 
 def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: Any,
                  n_waypoints: int | None = None, precision: int = 3, encoding: str | None = None,
-                 pos_tol_m: float = 0.005, rot_tol_rad: float = 0.05, number_format: str | None = None) -> Prompt:
+                 keyframes: Any = None, number_format: str | None = None) -> Prompt:
     """The thesis's prompt (Appendix A) for ``examples`` (Example, (kp, init, actions) tuples or mappings
     with keys keypoints / initial / actions) and the query scene.  Each example's action sequence is
     written as ``encoding`` says (module docstring): ``"keyframes"`` (default when ``n_waypoints`` is
-    None; tolerances ``pos_tol_m`` / ``rot_tol_rad``), ``"uniform"`` (default when ``n_waypoints`` is
+    None; ``keyframes`` a KeyframeSettings, default DEFAULT_KEYFRAMES), ``"uniform"`` (default when ``n_waypoints`` is
     given: resampled to it) or ``"raw"``.  The examples are written in the given order (see
     :func:`order_by_similarity`).  ``number_format``: ``thesis`` (default, metres) or ``compact``
     (integers in mm and hundredths, one sentence added to the system prompt; see
@@ -401,7 +402,7 @@ def build_prompt(examples: Sequence[Any], query_keypoints: Any, query_initial: A
     for i, e in enumerate(exs):
         if e.keypoints.shape != (k, 3):
             raise ValueError(f"example {i}: keypoints {e.keypoints.shape} != query's {(k, 3)}")
-    blocks, kf_times = _encode_examples(exs, enc, n_waypoints, pos_tol_m, rot_tol_rad)
+    blocks, kf_times = _encode_examples(exs, enc, n_waypoints, keyframes)
     parts = []
     n_out = None
     answer_est = 0

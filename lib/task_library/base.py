@@ -26,6 +26,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
 from demoforge.lib.geometry import transform_inverse
+from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, KeyframeSettings
 from demoforge.lib.trajectories.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
 
 MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
@@ -272,6 +273,10 @@ class Task:
     # object name -> (attribute holding its dimension dict, keypoints(dims), grasp width(dims)) for the
     # objects whose size and proportions a variant may change (Task.variant); empty: fixed objects
     resizable: dict = {}
+    # how the LLM prompts write this task's action sequences (lib/trajectories/keyframes.py): the
+    # coarsest tolerances whose decoded keyframes keep a database's own successes in physics
+    # (scripts/measure_keyframes.py); tasks with free-space carries allow coarser ones
+    keyframes: KeyframeSettings = DEFAULT_KEYFRAMES
 
     # -------- static description
     @property

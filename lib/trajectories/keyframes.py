@@ -15,6 +15,15 @@ Encoding (bounded reconstruction error, greedy)
         between keyframes) reproduces the change at exactly the same step with the same poses;
       * optional ``boundaries`` (motion/skill segment starts, clipped to the episode).
 
+Smoothing before encoding (recorded demonstrations)
+    An ingested trajectory carries per-frame jitter from the detector (on the default synthetic takes
+    a step lies a median 9 mm and 0.10 rad from the midpoint of its neighbours), above any useful
+    tolerance, so the bounded-error encoder would keep nearly every step.  :func:`keyframe_actions`
+    therefore first smooths the poses with a Gaussian over time (:func:`smooth_actions`: positions
+    averaged, quaternions averaged on one hemisphere and renormalised, gripper values untouched) and
+    encodes the smoothed sequence; its keyframes are the smoothed poses.  A scripted (clean)
+    trajectory is changed by the smoothing only where it turns, by far less than the tolerance.
+
 Decoding (the robot executor's interpolation)
     ``lib/sim/executor.py`` drives the grippers between consecutive action steps with linear
     positions and slerped rotations (``interpolate_poses(..., rotation="slerp", position="linear")``,
@@ -37,14 +46,36 @@ Times of an LLM answer (the design choice)
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from demoforge.lib.geometry import interpolate_poses, quat_angle, quat_normalize, quat_slerp
+from demoforge.lib.geometry.interpolation import _hemisphere_continuous
 
 __all__ = ["encode_keyframes", "decode_keyframes", "answer_times", "keyframe_fractions", "reconstruction_error",
-           "gripper_change_steps"]
+           "gripper_change_steps", "smooth_actions", "keyframe_actions", "KeyframeSettings", "DEFAULT_KEYFRAMES"]
+
+
+@dataclass(frozen=True)
+class KeyframeSettings:
+    """How an action sequence becomes keyframes (:func:`keyframe_actions`): the reconstruction
+    tolerances of the encoder (metres, radians) and the Gaussian smoothing before it (sigma in steps;
+    0 = none)."""
+
+    pos_tol_m: float = 0.01
+    rot_tol_rad: float = 0.1
+    smooth_sigma_steps: float = 2.0
+
+    def __post_init__(self):
+        if not (self.pos_tol_m >= 0 and self.rot_tol_rad >= 0 and self.smooth_sigma_steps >= 0):
+            raise ValueError(f"keyframe tolerances and smoothing must be >= 0, got {self}")
+
+
+# what the prompts, the answers' decoding and the round-trip measurement use unless told otherwise
+# (chosen by scripts/measure_keyframes.py: docs/results/issue-21-keyframes.md)
+DEFAULT_KEYFRAMES = KeyframeSettings()
 
 
 def _check(actions: Any) -> np.ndarray:
@@ -110,6 +141,40 @@ def encode_keyframes(actions: Any, pos_tol_m: float = 0.005, rot_tol_rad: float 
         keep.append(end)
         anchor = end
     return np.asarray(keep, dtype=np.int64)
+
+
+def smooth_actions(actions: Any, sigma_steps: float) -> np.ndarray:
+    """(T, 2, 8) actions with positions and orientations smoothed over time by a Gaussian of
+    ``sigma_steps`` steps; gripper values unchanged.  Each run between gripper open/close changes is
+    smoothed on its own (its ends repeated outward), so a grasp pose is never averaged with the
+    motion after the grasp.  Quaternions are made hemisphere-continuous, averaged with the same
+    weights and renormalised (accurate for the small angles within a few sigma of each other)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    a = _check(actions)
+    if not sigma_steps >= 0:
+        raise ValueError(f"sigma_steps must be >= 0, got {sigma_steps}")
+    out = a.copy()
+    if sigma_steps == 0 or a.shape[0] < 3:
+        return out
+    q_all = _hemisphere_continuous(quat_normalize(a[:, :, 3:7]))
+    cuts = [0, *gripper_change_steps(a).tolist(), a.shape[0]]
+    for s0, s1 in zip(cuts[:-1], cuts[1:]):
+        if s1 - s0 < 3:
+            continue
+        out[s0:s1, :, :3] = gaussian_filter1d(a[s0:s1, :, :3], float(sigma_steps), axis=0, mode="nearest")
+        out[s0:s1, :, 3:7] = quat_normalize(gaussian_filter1d(q_all[s0:s1], float(sigma_steps), axis=0, mode="nearest"))
+    return out
+
+
+def keyframe_actions(actions: Any, settings: KeyframeSettings = DEFAULT_KEYFRAMES,
+                     boundaries: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The keyframes of a (T, 2, 8) action sequence as written in a prompt: ((K, 2, 8) values, (K,)
+    step indices).  The sequence is smoothed (``settings.smooth_sigma_steps``), then encoded with the
+    settings' tolerances; the values are the smoothed poses at the kept steps (gripper values exact)."""
+    smooth = smooth_actions(actions, settings.smooth_sigma_steps)
+    idx = encode_keyframes(smooth, settings.pos_tol_m, settings.rot_tol_rad, boundaries)
+    return smooth[idx], idx
 
 
 def decode_keyframes(keyframes: Any, times: Any, n_steps: int) -> np.ndarray:
