@@ -8,7 +8,7 @@ from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
 from demoforge.tasks.common import Manifest, run_stage
-from demoforge.tasks.llm_eval import BASELINES, LLM_STRATEGIES, llm_trials
+from demoforge.tasks.llm_eval import BASELINES, LLM_STRATEGIES, keyframe_key, llm_trials
 
 ALL_STRATEGIES = LLM_STRATEGIES + BASELINES
 
@@ -23,7 +23,7 @@ def llm_eval(
     trials: int = 3,
     seed: int = 0,
     takes: Sequence[str] | None = None,
-    n_waypoints: int = 20,
+    n_waypoints: int | None = None,
     precision: int = 3,
     max_tokens: int | None = None,
     structured: bool | None = None,
@@ -56,7 +56,8 @@ def llm_eval(
             m = run_stage(llm_trials, warehouse, task=task, take=take, strategy=strategy, warehouse=warehouse,
                           backend=backend, backend_options=backend_options or {}, trials=trials, seed=seed,
                           n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens,
-                          structured=structured, number_format=number_format)
+                          structured=structured, number_format=number_format,
+                          keyframes=keyframe_key(task, n_waypoints) if strategy in LLM_STRATEGIES else None)
             logger.info("%s %s %s: %d trials", task, take, strategy, m.rows)
             out.append(m)
     return out

@@ -238,9 +238,9 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "of the database. Latency: one forward pass per scene on the CPU (Table 3 has the LLM's). "
                        "The query scenes move each object independently and turn it, which the default database "
                        "(both objects translated together, no yaw) does not cover; held_out shows the policy on "
-                       "placements the database does cover. Predictions are waypoints linearly upsampled to 30 Hz, "
-                       "like the LLM's: at the prompts' 20 waypoints even the database's own successful trajectories "
-                       "fail the check once resampled, at 40 they pass, so the default policy uses 40."))
+                       "placements the database does cover. Predictions are uniform waypoints upsampled to 30 Hz: at "
+                       "20 most of a database's own successful episodes fail the check once resampled (the LLM "
+                       "prompts write keyframes instead), at 40 they pass, so the default policy uses 40."))
     md.append(_section("Why policy trials failed", "report_policy_failures", warehouse, reports, pol_stamp))
     var_stamp = stamp + f" · scenes per task and variation: {params.get('variation_trials')}"
     md.append(_section("Table 4 analogue: success under simulated scene variations", "report_table4", warehouse,

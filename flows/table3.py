@@ -10,6 +10,7 @@ from prefect import flow, get_run_logger
 import demoforge.lib  # noqa: F401
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.llm_eval import keyframe_key
 from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY, table3_trials
 
 NOVEL_SUFFIX = "_novel"  # database key of a take's `novel` database: <take>_novel (episodes.take)
@@ -37,7 +38,7 @@ def table3(
     policy_epochs: int = 6,
     policy_waypoints: int = 40,
     policy_threads: int = 2,
-    n_waypoints: int = 20,
+    n_waypoints: int | None = None,
     precision: int = 3,
     max_tokens: int | None = None,
     structured: bool | None = None,
@@ -100,6 +101,7 @@ def table3(
                                   n_waypoints=n_waypoints, precision=precision, max_tokens=max_tokens if llm else None,
                                   structured=structured if llm else None,
                                   number_format=number_format if llm else None,
+                                  keyframes=keyframe_key(task, n_waypoints) if llm else None,
                                   policy_checkpoint=ck if strategy == POLICY else None, show_progress=show_progress)
                     logger.info("%s %s take %d (%s) %s: %d trials", task, protocol, i, db["take"], strategy, m.rows)
                     out.append(m)

@@ -19,7 +19,7 @@ LLM_TRIALS = table(
         Column("seed", pa.int64(), "Seed of the query scenes and of the random strategy."),
         Column("query_keypoints", keypoints3d(11), "The query scene's 11 object keypoints, world frame, m."),
         Column("retrieved_episode_ids", pa.list_(pa.int64()), "Episodes used as examples (or replayed)."),
-        Column("n_waypoints", pa.int32(), "Waypoints per example action sequence in the prompt."),
+        Column("n_waypoints", pa.int32(), "Action rows the answer is asked for: the uniform waypoint count, or the keyframe count of the most similar example (keyframe prompts)."),
         Column("prompt_tokens", pa.int32(), "Prompt length in the backend's tokens (0 for `none`)."),
         Column("answer_tokens", pa.int32(), "Answer length in tokens."),
         Column("latency_s", pa.float64(), "Wall time of the prediction, s (0 when served from the answer cache)."),

@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-LLM_EVAL_VERSION = "3"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers
+LLM_EVAL_VERSION = "4"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: keyframes of the smoothed sequences, the default
 LLM_STRATEGIES = ("single", "random", "retrieval")
 BASELINES = ("replay_top1", "transform_demo")
 K_EXAMPLES = 3
@@ -57,13 +57,16 @@ def _episode_data(warehouse: str, task: str, take: str):
             "length": np.asarray(ep.column("length").to_numpy())}
 
 
-@stage_task(name="llm_trials", version=LLM_EVAL_VERSION, key_optional=("number_format",))
+@stage_task(name="llm_trials", version=LLM_EVAL_VERSION, key_optional=("number_format", "keyframes"))
 def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Manifest | None = None,
                backend: str = "local", backend_options: dict | None = None, trials: int = 3, seed: int = 0,
-               n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
-               temperature: float = 0.0, structured: bool | None = None, number_format: str | None = None) -> Manifest:
+               n_waypoints: int | None = None, precision: int = 3, max_tokens: int | None = None,
+               temperature: float = 0.0, structured: bool | None = None, number_format: str | None = None,
+               keyframes: tuple | None = None) -> Manifest:
     """`trials` query scenes for one strategy; every prediction is judged by the MuJoCo success check.
-    `structured`: constrained answers (see llm_predict; None: on for the local backend)."""
+    `structured`: constrained answers (see llm_predict; None: on for the local backend). `keyframes`:
+    (pos_tol_m, rot_tol_rad, smooth_sigma_steps) of keyframe prompts (None: the task's settings; the
+    flows pass them, so a change of the task's settings is a change of the key)."""
     from demoforge.tasks.augment import episode_actions
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
@@ -104,7 +107,8 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
             examples = [(db["keypoints"][db["ids"] == i][0], db["initial"][db["ids"] == i][0], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints, precision=precision,
                                           max_tokens=max_tokens, temperature=temperature, seed=seed,
-                                          structured=structured, number_format=number_format)
+                                          structured=structured, number_format=number_format,
+                                          keyframes=keyframe_settings(task, keyframes))
             row.update(fields)
             if fields["parse_status"] == "llm_error":
                 row.update(success=False, failure_reason="llm_error", sim_detail="")
@@ -122,14 +126,15 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
 
 
 def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray, n_steps: int,
-                n_waypoints: int | None = 20, precision: int = 3, max_tokens: int | None = None,
+                n_waypoints: int | None = None, precision: int = 3, max_tokens: int | None = None,
                 temperature: float = 0.0, seed: int = 0,
-                structured: bool | None = None, number_format: str | None = None) -> tuple[np.ndarray | None, dict]:
+                structured: bool | None = None, number_format: str | None = None,
+                keyframes=None) -> tuple[np.ndarray | None, dict]:
     """One LLM prediction: examples [(keypoints, initial poses, actions)] and the query -> prompt (the
     examples ordered with the most similar one last, next to the new input) -> the backend's answer ->
     parsed actions brought to n_steps (None when the answer does not parse), and the llm_trials fields
     of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).  n_waypoints None:
-    a keyframe prompt, whose answer is decoded with the keyframe decoder on the most similar example's
+    a keyframe prompt (``keyframes``: the task's KeyframeSettings), whose answer is decoded with the keyframe decoder on the most similar example's
     time curve; else uniform waypoints, upsampled.  A backend failure gives parse_status `llm_error`,
     never an exception.  `structured`: the answer is constrained to the action-list syntax with the
     prompt's waypoint count (demoforge.lib.llm.grammar); None: on for the local backend (the 270M
@@ -139,8 +144,8 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
 
     examples = order_by_similarity(examples, query_keypoints)
     prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision,
-                          number_format=number_format)
-    fields = {"prompt_hash": prompt.hash, "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
+                          number_format=number_format, keyframes=keyframes)
+    fields = {"prompt_hash": prompt.hash, "n_waypoints": int(prompt.n_waypoints), "prompt_tokens": 0, "answer_tokens": 0, "latency_s": 0.0, "cached": False,
               "raw_answer": "", "parse_status": "ok", "parse_detail": ""}
     sampling = Sampling(temperature=temperature, max_tokens=max_tokens or int(prompt.answer_tokens_estimate) or 2048,
                         seed=seed, stop=tuple(prompt.stop),
@@ -159,6 +164,23 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     if not parsed.ok:
         return None, fields
     return decode_answer(prompt, prompt.read_answer(parsed.actions), n_steps), fields
+
+
+def keyframe_settings(task: str, given: tuple | None = None):
+    """The KeyframeSettings of a stage's prompts: the given (pos_tol_m, rot_tol_rad, smooth_sigma_steps),
+    else the task's own (demoforge.lib.task_library: Task.keyframes)."""
+    from demoforge.lib.task_library import get_task
+    from demoforge.lib.trajectories.keyframes import KeyframeSettings
+
+    return KeyframeSettings(*given) if given else get_task(task).keyframes
+
+
+def keyframe_key(task: str, n_waypoints: int | None) -> tuple | None:
+    """What the flows pass as a stage's ``keyframes``: the task's settings as a tuple for keyframe
+    prompts (so the stage's cache key follows them), None for uniform prompts."""
+    from dataclasses import astuple
+
+    return astuple(keyframe_settings(task)) if n_waypoints is None else None
 
 
 def decode_answer(prompt, answer: np.ndarray, n_steps: int) -> np.ndarray:

@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-TABLE3_VERSION = "4"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples
+TABLE3_VERSION = "5"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples; 5: keyframes of the smoothed sequences, the default
 LLM_STRATEGIES = ("single", "random", "retrieval")
 FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
 POLICY = "policy"
@@ -49,13 +49,13 @@ def nearest_source(source, query_keypoints: np.ndarray):
         else source
 
 
-@stage_task(name="table3_trials", version=TABLE3_VERSION, key_optional=("number_format",))
+@stage_task(name="table3_trials", version=TABLE3_VERSION, key_optional=("number_format", "keyframes"))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
-                  backend_options: dict | None = None, n_waypoints: int | None = 20, precision: int = 3,
+                  backend_options: dict | None = None, n_waypoints: int | None = None, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
                   show_progress: bool = True, structured: bool | None = None,
-                  number_format: str | None = None) -> Manifest:
+                  number_format: str | None = None, keyframes: tuple | None = None) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
     `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
     are cached by the backend, so a re-run after an interruption pays only the robot checks."""
@@ -64,7 +64,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
     from demoforge.tasks.augment import episode_actions, load_demo_source
-    from demoforge.tasks.llm_eval import llm_predict, upsample
+    from demoforge.tasks.llm_eval import keyframe_settings, llm_predict, upsample
 
     if strategy not in ALL_STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose from {', '.join(ALL_STRATEGIES)}")
@@ -124,7 +124,8 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
             examples = [(db["keypoints"][pos[i]], db["initial"][pos[i]], acts[i]) for i in ids]
             actions, fields = llm_predict(llm, examples, kp, init, n_steps, n_waypoints=n_waypoints,
                                           precision=precision, max_tokens=max_tokens, seed=seed,
-                                          structured=structured, number_format=number_format)
+                                          structured=structured, number_format=number_format,
+                                          keyframes=keyframe_settings(task, keyframes))
             row.update(fields)
         elif strategy in ("replay_original", "replay_top1"):
             actions = episode_actions(warehouse, task, database, ids)[ids[0]]

@@ -10,7 +10,7 @@ import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujo
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
-                                number_format_option, structured_option)
+                                number_format_option, structured_option, waypoints_option)
 
 app = typer.Typer()
 
@@ -92,7 +92,7 @@ def llm_eval_cmd(
     model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model name for the openai backend."),
     trials: int = typer.Option(3, envvar="DEMOFORGE_TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
     seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),
-    waypoints: int = typer.Option(20, help="Waypoints per example action sequence in the prompt."),
+    waypoints: Optional[int] = waypoints_option(),
     precision: int = typer.Option(3, help="Decimals of the numbers in the prompt."),
     structured: Optional[bool] = structured_option(),
     base_url: Optional[str] = base_url_option(),

@@ -158,6 +158,10 @@ def number_format_option():
     return typer.Option(None, "--number-format", envvar="DEMOFORGE_LLM_NUMBER_FORMAT", callback=_check_number_format, help="How the prompt writes numbers: thesis (default: metres, Appendix A) or compact (positions in mm, quaternions x 100, as integers: about 40 % fewer tokens and about half the time per trial).")
 
 
+def waypoints_option():
+    return typer.Option(None, "--waypoints", min=2, help="How the prompts write each example's action sequence: by default its keyframes (the sequence smoothed, then the steps a linear / slerp reconstruction cannot do without, gripper open/close instants kept; the answer is decoded as the robot interpolates). N: every sequence resampled uniformly to N waypoints instead (the earlier prompts; at 20, most of a database's own successful episodes fail once resampled).")
+
+
 def base_url_option():
     return typer.Option(None, "--base-url", help="OpenAI-compatible endpoint of the openai backend, e.g. http://127.0.0.1:8080/v1 (default: OPENAI_BASE_URL, else api.openai.com).")
 

@@ -7,7 +7,7 @@ from typing import List, Optional
 import typer
 
 from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
-                                number_format_option, structured_option)
+                                number_format_option, structured_option, waypoints_option)
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -26,7 +26,7 @@ def table3_cmd(
     seed: int = typer.Option(0, help="Seed of the takes, databases, query scenes, random examples and policy."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=10, help="Episodes per database (the thesis: 10,000)."),
     policy_epochs: int = typer.Option(6, min=1, help="Training epochs of the policy column (the same as `make evaluate`'s, so its checkpoint is shared)."),
-    waypoints: int = typer.Option(20, min=2, help="Waypoints per example action sequence in the prompts."),
+    waypoints: Optional[int] = waypoints_option(),
     structured: Optional[bool] = structured_option(),
     base_url: Optional[str] = base_url_option(),
     api_mode: str = api_mode_option(),
