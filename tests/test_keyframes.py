@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from demoforge.lib.geometry import interpolate_poses, quat_slerp
 from demoforge.lib.trajectories.keyframes import (
-    DEFAULT_KEYFRAMES, KeyframeSettings, answer_times, decode_keyframes, encode_keyframes, gripper_change_steps,
+    KeyframeSettings, answer_times, decode_keyframes, encode_keyframes, gripper_change_steps,
     keyframe_actions, keyframe_fractions, reconstruction_error, smooth_actions,
 )
 
@@ -232,7 +232,7 @@ def test_keyframe_round_trip_in_physics():
     raw_ok = []
     for i, a in zip(ids, db.episode_actions(ids)):
         a = a[:db.lengths[i]]
-        values, idx = keyframe_actions(a, DEFAULT_KEYFRAMES)  # what the prompts write
+        values, idx = keyframe_actions(a, spec.keyframes)  # what the task's prompts write
         assert len(idx) < len(a) / 6
         raw = execute("trash_in_bin", db.keypoints[i], a)
         dec = execute("trash_in_bin", db.keypoints[i], decode_keyframes(values, idx, len(a)))
