@@ -80,7 +80,7 @@ LONGEST_FIRST = (
     "test_cli_smoke.py", "test_packaging.py", "test_deployments.py", "test_variations.py",
 )
 EMBEDDED_LLM = ("test_llm_backends.py", "test_llm_grammar.py", "test_number_format.py", "test_llm_server.py",
-                "test_structured_decoding.py")
+                "test_structured_decoding.py", "test_reduced_vocab.py")
 EMBEDDED_LLM_UNIT = "embedded-llm"
 
 

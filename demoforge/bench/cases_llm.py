@@ -1,9 +1,11 @@
 """Benchmark cases of the embedded LLM (registered in demoforge/bench/run.py as stage "llm").
 
 trial   fast     = one Table 3 "3 Retrieved" trial's prompt and greedy structured answer with the local
-                   backend's fast decoder (demoforge.lib.llm.structured_decoding).
+                   backend's fast decoder (demoforge.lib.llm.structured_decoding) on the reduced-
+                   vocabulary model (demoforge.lib.llm.reduced_vocab).
         baseline = the same prompts answered under llama.cpp's GBNF grammar sampler (the backend's
-                   decoder until 2026-11-25). Both give the same text (checked).
+                   decoder until 2026-11-25), or (the "vocabulary" case) by the same fast decoder on
+                   the full model. Both give the same text (checked).
         Prompts: a pouring database (the scripted demonstration augmented, 2,000 episodes), query
         scenes drawn from the same sampler with another seed, their three nearest episodes as
         examples, 20 uniform waypoints, the thesis's and the compact number format. Seconds per
@@ -41,12 +43,12 @@ def _prompts(n: int, number_format: str, n_examples: int = 3):
     return prompts
 
 
-def _answer_setup(prompts):
+def _answer_setup(prompts, baseline: str = "gbnf"):
     from demoforge.lib.llm import Sampling
     from demoforge.lib.llm.local_backend import LocalBackend
 
-    fast_backend, gbnf_backend = LocalBackend(), LocalBackend(structured_decoder="gbnf")
-    fast_backend.llm  # load (once per process) outside the timed calls
+    fast_backend, base_backend = LocalBackend(), LocalBackend(structured_decoder=baseline)
+    fast_backend.reduced_model()  # load both models (once per process; the reduced one built once) untimed
 
     def answer(backend):
         def go():
@@ -58,12 +60,12 @@ def _answer_setup(prompts):
             return out
         return go
 
-    return answer(fast_backend), answer(gbnf_backend)
+    return answer(fast_backend), answer(base_backend)
 
 
 def _same_text(fast: list[str], baseline: list[str]) -> None:
     if fast != baseline:
-        raise AssertionError("the fast decoder's answers differ from the grammar sampler's")
+        raise AssertionError("the fast decoder's answers differ from the baseline's")
 
 
 def cases(quick: bool) -> list[BenchCase]:
@@ -83,6 +85,15 @@ def cases(quick: bool) -> list[BenchCase]:
 
         out.append(BenchCase("llm", f"Table 3 trial ({fmt} numbers, 3 examples, 20 waypoints)", n, "trials",
                              "llama.cpp GBNF grammar sampler", setup, check=_same_text, repeats=1))
+    vocab_cache: dict = {}
+
+    def vocab_setup(size: int, cache=vocab_cache):
+        if size not in cache:
+            cache[size] = _prompts(size, "compact")
+        return _answer_setup(cache[size], baseline="fast-full")
+
+    out.append(BenchCase("llm", "Table 3 trial (compact numbers), reduced vs full vocabulary", n, "trials",
+                         "fast decoder on the full 262k vocabulary", vocab_setup, check=_same_text, repeats=1))
     n_tokens = 128 if quick else 512
     out.append(BenchCase("llm", "structured answer tokens, prompt already evaluated", n_tokens, "answer tokens",
                          "llama.cpp GBNF grammar sampler", _tokens_setup, check=_same_text, repeats=1))

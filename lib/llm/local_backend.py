@@ -24,6 +24,10 @@
   :mod:`demoforge.lib.llm.structured_decoding`: the tokens llama.cpp's grammar sampler would pick,
   without testing Gemma's 262k-token vocabulary at every step (``structured_decoder="gbnf"`` keeps the
   grammar sampler). Sampling at a temperature uses the grammar sampler.
+* The fast decoder runs on a reduced-vocabulary copy of the GGUF (:mod:`demoforge.lib.llm.reduced_vocab`:
+  the same logits for the tokens it keeps, without computing the other 261k at every step), built once
+  next to the original; a prompt with a token outside that vocabulary is answered by the full model
+  (``structured_decoder="fast-full"`` always uses the full model). Same answers, token for token.
 """
 
 from __future__ import annotations
@@ -40,9 +44,10 @@ from typing import Any
 from demoforge.lib.llm import Completion, LLMBackend, LLMError, Sampling
 
 GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
-# greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding, the same tokens) or "gbnf"
-# (llama.cpp's grammar sampler, kept as the reference and the benchmark's baseline)
-STRUCTURED_DECODERS = ("fast", "gbnf")
+# greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding on the reduced-vocabulary model,
+# the same tokens), "fast-full" (the same decoder on the full model) or "gbnf" (llama.cpp's grammar
+# sampler, kept as the reference and the benchmark's baseline)
+STRUCTURED_DECODERS = ("fast", "fast-full", "gbnf")
 MODEL_ID = "gemma-3-270m-q4_k_m"
 
 _LOCK = threading.RLock()
@@ -145,6 +150,7 @@ class LocalBackend(LLMBackend):
         self.n_batch = int(n_batch)
         self.swa_full = bool(swa_full)
         self._llm = None
+        self._reduced = None
 
     @property
     def llm(self):
@@ -152,6 +158,23 @@ class LocalBackend(LLMBackend):
             path = ensure_gguf(self.model_path)
             self._llm = load_model(path, self.n_ctx, self.n_threads, self.n_batch, self.swa_full)
         return self._llm
+
+    def reduced_model(self):
+        """The reduced-vocabulary model of the fast decoder (demoforge.lib.llm.reduced_vocab), None when it
+        cannot be built (the answers then come from the full model)."""
+        if self._reduced is None:
+            from demoforge.lib.llm.reduced_vocab import reduced_model
+
+            try:
+                self._reduced = reduced_model(self.llm, ensure_gguf(self.model_path), self.n_ctx, self.n_threads,
+                                              self.n_batch, self.swa_full)
+            except (OSError, ValueError, ImportError) as e:  # e.g. a read-only model folder, no gguf package
+                import logging
+
+                logging.getLogger(__name__).warning("reduced-vocabulary model unavailable (%s); "
+                                                    "the fast decoder uses the full model", e)
+                self._reduced = False
+        return self._reduced or None
 
     @property
     def load_time_s(self) -> float | None:
@@ -171,7 +194,8 @@ class LocalBackend(LLMBackend):
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        state["_llm"] = None  # the loaded model stays in the process cache
+        state["_llm"] = None  # the loaded models stay in the process cache
+        state["_reduced"] = None
         return state
 
     def tokenize(self, text: str, add_bos: bool = False) -> list[int]:
@@ -196,7 +220,7 @@ class LocalBackend(LLMBackend):
             max_tokens = min(int(sampling.max_tokens), n_ctx - n_prompt)
             if not self.swa_full:
                 llm.reset()  # no prefix reuse: the windowed cache no longer holds what it would need
-            if sampling.structured and float(sampling.temperature) == 0.0 and self.structured_decoder == "fast":
+            if sampling.structured and float(sampling.temperature) == 0.0 and self.structured_decoder != "gbnf":
                 return self._complete_fast(llm, prompt, text, max_tokens)
             grammar = None
             if sampling.structured:
@@ -224,13 +248,15 @@ class LocalBackend(LLMBackend):
         """A greedy structured answer by demoforge.lib.llm.structured_decoding: the grammar path's answer
         token for token, without testing the whole vocabulary at every step."""
         from demoforge.lib.llm.grammar import MAX_ROWS
-        from demoforge.lib.llm.structured_decoding import greedy_structured, language_for_prompt
+        from demoforge.lib.llm.reduced_vocab import decode
+        from demoforge.lib.llm.structured_decoding import language_for_prompt
 
         # the prompt's tokens as create_completion builds them (BOS, then special tokens parsed)
         tokens = llm.tokenize(text.encode("utf-8"), add_bos=True, special=True)
+        reduced = self.reduced_model() if self.structured_decoder == "fast" else None
         t0 = time.perf_counter()
-        r = greedy_structured(llm, tokens, language_for_prompt(prompt, text, MAX_ROWS), max_tokens,
-                              reuse_prefix=self.swa_full)
+        r, _ = decode(llm, reduced, tokens, language_for_prompt(prompt, text, MAX_ROWS), max_tokens,
+                      reuse_prefix=self.swa_full)
         dt = time.perf_counter() - t0
         return Completion(text=r.text, prompt_tokens=r.prompt_tokens, completion_tokens=len(r.tokens),
                           latency_s=dt, finish_reason=r.finish_reason, backend=self.name, model=self.model,
