@@ -8,7 +8,7 @@ trial   fast     = one Table 3 "3 Retrieved" trial's prompt and greedy structure
                    the full model. Both give the same text (checked).
         Prompts: a pouring database (the scripted demonstration augmented, 2,000 episodes), query
         scenes drawn from the same sampler with another seed, their three nearest episodes as
-        examples, 20 uniform waypoints, the thesis's and the compact number format. Seconds per
+        examples written as keyframes (pouring's settings), the thesis's and the compact number format. Seconds per
         trial = seconds / size.
 tokens  decoding alone: a one-example compact prompt evaluated once (its state restored before each
         answer), the answer cut at `size` tokens; items per second = answer tokens per second.
@@ -38,8 +38,8 @@ def _prompts(n: int, number_format: str, n_examples: int = 3):
         kp = queries.keypoints[q + 1]  # episode 0 is the unmoved demonstration
         top = np.asarray(index.query(kp, k=n_examples).ids).ravel()
         examples = [(db.keypoints[i], db.initial[i], db.actions[i, : db.lengths[i]]) for i in top]
-        prompts.append(build_prompt(order_by_similarity(examples, kp), kp, queries.initial[q + 1], n_waypoints=20,
-                                    number_format=number_format))
+        prompts.append(build_prompt(order_by_similarity(examples, kp), kp, queries.initial[q + 1],
+                                    number_format=number_format, keyframes=spec.keyframes))
     return prompts
 
 
@@ -83,7 +83,7 @@ def cases(quick: bool) -> list[BenchCase]:
                 cache[size] = _prompts(size, fmt)
             return _answer_setup(cache[size])
 
-        out.append(BenchCase("llm", f"Table 3 trial ({fmt} numbers, 3 examples, 20 waypoints)", n, "trials",
+        out.append(BenchCase("llm", f"Table 3 trial ({fmt} numbers, 3 examples, keyframes)", n, "trials",
                              "llama.cpp GBNF grammar sampler", setup, check=_same_text, repeats=1))
     vocab_cache: dict = {}
 
@@ -107,7 +107,7 @@ def _tokens_setup(size: int):
     from demoforge.lib.llm.local_backend import LocalBackend
     from demoforge.lib.llm.structured_decoding import action_tokens, greedy_structured, language_for_prompt
 
-    prompt = _prompts(1, "compact", n_examples=1)[0]  # its 20-waypoint answer is ~1,000 tokens: cut at size
+    prompt = _prompts(1, "compact", n_examples=1)[0]  # its answer is ~1,000 tokens: cut at size
     llm = LocalBackend().llm
     action_tokens(llm)  # the vocabulary scan (~0.6 s, once per model) outside the timed calls
     tokens = llm.tokenize(prompt.text.encode("utf-8"), add_bos=True, special=True)
