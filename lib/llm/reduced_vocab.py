@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from demoforge.lib.llm.local_backend import _LOCK, load_model
-from demoforge.lib.llm.structured_decoding import ALPHABET, DecodeResult, greedy_structured
+from demoforge.lib.llm.structured_decoding import ALPHABET, DecodeResult, greedy_structured, token_piece
 
 __all__ = ["WIDE_ALPHABET", "ReducedModel", "decode", "reduced_gguf", "reduced_ids", "reduced_model"]
 
@@ -70,16 +70,11 @@ def _sample_prompt_texts() -> list[str]:
     return texts
 
 
-def _piece(vocab, tok: int, buf) -> str | None:
-    import llama_cpp
-
-    n = llama_cpp.llama_token_to_piece(vocab, tok, buf, len(buf), 0, True)
-    if n <= 0:
-        return None
-    try:
-        return buf.raw[:n].decode("utf-8")
-    except UnicodeDecodeError:
-        return None
+def _to_reduced(ids: np.ndarray, n_full: int) -> np.ndarray:
+    """(n_full,) full id -> reduced id (its position in the sorted ``ids``), -1 where not kept."""
+    out = np.full(int(n_full), -1, dtype=np.int64)
+    out[ids] = np.arange(len(ids))
+    return out
 
 
 def reduced_ids(llm) -> np.ndarray:
@@ -106,7 +101,7 @@ def reduced_ids(llm) -> np.ndarray:
                 else:
                     keep.add(tok)
                 continue
-            piece = _piece(vocab, tok, buf)
+            piece = token_piece(vocab, tok, buf)
             if piece and set(piece) <= WIDE_ALPHABET:
                 keep.add(tok)
         for text in _sample_prompt_texts():
@@ -165,8 +160,7 @@ def _build(src: Path, ids: np.ndarray, target: Path) -> None:
 
     reader = gguf.GGUFReader(src)
     n_full = len(reader.fields["tokenizer.ggml.tokens"].data)
-    remap = np.full(n_full, -1, dtype=np.int64)
-    remap[ids] = np.arange(len(ids))
+    remap = _to_reduced(ids, n_full)
     arch = reader.fields["general.architecture"].contents()
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".gguf", dir=target.parent)
     os.close(fd)
@@ -254,9 +248,7 @@ def reduced_model(full_llm, src: str | os.PathLike, n_ctx: int, n_threads: int |
             return hit
         if llm.n_vocab() != len(ids):
             raise ValueError(f"{path}: {llm.n_vocab()} tokens, expected {len(ids)}")
-        to_reduced = np.full(full_llm.n_vocab(), -1, dtype=np.int64)
-        to_reduced[ids] = np.arange(len(ids))
-        m = ReducedModel(llm, ids, to_reduced, path)
+        m = ReducedModel(llm, ids, _to_reduced(ids, full_llm.n_vocab()), path)
         _REDUCED[key] = m
         return m
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ALPHABET", "ActionListLanguage", "DecodeResult", "action_tokens", "greedy_structured",
-           "language_for_prompt"]
+           "language_for_prompt", "token_piece"]
 
 ALPHABET = frozenset("0123456789-.,[]\n")
 _OPEN = "[[["
@@ -168,6 +168,20 @@ _PIECES: dict[int, tuple[np.ndarray, list[str], Any]] = {}  # id(model) -> ids, 
 _PIECES_LOCK = threading.Lock()
 
 
+def token_piece(vocab, tok: int, buf) -> str | None:
+    """The text of token ``tok`` as llama.cpp's grammar sees it (special tokens rendered), None when it
+    is empty or not whole UTF-8. ``buf``: a ctypes string buffer reused across calls."""
+    import llama_cpp
+
+    n = llama_cpp.llama_token_to_piece(vocab, tok, buf, len(buf), 0, True)
+    if n <= 0:
+        return None
+    try:
+        return buf.raw[:n].decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+
+
 def action_tokens(llm) -> tuple[np.ndarray, list[str]]:
     """Ids and texts of the tokens of ``llm``'s vocabulary made only of :data:`ALPHABET` characters
     (their text as llama.cpp's grammar sees it: the token's piece, special tokens rendered).
@@ -177,20 +191,12 @@ def action_tokens(llm) -> tuple[np.ndarray, list[str]]:
         hit = _PIECES.get(key)
         if hit is not None and hit[2] is llm:
             return hit[0], hit[1]
-        import llama_cpp
-
         vocab = llm._model.vocab
         buf = ctypes.create_string_buffer(256)
         ids, texts = [], []
         for tok in range(llm.n_vocab()):
-            n = llama_cpp.llama_token_to_piece(vocab, tok, buf, len(buf), 0, True)
-            if n <= 0:
-                continue
-            try:
-                piece = buf.raw[:n].decode("utf-8")
-            except UnicodeDecodeError:
-                continue
-            if set(piece) <= ALPHABET:
+            piece = token_piece(vocab, tok, buf)
+            if piece and set(piece) <= ALPHABET:
                 ids.append(tok)
                 texts.append(piece)
         order = np.asarray(ids, dtype=np.int64)
