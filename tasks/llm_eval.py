@@ -134,8 +134,8 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     examples ordered with the most similar one last, next to the new input) -> the backend's answer ->
     parsed actions brought to n_steps (None when the answer does not parse), and the llm_trials fields
     of the trial (tokens, latency, cache, parse status, prompt hash, raw answer).  n_waypoints None:
-    a keyframe prompt (``keyframes``: the task's KeyframeSettings), whose answer is decoded with the keyframe decoder on the most similar example's
-    time curve; else uniform waypoints, upsampled.  A backend failure gives parse_status `llm_error`,
+    a keyframe prompt (``keyframes``: the task's KeyframeSettings), whose answer is decoded with the
+    keyframe decoder on the most similar example's time curve; else uniform waypoints, upsampled.  A backend failure gives parse_status `llm_error`,
     never an exception.  `structured`: the answer is constrained to the action-list syntax with the
     prompt's waypoint count (demoforge.lib.llm.grammar); None: on for the local backend (the 270M
     model's free answers often do not parse), off for openai (servers differ in what they accept)."""

@@ -20,7 +20,8 @@ Smoothing before encoding (recorded demonstrations)
     a step lies a median 9 mm and 0.10 rad from the midpoint of its neighbours), above any useful
     tolerance, so the bounded-error encoder would keep nearly every step.  :func:`keyframe_actions`
     therefore first smooths the poses with a Gaussian over time (:func:`smooth_actions`: positions
-    averaged, quaternions averaged on one hemisphere and renormalised, gripper values untouched) and
+    averaged, quaternions averaged on one hemisphere and renormalised, gripper values untouched, each
+    run between gripper changes on its own so a grasp pose is not averaged with the lift after it) and
     encodes the smoothed sequence; its keyframes are the smoothed poses.  A scripted (clean)
     trajectory is changed by the smoothing only where it turns, by far less than the tolerance.
 
