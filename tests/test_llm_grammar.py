@@ -66,6 +66,8 @@ def gbnf_regex(grammar: str) -> re.Pattern:
                 out.append(re.escape(json.loads(t)))
             elif t[0].isalpha() or t[0] == "_":
                 out.append(f"(?:{conv(t)})")
+            elif t == "(":
+                out.append("(?:")  # capturing groups under possessive quantifiers upset Python's re
             elif t == "?" or t.startswith("{"):
                 out.append(t + "+")
             else:
@@ -90,6 +92,14 @@ def test_grammar_counts_exactly_n_waypoints_and_matches_the_prompt_format():
     assert opened_prefix("Action Sequence:\n[[[") == "[[[" and opened_prefix("x") == ""
     assert "more{0,63}" in actions_gbnf(None) and MAX_ROWS == 64
     assert "more" not in actions_gbnf(1).splitlines()[0]
+    # a quaternion of four zeros (the parser's zero_quaternion) is refused in either arm; one non-zero digit passes
+    first_quat = ",".join(text[3:].split("]")[0].split(",")[3:7])
+    assert not g.fullmatch(text.replace(first_quat, "0,-0.0,00,0.000", 1))
+    assert g.fullmatch(text.replace(first_quat, "0,-0.0,00,0.001", 1))
+    assert gbnf_regex(actions_gbnf(4, precision=0, int_digits=4)).fullmatch(
+        "[[[" + "]],\n[[".join(["1,2,3,0,0,0,7,1],[4,5,6,0,0,0,-1,0"] * 4) + "]]]")
+    assert not gbnf_regex(actions_gbnf(4, precision=0, int_digits=4)).fullmatch(
+        "[[[" + "]],\n[[".join(["1,2,3,0,0,0,7,1],[4,5,6,0,0,0,0000,0"] * 4) + "]]]")
     with pytest.raises(ValueError):
         actions_gbnf(0)
     with pytest.raises(ValueError):

@@ -25,7 +25,8 @@ def near_words(draw):
     n = draw(st.integers(1, 3))
     lo, hi = (n, n) if fixed else (1, 4)
     prefix = draw(st.sampled_from(["", "[", "[[", "[[["]))
-    defect = draw(st.sampled_from(["none"] * 7 + ["int_digit", "decimal", "grip", "rows", "newline", "edit"]))
+    defect = draw(st.sampled_from(["none"] * 7 + ["int_digit", "decimal", "grip", "rows", "newline", "edit",
+                                                  "zero_quat", "near_zero_quat"]))
     rows = draw(st.integers(lo, hi))
     if defect == "rows":
         rows = draw(st.sampled_from([r for r in (lo - 1, hi + 1) if r >= 1]))
@@ -44,6 +45,13 @@ def near_words(draw):
         values[r][a][f] = ".".join([whole[0].lstrip("-").rjust(int_digits + 1, "7")] + whole[1:])
     elif defect == "decimal":
         values[r][a][f] = values[r][a][f].split(".")[0] + "." + "5" * (precision + 1)
+    elif defect in ("zero_quat", "near_zero_quat"):  # four zeros (no rotation), or one digit short of it
+        zeros = [draw(st.sampled_from(["0", "-0", "00"][: 1 + int_digits // 2] + (["0.0", "-0." + "0" * precision]
+                                                                                  if precision else [])))
+                 for _ in range(4)]
+        if defect == "near_zero_quat" and precision:
+            zeros[draw(st.integers(0, 3))] = "0." + "0" * (precision - 1) + "1"
+        values[r][a][3:7] = zeros
     elif defect == "grip":
         values[r][a][7] = draw(st.sampled_from(["2", "01", "0.5", "-1"]))
     seps = [draw(st.sampled_from(["", "\n"])) for _ in range(rows)]

@@ -5,8 +5,10 @@
   with exactly ``n_keyframes`` waypoints of 2 x 8 numbers.  Numbers are bounded (optional ``-``, 1-2
   integer digits, at most ``precision`` decimals; the gripper state is ``0`` or ``1`` as the prompt
   writes it), so a constrained generation cannot run away inside a number, and after the closing
-  ``]]]`` llama.cpp admits only end-of-generation.  ``prefix``: what the prompt already opened (the
-  completion text ends with ``[[[``), the grammar starts after it.
+  ``]]]`` llama.cpp admits only end-of-generation.  A quaternion of four zeros (no rotation: the
+  parser's ``zero_quaternion``) is outside the language: one of its four numbers has a non-zero
+  digit.  ``prefix``: what the prompt already opened (the completion text ends with ``[[[``), the
+  grammar starts after it.
 * ``n_keyframes=None`` (a count the caller does not fix): 1..``max_rows`` waypoints, default 64 —
   the keyframe prompts' examples have 5-30 keyframes and uniform ones ~20, so 64 never cuts a
   plausible answer while still bounding a runaway list (64 x 16 numbers ~ 6k tokens).
@@ -41,6 +43,19 @@ def _rows_spec(n_keyframes: int | None, max_rows: int) -> tuple[int, int]:
     return n, n
 
 
+def _rep(item: str, lo: int, hi: int) -> str:
+    """``item`` repeated lo..hi times in GBNF ("" for none)."""
+    if hi <= 0:
+        return ""
+    if lo == hi:
+        return item if lo == 1 else f"{item}{{{lo}}}"
+    return f"{item}{{{lo},{hi}}}"
+
+
+def _seq(*parts: str) -> str:
+    return " ".join(p for p in parts if p)
+
+
 def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", max_rows: int = MAX_ROWS,
                  int_digits: int = 2) -> str:
     """GBNF grammar of an (n_keyframes, 2, 8) action list written as the prompt writes it.  ``prefix``
@@ -62,12 +77,24 @@ def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", 
         more = f" more{{{more_lo}}}"
     else:
         more = f" more{{{more_lo},{more_hi}}}"
-    dec = f' ("." [0-9]{{1,{int(precision)}}})?' if int(precision) > 0 else ""
+    p, k = int(precision), int(int_digits)
+    dec = f' ("." [0-9]{{1,{p}}})?' if p > 0 else ""
+    zero_dec = f' ("." "0"{{1,{p}}})?' if p > 0 else ""
+    # a number with a non-zero digit: the first one at integer place j, or (integer part all zeros) at
+    # decimal place j; the digits around it stay within the same bounds as ``num``
+    nz_int = " | ".join(_seq(_rep('"0"', j, j), "[1-9]", _rep("[0-9]", 0, k - 1 - j)) + dec for j in range(k))
+    nz_dec = " | ".join(_seq(_rep('"0"', 1, k), '"."', _rep('"0"', j, j), "[1-9]", _rep("[0-9]", 0, p - 1 - j))
+                        for j in range(p))
     return "\n".join([
         f'root ::= {head}arm "],[" arm "]]"{more} "]"',
         'more ::= "," "\\n"? "[[" arm "],[" arm "]]"',
-        'arm  ::= num "," num "," num "," num "," num "," num "," num "," grip',
-        f'num  ::= "-"? [0-9]' + ' [0-9]?' * (int(int_digits) - 1) + dec,
+        'arm  ::= num "," num "," num "," quat "," grip',
+        # a quaternion of four zeros is no rotation (the parser's zero_quaternion): one value must not be 0
+        'quat ::= nz "," num "," num "," num | zero "," nz "," num "," num'
+        ' | zero "," zero "," nz "," num | zero "," zero "," zero "," nz',
+        f'num  ::= "-"? [0-9]' + ' [0-9]?' * (k - 1) + dec,
+        f'zero ::= "-"? "0"{{1,{k}}}{zero_dec}',
+        f'nz   ::= "-"? ({nz_int}' + (f' | {nz_dec}' if p > 0 else "") + ")",
         'grip ::= "0" | "1"',
         "",
     ])

@@ -58,15 +58,17 @@ class ActionListLanguage:
         if self.precision < 0 or self.int_digits < 1:
             raise ValueError("precision must be >= 0 and int_digits >= 1")
 
-    # -- states: ("open", i) | ("value", row, arm, field, phase, count) | ("sep", row, arm, field, i)
+    # -- states: ("open", i) | ("value", row, arm, field, phase, count, rot) | ("sep", row, arm, field, i, rot)
     #            | ("rowsep", row, stage) | ("done",)
+    # rot: a non-zero digit was seen in this arm's quaternion (fields 3-6); a quaternion of four zeros is
+    # refused at its last comma, as the grammar's ``quat`` rule refuses it
     def start(self) -> tuple:
         rest = _OPEN[len(self.prefix):]
         return ("open", 0) if rest else self._value_start(0, 0, 0)
 
     @staticmethod
-    def _value_start(row: int, arm: int, field: int) -> tuple:
-        return ("value", row, arm, field, "grip" if field == 7 else "start", 0)
+    def _value_start(row: int, arm: int, field: int, rot: bool = False) -> tuple:
+        return ("value", row, arm, field, "grip" if field == 7 else "start", 0, rot)
 
     @staticmethod
     def _separator(arm: int, field: int) -> str:
@@ -92,12 +94,12 @@ class ActionListLanguage:
                 return None
             return ("open", s[1] + 1) if s[1] + 1 < len(rest) else self._value_start(0, 0, 0)
         if kind == "value":
-            _, row, arm, field, phase, count = s
+            _, row, arm, field, phase, count, rot = s
             nxt = self._value_step(phase, count, ch)
             if nxt is not None:
-                return ("value", row, arm, field) + nxt
+                return ("value", row, arm, field) + nxt + (rot or (3 <= field <= 6 and "1" <= ch <= "9"),)
             if phase in ("int", "dec", "gripped"):  # the value may end here: the separator begins
-                return self._sep_step(("sep", row, arm, field, 0), ch)
+                return self._sep_step(("sep", row, arm, field, 0, rot), ch)
             return None
         if kind == "sep":
             return self._sep_step(s, ch)
@@ -142,14 +144,14 @@ class ActionListLanguage:
         return None
 
     def _sep_step(self, s: tuple, ch: str) -> tuple | None:
-        _, row, arm, field, i = s
+        _, row, arm, field, i, rot = s
         sep = self._separator(arm, field)
-        if ch != sep[i]:
+        if ch != sep[i] or (field == 6 and not rot):
             return None
         if i + 1 < len(sep):
-            return ("sep", row, arm, field, i + 1)
+            return ("sep", row, arm, field, i + 1, rot)
         if field < 7:
-            return self._value_start(row, arm, field + 1)
+            return self._value_start(row, arm, field + 1, rot)
         if arm == 0:
             return self._value_start(row, 1, 0)
         return ("rowsep", row, 0)
