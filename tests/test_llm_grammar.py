@@ -124,13 +124,19 @@ def test_json_schema_fixes_the_shape_and_parse_actions_reads_its_answers():
     assert np.allclose(res.actions[..., :3], acts[..., :3])
 
 
-def test_structured_is_part_of_the_cache_key():
+def test_structured_is_part_of_the_cache_key(monkeypatch):
     b = FakeBackend(["x"])
     p = real_prompts()[0]
     free, structured = Sampling(), Sampling(structured=True)
     assert cache_key(b, p, free) != cache_key(b, p, structured)
     assert cache_key(b, p, structured) == cache_key(b, p, Sampling(structured=True))
     assert Sampling().structured is False and structured.to_dict()["structured"] is True
+    # a new grammar version is a new key for structured answers only (an old answer may break the new rule)
+    import demoforge.lib.llm.cache as cache_module
+
+    before = cache_key(b, p, structured), cache_key(b, p, free)
+    monkeypatch.setattr(cache_module, "GRAMMAR_VERSION", cache_module.GRAMMAR_VERSION + 1)
+    assert cache_key(b, p, structured) != before[0] and cache_key(b, p, free) == before[1]
 
 
 # ------------------------------------------------------------------------------------------------

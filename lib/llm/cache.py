@@ -1,7 +1,7 @@
 """A disk cache of LLM answers.
 
 Key = sha256 of JSON {backend name, model, backend.cache_identity() (no secrets), prompt content
-hash, sampling parameters, cache format version}.  One JSON file per answer at
+hash, sampling parameters, cache format version, and for structured answers the grammar's version}.  One JSON file per answer at
 ``<cache_dir>/<key[:2]>/<key>.json``, written atomically (temporary file in the same folder, fsync,
 ``os.replace``), so a crash never leaves a half-written answer and concurrent writers of the same key
 are harmless.  A corrupt or unreadable file counts as a miss and is overwritten.  A hit returns the
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from demoforge.lib.llm import Completion, LLMBackend, Sampling
+from demoforge.lib.llm.grammar import GRAMMAR_VERSION
 
 CACHE_FORMAT = 1
 
@@ -39,6 +40,7 @@ def cache_key(backend: LLMBackend, prompt: Any, sampling: Sampling) -> str:
         "identity": backend.cache_identity(),
         "prompt": _prompt_hash(prompt),
         "sampling": sampling.to_dict(),
+        **({"grammar": GRAMMAR_VERSION} if sampling.structured else {}),
     }, sort_keys=True, ensure_ascii=True, default=str)
     return hashlib.sha256(blob.encode("utf-8")).hexdigest()
 

@@ -25,10 +25,11 @@ from typing import Any
 
 from demoforge.lib.llm.number_format import get_number_format
 
-__all__ = ["MAX_ROWS", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
+__all__ = ["MAX_ROWS", "GRAMMAR_VERSION", "actions_gbnf", "actions_json_schema", "response_format", "llama_grammar",
            "structured_grammar", "prompt_gbnf", "answer_rows", "answer_spec", "opened_prefix"]
 
 MAX_ROWS = 64
+GRAMMAR_VERSION = 2  # a structured answer's cache key holds it; 2: no quaternion of four zeros
 _OPEN = "[[["  # outer list, first waypoint, its left arm
 
 
