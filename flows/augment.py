@@ -10,6 +10,8 @@ from prefect import flow
 
 import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import ingest_take
+from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, run_stage
@@ -20,36 +22,29 @@ def augment_take_flow(
     path: str,
     warehouse: str,
     task: str | None = None,
-    detector: str = "simulated",
-    n: int = 10_000,
-    n_mirrored: int = 5_000,
-    seed: int = 0,
+    augment: AugmentOptions | None = None,
+    ingest: IngestOptions | None = None,
     manual_segments: dict | None = None,
-    options: dict | None = None,
     show_progress: bool = True,
-    ingest_options: dict | None = None,
     allow_untrusted_hands: bool = False,
     database: str | None = None,
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
-    ingest_options: keyword arguments of the ingest it builds on (demoforge.flows.ingest.ingest_take: smoothing,
-    grasp_prior, table_clearance, state_method, ...). The ingest runs again with them (a cache hit
-    when the take was ingested with the same ones): without them the defaults would rewrite the take's
-    gripper poses, so episodes would silently come from another hand-to-gripper mapping than the one
-    the take was ingested with.
+    augment: how many episodes and how they are drawn (demoforge.lib.trajectories.augmentation.options.
+    AugmentOptions; default: 10,000, half mirrored, seed 0, generate_episodes' defaults).
+    ingest: the options of the ingest it builds on (demoforge.lib.ingest.options.IngestOptions). The
+    ingest runs again with them (a cache hit when the take was ingested with the same ones): give the
+    ones the take was ingested with, or its gripper poses are rewritten with these, so the episodes
+    never silently come from another hand-to-gripper mapping than the take's own.
     allow_untrusted_hands: build the database even when a hand's trajectory is not trusted (the
     `hand_presence` table: too few tracked frames); without it such a take stops with a ValueError.
     manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
-    options: generate_episodes keyword arguments, e.g. {"translation_range": [[-0.1, 0.1], [-0.1, 0.1]],
-    "yaw_range": [-0.5, 0.5], "independent": true, "safety_distance": 0.04, "mode": "thesis"}.
     database: the episodes' key in `episodes.take` (default: the take's id), to keep a second database
     of the same take.
     """
-    if n < 1 or not 0 <= n_mirrored <= n:
-        raise ValueError(f"need n >= 1 and 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
-    ingested = run_flow(ingest_take, path, warehouse, detector=detector, task=task, show_progress=show_progress,
-                        **(ingest_options or {}))
+    aug = augment or AugmentOptions()
+    ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
         from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
         from demoforge.lib.takes import TakeError, open_take
@@ -60,8 +55,8 @@ def augment_take_flow(
     common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
-    episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=n, n_mirrored=n_mirrored,
-                         seed=seed, options=options or {}, **({"database": database} if database else {}))
+    episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
+                         seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}))
     return {**ingested, "segments": segments, "episodes": episodes}
 
 

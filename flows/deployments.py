@@ -37,8 +37,8 @@ def build_deployments(warehouse: str, inbox: str, reports_dir: str, interval_min
     ingest = ingest_folder.to_deployment(
         name=INGEST_DEPLOYMENT.split("/")[1],
         interval=timedelta(minutes=interval_minutes),
-        parameters={"folder": str(Path(inbox).resolve()), "warehouse": warehouse, "detector": detector,
-                    "augment": augment},
+        parameters={"folder": str(Path(inbox).resolve()), "warehouse": warehouse, "ingest": {"detector": detector},
+                    "augment": {"n": 10_000, "n_mirrored": 5_000} if augment else None},
         description="Ingest the take folders in the inbox (new or changed ones; the rest is cached).",
         tags=["demoforge", "ingest"],
     )

@@ -7,6 +7,7 @@ from typing import Sequence
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.ingest.options import IngestOptions
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.ingest import (
     align_keypoints, detect_hands, hand_presence, index_frames, ingest_metrics, map_grippers,
@@ -18,30 +19,20 @@ from demoforge.tasks.ingest import (
 def ingest_take(
     path: str,
     warehouse: str,
-    detector: str = "simulated",
     task: str | None = None,
-    detector_options: dict | None = None,
-    alignment: dict | None = None,
-    state_method: str = "auto",
-    smoothing: int = 0,
+    options: IngestOptions | None = None,
     show_progress: bool = True,
-    video: bool = False,
-    grasp_prior: str = "pose",
-    table_clearance: float | None = 0.010,
-    tracker: dict | None = None,
-    accept_bad_depth: bool = False,
     variant: dict | None = None,
 ) -> dict[str, Manifest | None]:
-    """Ingest one take folder (layout: README 'Take folders') into the warehouse.
+    """Ingest one take folder (layout: docs/takes.md) into the warehouse.
 
-    detector: `simulated` (synthetic takes), `mediapipe` (real detector, CPU) or `precomputed`
-    (detector_options={"path": ...}: the thesis code's keypoint JSON, or Parquet/NPZ predictions).
-    Every stage is cached on the content of its inputs: a second run is served from the cache.
-    video: also write warehouse/videos/<take>.<detector>.mp4 with the skeletons and gripper frames.
-    tracker: demoforge.lib.perception.tracking.TrackerConfig fields (births, longest filled gap, trust thresholds);
-    the per-hand verdict is the `hand_presence` table.
-    accept_bad_depth: go on when the take's depth fails a check (demoforge.lib.ingest.depth_checks), flagging every
-    row in `depth_problem`, instead of stopping with demoforge.tasks.ingest.DepthError.
+    options: how (demoforge.lib.ingest.options.IngestOptions: the detector and its settings, depth
+    alignment, hand tracking, hand-to-gripper mapping, the depth checks' verdict, the overlay video;
+    default: the simulated detector and the defaults). The per-hand tracking verdict is the
+    `hand_presence` table; depth that fails a check stops the take with demoforge.tasks.ingest.DepthError
+    unless options.accept_bad_depth (every row then flagged in `depth_problem`).
+    Every stage is cached on the content of its inputs and the options it reads: a second run is
+    served from the cache.
     variant: None (where augment and every later stage read the take) or {"detector": detector} to keep
     this detector's rows beside those (demoforge.schemas.core.variant_parts; see ingest_side_by_side).
     """
@@ -49,6 +40,8 @@ def ingest_take(
     from demoforge.lib.takes import open_take
 
     logger = get_run_logger()
+    opts = options or IngestOptions()
+    detector = opts.detector
     if detector not in available_detectors():
         raise ValueError(f"unknown detector {detector!r}; choose one of: {', '.join(available_detectors())}")
     if variant is not None and variant != {"detector": detector}:
@@ -59,30 +52,30 @@ def ingest_take(
     bad = take.status_counts()
     if set(bad) - {"ok"}:
         logger.warning("take %s: frame problems %s (recorded in `frames`)", take.take_id, bad)
-    options = dict(detector_options or {})
+    detector_options = dict(opts.detector_options)
     for key in ("path", "checkpoint", "mano_model"):  # files: their content, not their name, is the cache key
-        if key in options and options[key] is not None:
-            options[key] = Path(options[key]).resolve()
+        if key in detector_options and detector_options[key] is not None:
+            detector_options[key] = Path(detector_options[key]).resolve()
     # the task name resolved here is part of every key; the first three stages are keyed on the take's
     # content without annotations.json (media_key), so annotating later keeps their results
     common = dict(take_dir=take_dir, task=take_task_name(take, task), warehouse=warehouse)
     media = take_media_key(take_dir)
     frames = run_stage(index_frames, warehouse, **common, media_key=media)
-    hands = run_stage(detect_hands, warehouse, **common, detector=detector,
-                      detector_options=options, frames=frames, show_progress=show_progress, media_key=media, **var)
-    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=alignment or {},
-                        tracker=tracker or {}, accept_bad_depth=bool(accept_bad_depth), media_key=media, **var)
-    presence = run_stage(hand_presence, warehouse, **common, aligned=aligned, tracker=tracker or {}, **var)
-    if grasp_prior not in ("twist", "pose", "off"):
-        raise ValueError(f"grasp_prior must be twist, pose or off, got {grasp_prior!r}")
-    grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=state_method,
-                         smoothing=smoothing, grasp_prior=grasp_prior, table_clearance=table_clearance, **var)
+    hands = run_stage(detect_hands, warehouse, **common, detector=detector, detector_options=detector_options,
+                      frames=frames, show_progress=show_progress, media_key=media, **var)
+    tracker = dict(opts.tracker)
+    aligned = run_stage(align_keypoints, warehouse, **common, hand_keypoints=hands, alignment=dict(opts.alignment),
+                        tracker=tracker, accept_bad_depth=bool(opts.accept_bad_depth), media_key=media, **var)
+    presence = run_stage(hand_presence, warehouse, **common, aligned=aligned, tracker=tracker, **var)
+    grippers = run_stage(map_grippers, warehouse, **common, aligned=aligned, state_method=opts.state_method,
+                         smoothing=opts.smoothing, grasp_prior=opts.grasp_prior,
+                         table_clearance=opts.table_clearance, **var)
     objects = run_stage(object_keypoints, warehouse, **common)  # None: not annotated yet (warned)
     metrics = run_stage(ingest_metrics, warehouse, **common, hand_keypoints=hands, aligned=aligned,
                         grippers=grippers, **var)
     result = {"frames": frames, "hand_keypoints": hands, "aligned_keypoints": aligned,
               "hand_presence": presence, "gripper_poses": grippers, "object_keypoints": objects, "ingest_metrics": metrics}
-    if video:
+    if opts.video:
         result["overlay_video"] = run_stage(overlay_video, warehouse, **common, aligned=aligned, grippers=grippers,
                                             **var)
     return result
@@ -131,8 +124,8 @@ def ingest_side_by_side(
         var = {"variant": variant} if variant else {}
         res: dict = {"ingest": None, "demo": None, "error": ""}
         try:
-            ingested = run_flow(ingest_take, str(take_dir), warehouse, detector=det, task=task,
-                                show_progress=show_progress, variant=variant)
+            ingested = run_flow(ingest_take, str(take_dir), warehouse, task=task,
+                                options=IngestOptions(detector=det), show_progress=show_progress, variant=variant)
             res["ingest"] = ingested
             common = dict(take_dir=take_dir, task=task, warehouse=warehouse)
             if variant is not None:

@@ -7,8 +7,9 @@ from pathlib import Path
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
-from demoforge.tasks.ingest import object_keypoints
 from demoforge.flows.ingest import ingest_take
+from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
 
 def find_take_folders(folder: str | Path) -> list[Path]:
@@ -23,10 +24,9 @@ def find_take_folders(folder: str | Path) -> list[Path]:
 def ingest_folder(
     folder: str,
     warehouse: str,
-    detector: str = "simulated",
     task: str | None = None,
-    augment: bool = False,
-    episodes: int = 10_000,
+    ingest: IngestOptions | None = None,
+    augment: AugmentOptions | None = None,
     show_progress: bool = False,
 ) -> list[dict]:
     """Ingest every take folder under `folder` (the scheduled deployment's flow).
@@ -36,7 +36,8 @@ def ingest_folder(
     that fails is recorded in `folder_ingests` with the reason and does not stop the others.
     A take without object-keypoint annotations is ingested up to its gripper poses and recorded as
     `needs_annotation` (its episodes wait for `demoforge annotate`).
-    With `augment`, each ingested take also gets its episode database of `episodes` episodes.
+    ingest: how each take is ingested (IngestOptions; default: the simulated detector). With `augment`
+    (AugmentOptions), each annotated take also gets its episode database.
     """
     from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import open_take
@@ -47,21 +48,22 @@ def ingest_folder(
     from demoforge.schemas.core import write_table
 
     logger = get_run_logger()
+    opts = ingest or IngestOptions()
     folder_abs = Path(folder).resolve()
     takes = find_take_folders(folder_abs)
     logger.info("%d take folder(s) under %s", len(takes), folder_abs)
     rows = []
     for take_dir in takes:
-        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": detector,
+        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": opts.detector,
                "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
         try:
             status = annotation_status(open_take(take_dir))
-            if augment and status.annotated:
-                out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, detector=detector,
-                               n=episodes, n_mirrored=episodes // 2, show_progress=show_progress)
+            if augment is not None and status.annotated:
+                out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, augment=augment, ingest=opts,
+                               show_progress=show_progress)
                 row["episodes"] = int(out["episodes"].rows)
             else:
-                out = run_flow(ingest_take, str(take_dir), warehouse, detector=detector, task=task,
+                out = run_flow(ingest_take, str(take_dir), warehouse, task=task, options=opts,
                                show_progress=show_progress)
             row["gripper_rows"] = int(out["gripper_poses"].rows)
             if out.get("object_keypoints") is None:

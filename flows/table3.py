@@ -118,6 +118,7 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
     from demoforge.flows.augment import augment_take_flow
     from demoforge.flows.ingest import ingest_take
     from demoforge.lib.takes import open_take
+    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
     from demoforge.lib.trajectories.query_scenes import (
         augmentation_queries, covering_options, placement_queries,
     )
@@ -131,7 +132,8 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
     else:
         run_flow(ingest_take, path, warehouse, show_progress=show_progress)
         options, n_mirrored = covering_options(spec, _demo_arrays(take_id, spec.name, warehouse)[1], seed=seed), 0
-    aug = run_flow(augment_take_flow, path, warehouse, n=episodes, n_mirrored=n_mirrored, seed=seed, options=options,
+    aug = run_flow(augment_take_flow, path, warehouse,
+                   augment=AugmentOptions(n=episodes, n_mirrored=n_mirrored, seed=seed, generation=options),
                    database=None if name == take_id else name, show_progress=show_progress)
     ep = read_table("episodes", warehouse, task=spec.name, take=name).sort_by("episode_id")
     kp_all = column_numpy(ep, "object_keypoints")  # every episode, valid or not: none may be a query

@@ -12,10 +12,11 @@ import time
 
 from demoforge.flows.ingest import ingest_take
 from demoforge.schemas.catalog import query
+from demoforge.lib.ingest.options import IngestOptions
 
 take, wh, det = sys.argv[1], sys.argv[2], (sys.argv[3] if len(sys.argv) > 3 else "simulated")
 t0 = time.time()
-ingest_take(take, wh, detector=det, show_progress=False)
+ingest_take(take, wh, options=IngestOptions(detector=det), show_progress=False)
 print("wall_s", round(time.time() - t0, 1))
 for row in query("SELECT hand, detected_fraction, mpjpe_aligned_m, gripper_position_error_mm, "
                  "gripper_orientation_error_deg, open_close_acc_auto, swap_frames_injected, "

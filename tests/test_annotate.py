@@ -19,6 +19,8 @@ from demoforge.lib.takes.annotate import (
     not_annotated_message, parse_task_section, point_info, suggest_closed_ranges, write_annotations,
 )
 from demoforge.lib.takes import TakeError, open_take
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.lib.ingest.options import IngestOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 N_FRAMES = 40
@@ -249,7 +251,7 @@ def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api
     (inbox / "broken" / "take.json").unlink()
     (inbox / "broken" / "camera.json").write_text("[]")
     wh = tmp_path / "wh"
-    rows = ingest_folder(str(inbox), str(wh), task="pouring", augment=True, episodes=20)
+    rows = ingest_folder(str(inbox), str(wh), task="pouring", augment=AugmentOptions.half_mirrored(20))
     by = {r["take"]: r for r in rows}
     assert by["annotated"]["status"] == "ingested" and by["annotated"]["episodes"] > 0
     assert by["raw"]["status"] == "needs_annotation" and by["raw"]["gripper_rows"] == 2 * N_FRAMES
@@ -295,8 +297,8 @@ def test_custom_task_is_annotated_ingested_and_augmented(prefect_api, pouring_ta
 
     preds = tmp_path / "preds.npz"
     _write_gt_predictions(pouring_take, preds)
-    augment_take_flow(str(raw_take), str(wh), detector="precomputed", n=30, n_mirrored=10,
-                      show_progress=False, ingest_options={"detector_options": {"path": str(preds)}})
+    augment_take_flow(str(raw_take), str(wh), augment=AugmentOptions(n=30, n_mirrored=10), show_progress=False,
+                      ingest=IngestOptions(detector="precomputed", detector_options={"path": str(preds)}))
     kp = query("SELECT name, valid, source FROM object_keypoints ORDER BY keypoint", wh).to_pylist()
     assert [k["name"] for k in kp] == list(where)
     assert all(k["valid"] and k["source"] == "annotation+depth" for k in kp)

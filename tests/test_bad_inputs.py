@@ -24,6 +24,8 @@ from typer.testing import CliRunner
 from demoforge.cli import app
 from demoforge.schemas.catalog import CATALOG_FILE, query
 from tests.test_llm_backends import FakeOpenAIServer
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.lib.ingest.options import IngestOptions
 
 PROJECT = Path(__file__).resolve().parents[1]
 N_FRAMES = 8
@@ -53,7 +55,7 @@ def base(tmp_path_factory, prefect_api):
         np.savez(preds[name], frame=frame[keep], hand=hand[keep], joints_cam=joints[keep],
                  confidence=np.ones(int(keep.sum())))
     wh = root / "warehouse"
-    augment_take_flow(str(take), str(wh), n=20, n_mirrored=10, seed=0, show_progress=False)
+    augment_take_flow(str(take), str(wh), augment=AugmentOptions(n=20, n_mirrored=10, seed=0), show_progress=False)
     return {"take": take, "warehouse": wh, "preds": preds}
 
 
@@ -283,8 +285,9 @@ def test_take_with_no_hands_is_refused_with_one_line(base, wh, tmp_path):
         assert r.exit_code == 0, r.output
         # `demoforge augment` cannot pass --predictions; the flow takes the detector's options
         with pytest.raises(Exception, match="hand") as refused:
-            augment_take_flow(str(take), str(wh), detector="precomputed", n=20, n_mirrored=10, show_progress=False,
-                              ingest_options={"detector_options": {"path": str(base["preds"]["none"])}})
+            augment_take_flow(str(take), str(wh), augment=AugmentOptions(n=20, n_mirrored=10), show_progress=False,
+                              ingest=IngestOptions(detector="precomputed",
+                                                   detector_options={"path": str(base["preds"]["none"])}))
         assert is_user_error(refused.value)
     assert query("SELECT count(*) AS n FROM episodes WHERE take = 'no_hands'", wh).column("n")[0].as_py() == 0
 

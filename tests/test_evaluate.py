@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from demoforge.flows.evaluate import detector_problem, evaluate
+from demoforge.lib.evaluation.config import EvaluateConfig
 from tests.conftest import SHARED_DATA, require_mediapipe_model
 
 pytestmark = pytest.mark.slow
@@ -18,7 +19,7 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
         require_mediapipe_model()
     have_mediapipe = detector_problem("mediapipe") is None  # else the main job leaves it out (warned)
     reports = tmp_path / "reports"
-    out = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
+    out = Path(evaluate(str(warehouse), str(reports), EvaluateConfig(tasks=("paper_in_case",), mirror="no", episodes=300)))
     text = out.read_text()
     for heading in ("## Takes", "## Scripted demonstrations in physics", "## Ingest accuracy per task",
                     "## Segmentation against the scripted boundaries", "## Augmented episodes",
@@ -54,5 +55,5 @@ def test_evaluate_writes_the_report_and_reruns_from_cache(prefect_api, warehouse
     for target in ("demoforge.lib.synth.take.generate_take", "demoforge.lib.perception.detectors.get_detector",
                    "demoforge.lib.ingest.alignment.align_to_depth", "demoforge.lib.trajectories.augmentation.generate_episodes"):
         monkeypatch.setattr(target, must_not_run)
-    again = Path(evaluate(str(warehouse), str(reports), tasks=["paper_in_case"], mirror="no", episodes=300))
+    again = Path(evaluate(str(warehouse), str(reports), EvaluateConfig(tasks=("paper_in_case",), mirror="no", episodes=300)))
     assert again == out and "synth_paper_in_case_s0000" in again.read_text()

@@ -13,6 +13,8 @@ from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.schemas.catalog import query
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.lib.ingest.options import IngestOptions
 
 
 def _gt(take: Path):
@@ -73,8 +75,9 @@ def test_a_one_hand_take_yields_no_trajectory_for_the_other(prefect_api, warehou
     from demoforge.flows.augment import augment_take_flow
 
     with pytest.raises(ValueError, match="untrusted hand") as e:
-        augment_take_flow(str(trash_take), str(warehouse), detector="precomputed", n=10, n_mirrored=0,
-                          show_progress=False, ingest_options={"detector_options": {"path": str(npz)}})
+        augment_take_flow(str(trash_take), str(warehouse), augment=AugmentOptions(n=10, n_mirrored=0),
+                          show_progress=False,
+                          ingest=IngestOptions(detector="precomputed", detector_options={"path": str(npz)}))
     assert "\n" not in str(e.value) and "--allow-untrusted-hands" in str(e.value)
 
 
@@ -85,8 +88,8 @@ def test_augment_builds_from_an_untrusted_hand_only_when_forced(prefect_api, war
     npz = _predictions(tmp_path / "short_left.npz", gt["joints_camera"], gt["joints_px"], present)
     from demoforge.flows.augment import augment_take_flow
 
-    kw = dict(detector="precomputed", n=10, n_mirrored=0, show_progress=False,
-              ingest_options={"detector_options": {"path": str(npz)}})
+    kw = dict(augment=AugmentOptions(n=10, n_mirrored=0), show_progress=False,
+              ingest=IngestOptions(detector="precomputed", detector_options={"path": str(npz)}))
     with pytest.raises(ValueError, match="the left hand: tracked in"):
         augment_take_flow(str(trash_take), str(warehouse), **kw)
     hp = {x["hand"]: x for x in query("SELECT * FROM hand_presence", warehouse).to_pylist()}

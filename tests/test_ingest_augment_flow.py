@@ -12,6 +12,8 @@ from demoforge.flows.augment import augment_take_flow, retrieve
 from demoforge.cli import app
 from demoforge.flows.ingest import ingest_take
 from demoforge.schemas.catalog import query
+from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
 
 @pytest.fixture()
@@ -48,7 +50,7 @@ def test_ingest_flow_meets_the_accuracy_goals_and_is_cached(prefect_api, warehou
 
 def test_augment_flow_and_retrieval(prefect_api, ingested_warehouse, take_dir):
     warehouse = ingested_warehouse  # the take ingested once per session
-    out = augment_take_flow(str(take_dir), str(warehouse), n=400, n_mirrored=200, seed=3, show_progress=False)
+    out = augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=400, n_mirrored=200, seed=3), show_progress=False)
     ep = query("SELECT kind, count(*) AS n, sum(length) AS steps, count(*) FILTER (WHERE valid) AS valid "
                "FROM episodes GROUP BY kind ORDER BY kind", warehouse).to_pylist()
     assert {r["kind"]: r["n"] for r in ep} == {"mirrored": 200, "original": 1, "translated": 200}
@@ -100,7 +102,7 @@ def test_overlay_video_is_one_flag_away(prefect_api, ingested_warehouse, take_di
     warehouse = ingested_warehouse  # the take ingested once per session
     import cv2
 
-    result = ingest_take(str(take_dir), str(warehouse), show_progress=False, video=True)
+    result = ingest_take(str(take_dir), str(warehouse), options=IngestOptions(video=True), show_progress=False)
     video = Path(result["overlay_video"].path)
     assert video.parent == warehouse / "videos" and video.name == "synth_trash_in_bin_s0000.simulated.mp4"
     cap = cv2.VideoCapture(str(video))
@@ -116,7 +118,7 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
     warehouse = ingested_warehouse  # the take ingested once per session
     from demoforge.flows.sim import render_episode_video, simulate_episodes
 
-    augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
+    augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=40, n_mirrored=20, seed=2), show_progress=False)
     first = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=2, show_progress=False)
     assert [m.rows for m in first] == [2, 2]
     rows = query("SELECT * FROM sim_results ORDER BY episode_id", warehouse).to_pylist()
@@ -149,7 +151,7 @@ def test_sample_and_whole_runs_keep_their_own_results_and_new_episodes_are_simul
     import demoforge.lib.sim as rs
     from demoforge.schemas.core import column_numpy, read_table, write_table
 
-    augment_take_flow(str(take_dir), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
+    augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=40, n_mirrored=20, seed=2), show_progress=False)
     sample = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=2, show_progress=False)
     sample_ids = [r["episode_id"] for r in query("SELECT episode_id FROM sim_results ORDER BY 1", warehouse).to_pylist()]
     valid = [r["episode_id"] for r in query("SELECT episode_id FROM episodes WHERE valid ORDER BY 1", warehouse).to_pylist()]
@@ -211,12 +213,12 @@ def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, ingested
     def repeats():
         return query("SELECT count(*) AS n FROM sim_stability", warehouse).column("n")[0].as_py()
 
-    out = augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    out = augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=30, n_mirrored=10, seed=2), show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=2, chunk_size=2, show_progress=False)
     check_stability(str(warehouse), task="trash_in_bin", episodes=1, repeats=2, show_progress=False)
     assert checked() == 2 and repeats() == 2
     # the same database again (cached, or rewritten with the same bytes): the checks still describe it
-    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=2, show_progress=False)
+    augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=30, n_mirrored=10, seed=2), show_progress=False)
     assert checked() == 2
     from demoforge.tasks.augment import augment_take
 
@@ -224,6 +226,6 @@ def test_regenerated_episodes_drop_the_take_s_robot_checks(prefect_api, ingested
                     out["segments"], n=30, n_mirrored=10, seed=2)  # executed, not served from the cache
     assert checked() == 2
     # another database under the same take: the old checks would describe episodes that are gone
-    augment_take_flow(str(take_dir), str(warehouse), n=30, n_mirrored=10, seed=7, show_progress=False)
+    augment_take_flow(str(take_dir), str(warehouse), augment=AugmentOptions(n=30, n_mirrored=10, seed=7), show_progress=False)
     assert checked() == 0 and repeats() == 0
     assert not list((warehouse / "_trash").rglob("*.parquet"))

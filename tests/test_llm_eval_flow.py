@@ -2,6 +2,7 @@
 
 from demoforge.flows.augment import augment_take_flow
 from demoforge.schemas.catalog import query
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
 
 def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse, trash_take, monkeypatch):
@@ -22,7 +23,7 @@ def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse
     new_scene = te.query_scene
     monkeypatch.setattr(te, "query_scene", lambda task, seed, trial: (
         (take_poses, spec.keypoints_world(take_poses)) if trial == 0 else new_scene(task, seed, trial)))
-    augment_take_flow(str(trash_take), str(warehouse), n=60, n_mirrored=30, seed=1, show_progress=False)
+    augment_take_flow(str(trash_take), str(warehouse), augment=AugmentOptions(n=60, n_mirrored=30, seed=1), show_progress=False)
     demo = episode_actions(str(warehouse), "trash_in_bin", trash_take.name, [0])[0]
     good = "Sure, here it is:\n" + format_actions(resample_actions(demo, 20)) + "\nDone."
     llm_eval(str(warehouse), task="trash_in_bin", strategies=["single"], backend="fake",

@@ -224,8 +224,8 @@ def test_evaluate_passes_structured_and_number_format_to_its_flow(monkeypatch, t
 
     seen = []
 
-    def fake_run_flow(flow, *args, **kwargs):
-        seen.append(kwargs)
+    def fake_run_flow(flow, warehouse, reports_dir, config):
+        seen.append(config)
         raise ValueError("stop here")
 
     monkeypatch.setattr("demoforge.cli.pipeline.run_flow", fake_run_flow)
@@ -233,6 +233,6 @@ def test_evaluate_passes_structured_and_number_format_to_its_flow(monkeypatch, t
     for args, env in [(["--free", "--number-format", "compact"], {}), ([], {"DEMOFORGE_LLM_NUMBER_FORMAT": "thesis"})]:
         r = CliRunner().invoke(app, base + args, env=env)
         assert r.exit_code != 0 and "stop here" in r.output, r.output
-    assert [(k["llm_structured"], k["llm_number_format"]) for k in seen] == [(False, "compact"), (None, "thesis")]
+    assert [(c.llm_structured, c.llm_number_format) for c in seen] == [(False, "compact"), (None, "thesis")]
     r = CliRunner().invoke(app, base + ["--number-format", "hex"])
     assert r.exit_code == 2 and "--number-format must be one of" in r.output and "Traceback" not in r.output

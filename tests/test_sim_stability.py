@@ -6,6 +6,7 @@ from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner
 
 from demoforge.lib.sim.stability import scene_offsets, shift_scene, stability_summary
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
 finite = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 
@@ -85,7 +86,7 @@ def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simul
     import demoforge.lib.sim as rs
     from demoforge.schemas.catalog import query
 
-    augment_take_flow(str(trash_take), str(warehouse), n=40, n_mirrored=20, seed=2, show_progress=False)
+    augment_take_flow(str(trash_take), str(warehouse), augment=AugmentOptions(n=40, n_mirrored=20, seed=2), show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=3, show_progress=False)
     out = check_stability(str(warehouse), task="trash_in_bin", episodes=3, repeats=2, jitter_m=1e-4, chunk_size=2,
                           show_progress=False)

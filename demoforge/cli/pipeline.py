@@ -29,7 +29,7 @@ def evaluate(
     sim_episodes: int = typer.Option(20, envvar="DEMOFORGE_SIM_EPISODES", min=0, help="Episodes per task executed in MuJoCo (the original first)."),
     stability_episodes: int = typer.Option(10, envvar="DEMOFORGE_STABILITY_EPISODES", min=0, help="Of those, how many are executed again on copies of the scene shifted by about 0.1 mm (0 skips it)."),
     stability_repeats: int = typer.Option(3, envvar="DEMOFORGE_STABILITY_REPEATS", min=2, help="Executions per episode of the stability check (the first unshifted)."),
-    trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes about 1 min per trial and strategy with thesis numbers, 35-40 s with --number-format compact; 0 skips them). `make table3` runs the full grid."),
+    trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes about 50 s per trial with thesis numbers, 30-38 s with --number-format compact; 0 skips them). `make table3` runs the full grid."),
     grid_scenes: int = typer.Option(5, envvar="DEMOFORGE_GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="DEMOFORGE_LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
     llm_backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
@@ -55,7 +55,8 @@ def evaluate(
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
     if mirror not in ("both", "no", "yes"):
         raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
-    from demoforge.flows.evaluate import DETECTORS, detector_problem
+    from demoforge.flows.evaluate import detector_problem
+    from demoforge.lib.evaluation.config import DETECTORS, EvaluateConfig
 
     detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
     bad = [d for d in detectors if d not in DETECTORS]
@@ -64,15 +65,18 @@ def evaluate(
     for d in detectors if detector else ():  # asked for by name: it must run (the default only warns)
         if detector_problem(d):
             raise fail(f"--detector {d}: {detector_problem(d)}")
-    params = dict(tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes,
-                  sim_episodes=sim_episodes, stability_episodes=stability_episodes,
-                  stability_repeats=stability_repeats, llm_tasks=llm_task or ["pouring"], trials=trials, grid_scenes=grid_scenes,
-                  llm_backend=llm_backend, llm_options={"model": llm_model} if llm_model else {},
-                  llm_structured=structured, llm_number_format=number_format,
-                  variation_trials=variation_trials, policy_epochs=policy_epochs, policy_trials=policy_trials,
-                  detectors=list(dict.fromkeys(detectors)))
+    try:
+        config = EvaluateConfig(
+            tasks=task or None, takes=takes, seed=seed, mirror=mirror, episodes=episodes, sim_episodes=sim_episodes,
+            stability_episodes=stability_episodes, stability_repeats=stability_repeats,
+            llm_tasks=llm_task or ("pouring",), trials=trials, grid_scenes=grid_scenes, llm_backend=llm_backend,
+            llm_options={"model": llm_model} if llm_model else {}, llm_structured=structured,
+            llm_number_format=number_format, variation_trials=variation_trials, policy_epochs=policy_epochs,
+            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)))
+    except ValueError as e:
+        raise fail(str(e))
     warehouse, reports_dir = current_warehouse(), reports.resolve()
-    key = run_cache.run_key({**params, "reports": str(reports_dir), "warehouse": str(warehouse)},
+    key = run_cache.run_key({**config.as_dict(), "reports": str(reports_dir), "warehouse": str(warehouse)},
                             {"real_hands": str(demoforge.lib.SHARED_DATA / "real_hands"),
                              "arctic": str(read_settings().arctic_root or "") or None})
     if not fresh:
@@ -83,7 +87,7 @@ def evaluate(
             return
     from demoforge.flows.evaluate import evaluate as evaluate_flow
 
-    report = run_flow(evaluate_flow, str(warehouse), str(reports_dir), **params)
+    report = run_flow(evaluate_flow, str(warehouse), str(reports_dir), config)
     run_cache.remember(warehouse, key, report)
     typer.echo(f"report: {report}")
 
@@ -111,20 +115,23 @@ def augment(
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
     from demoforge.flows.augment import augment_take_flow
+    from demoforge.lib.ingest.options import IngestOptions
+    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
     from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
 
     status = annotation_status(_open_take_or_fail(path))
     if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
         raise fail(not_annotated_message(path, status.detail))
-    options = {"mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]}
-    ingest_options = {"state_method": state_method, "smoothing": smoothing, "grasp_prior": grasp_prior,
-                      "table_clearance": None if table_clearance < 0 else table_clearance,
-                      "accept_bad_depth": accept_bad_depth}
     try:
-        result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, detector=detector,
-                          n=episodes, n_mirrored=mirrored, seed=seed, options=options, ingest_options=ingest_options,
-                          allow_untrusted_hands=allow_untrusted_hands)
+        augment_options = AugmentOptions(n=episodes, n_mirrored=mirrored, seed=seed, generation={
+            "mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]})
+        ingest_options = IngestOptions(detector=detector, state_method=state_method, smoothing=smoothing,
+                                       grasp_prior=grasp_prior,
+                                       table_clearance=None if table_clearance < 0 else table_clearance,
+                                       accept_bad_depth=accept_bad_depth)
+        result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, augment=augment_options,
+                          ingest=ingest_options, allow_untrusted_hands=allow_untrusted_hands)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     typer.echo(f"episodes: {result['episodes'].path}")

@@ -139,6 +139,7 @@ def ingest(
     tracked in too few frames is reported as not trusted (and `augment` refuses it).
     """
     from demoforge.flows.ingest import ingest_take
+    from demoforge.lib.ingest.options import IngestOptions
     from demoforge.lib.perception.detectors import DetectorError
     from demoforge.lib.takes import TakeError
 
@@ -159,11 +160,11 @@ def ingest(
         options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
     take = _open_take_or_fail(path)
     try:
-        result = run_flow(ingest_take, str(path), str(current_warehouse()), detector=detector, task=task,
-                             detector_options=options, state_method=state_method, smoothing=smoothing,
-                             video=video, grasp_prior=grasp_prior,
-                             table_clearance=None if table_clearance < 0 else table_clearance,
-                             accept_bad_depth=accept_bad_depth)
+        ingest_options = IngestOptions(detector=detector, detector_options=options, state_method=state_method,
+                                       smoothing=smoothing, grasp_prior=grasp_prior,
+                                       table_clearance=None if table_clearance < 0 else table_clearance,
+                                       accept_bad_depth=accept_bad_depth, video=video)
+        result = run_flow(ingest_take, str(path), str(current_warehouse()), task=task, options=ingest_options)
     except (TakeError, ValueError, DetectorError) as e:
         raise fail(str(e))
     for name, m in result.items():
@@ -204,12 +205,15 @@ def ingest_folder_cmd(
 
     This is the flow of the scheduled deployment (`demoforge serve`)."""
     from demoforge.flows.ingest_folder import ingest_folder
+    from demoforge.lib.ingest.options import IngestOptions
+    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
     if not folder.is_dir():  # before the flow starts: one line, no flow-run traceback
         raise fail(f"{folder}: no such folder to ingest takes from")
     try:
-        rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), detector=detector, task=task,
-                        augment=augment, episodes=episodes)
+        rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), task=task,
+                        ingest=IngestOptions(detector=detector),
+                        augment=AugmentOptions.half_mirrored(episodes) if augment else None)
     except ValueError as e:
         raise fail(str(e))
     for r in rows:

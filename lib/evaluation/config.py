@@ -1,0 +1,84 @@
+"""What the main job (`make evaluate`, flows/evaluate.py) runs: every option declared once.
+
+``demoforge evaluate`` builds an :class:`EvaluateConfig` from its flags, the ``evaluate`` flow takes it
+whole, the whole-run cache key (demoforge.runtime.run_cache) is its fields, and the report prints
+them as the run's parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+__all__ = ["DETECTORS", "EvaluateConfig", "MIRROR_CHOICES"]
+
+# The hand detectors every take is ingested with, side by side: the simulated one (the ground truth
+# through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
+DETECTORS = ("simulated", "mediapipe")
+MIRROR_CHOICES = ("both", "no", "yes")
+
+
+def _names(value: Sequence[str] | str | None) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    return (value,) if isinstance(value, str) else tuple(value)
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """tasks: the tasks of the synthetic takes (None: all six); takes: synthetic takes per task and
+    mirror flag; seed: their first seed (also of databases, query scenes and policy); mirror: both,
+    no or yes; episodes: episodes per task database; arctic_root: ARCTIC's folder (None: the
+    DEMOFORGE_ARCTIC_ROOT setting, else no ARCTIC table); sim_episodes: episodes per task executed in
+    MuJoCo; stability_episodes / stability_repeats: the stability check (0 episodes skips it);
+    llm_tasks: tasks of Table 3; grid_scenes: its query scenes (protocol thesis, first take; 0 skips
+    it); trials: of those, the scenes of the three LLM strategies; llm_backend, llm_options,
+    llm_structured, llm_number_format: the LLM (demoforge.flows.table3); variation_trials: scenes per
+    task and variation kind of the Table 4 analogue; policy_tasks, policy_epochs, policy_waypoints,
+    policy_trials: the learned policy (0 trials skips it); detectors: the hand detectors each take is
+    ingested with, side by side (the simulated one always)."""
+
+    tasks: tuple[str, ...] | None = None
+    takes: int = 1
+    seed: int = 0
+    mirror: str = "both"
+    episodes: int = 10_000
+    arctic_root: str | None = None
+    sim_episodes: int = 20
+    stability_episodes: int = 10
+    stability_repeats: int = 3
+    llm_tasks: tuple[str, ...] = ("pouring",)
+    trials: int = 1
+    grid_scenes: int = 5
+    llm_backend: str = "local"
+    llm_options: Mapping[str, Any] = field(default_factory=dict)
+    llm_structured: bool | None = None
+    llm_number_format: str | None = None
+    variation_trials: int = 2
+    policy_tasks: tuple[str, ...] = ("pouring",)
+    policy_epochs: int = 6
+    policy_waypoints: int = 40
+    policy_trials: int = 5
+    detectors: tuple[str, ...] = DETECTORS
+
+    def __post_init__(self):
+        for name in ("tasks", "llm_tasks", "policy_tasks", "detectors"):  # lists from the CLI or JSON
+            object.__setattr__(self, name, _names(getattr(self, name)))
+        if self.mirror not in MIRROR_CHOICES:
+            raise ValueError(f"mirror must be both, no or yes, got {self.mirror!r}")
+        if int(self.takes) < 1 or int(self.episodes) < 1:
+            raise ValueError(f"need takes >= 1 and episodes >= 1, got {self.takes} and {self.episodes}")
+        counts = ("sim_episodes", "stability_episodes", "trials", "grid_scenes", "variation_trials",
+                  "policy_trials")
+        negative = [n for n in counts if int(getattr(self, n)) < 0]
+        if negative:
+            raise ValueError(f"{negative[0]} must be >= 0, got {getattr(self, negative[0])}")
+
+    def replace(self, **changes: Any) -> "EvaluateConfig":
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields as plain JSON-able values (lists for tuples): the run key and the report's parameters."""
+        return {k: (list(v) if isinstance(v, tuple) else dict(v) if isinstance(v, Mapping) else v)
+                for k, v in ((f.name, getattr(self, f.name)) for f in dataclasses.fields(self))}
