@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-LLM_EVAL_VERSION = "5"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: keyframes of the smoothed sequences, the default; 5: no all-zero quaternion
+LLM_EVAL_VERSION = "6"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: keyframes of the smoothed sequences, the default; 5: no all-zero quaternion; 6: no dead end in the decoder
 LLM_STRATEGIES = ("single", "random", "retrieval")
 BASELINES = ("replay_top1", "transform_demo")
 K_EXAMPLES = 3

@@ -13,7 +13,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-TABLE3_VERSION = "6"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples; 5: keyframes of the smoothed sequences, the default; 6: no all-zero quaternion
+TABLE3_VERSION = "7"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples; 5: keyframes of the smoothed sequences, the default; 6: no all-zero quaternion; 7: no dead end in the decoder
 LLM_STRATEGIES = ("single", "random", "retrieval")
 FREE_STRATEGIES = ("replay_original", "replay_top1", "knn_blend", "transform_demo")
 POLICY = "policy"

@@ -68,6 +68,33 @@ def near_words(draw):
     return (n if fixed else None), precision, int_digits, prefix, text[len(prefix):]
 
 
+def _can_finish(lang: ActionListLanguage, state: tuple) -> bool:
+    """Whether some continuation of ``state`` is accepted (breadth-first over the alphabet's characters)."""
+    frontier, seen = [state], {state}
+    while frontier:
+        nxt = []
+        for s in frontier:
+            if lang.accepting(s):
+                return True
+            for ch in "0123456789-.,[]\n":
+                t = lang.advance(s, ch)
+                if t is not None and t not in seen:
+                    seen.add(t)
+                    nxt.append(t)
+        frontier = nxt
+    return False
+
+
+def test_no_dead_end_after_three_zero_quaternion_components():
+    # compact numbers (4 integer digits, no decimals): "0000" as the last component would leave no way on
+    lang = ActionListLanguage(1, 1, 0, "", 4)
+    s = lang.advance(lang.start(), "[[[1,2,3,0,0,0,000")
+    assert s is not None and lang.advance(s, "0") is None and lang.advance(s, "7") is not None
+    thesis = ActionListLanguage(1, 1, 3, "", 2)
+    s = thesis.advance(thesis.start(), "[[[0.1,0.2,0.3,0,0.0,-0,00.00")
+    assert thesis.advance(s, "0") is None and thesis.advance(s, "1") is not None
+
+
 @settings(max_examples=400, deadline=None)
 @given(near_words())
 def test_the_automaton_accepts_exactly_the_gbnf_grammars_words(case):
@@ -77,7 +104,13 @@ def test_the_automaton_accepts_exactly_the_gbnf_grammars_words(case):
     lang = ActionListLanguage(lo, hi, precision, prefix, int_digits)
     state = lang.advance(lang.start(), text)
     assert lang.accepting(state) == bool(grammar.fullmatch(text)), text
-    if lang.accepting(state):  # every prefix of a word is a live state (the decoder never strands itself)
+    s = lang.start()  # every state the automaton reaches can still end in a word (the decoder never strands itself)
+    for ch in text:
+        s = lang.advance(s, ch)
+        if s is None:
+            break
+        assert _can_finish(lang, s), (text, s)
+    if lang.accepting(state):  # every prefix of a word is a live state
         s = lang.start()
         for ch in text:
             s = lang.advance(s, ch)

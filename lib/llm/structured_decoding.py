@@ -97,7 +97,10 @@ class ActionListLanguage:
             _, row, arm, field, phase, count, rot = s
             nxt = self._value_step(phase, count, ch)
             if nxt is not None:
-                return ("value", row, arm, field) + nxt + (rot or (3 <= field <= 6 and "1" <= ch <= "9"),)
+                rot = rot or (3 <= field <= 6 and "1" <= ch <= "9")
+                if field == 6 and not rot and not self._can_grow(*nxt):
+                    return None  # a full-length zero as the last component: no way left to a non-zero quaternion
+                return ("value", row, arm, field) + nxt + (rot,)
             if phase in ("int", "dec", "gripped"):  # the value may end here: the separator begins
                 return self._sep_step(("sep", row, arm, field, 0, rot), ch)
             return None
@@ -142,6 +145,14 @@ class ActionListLanguage:
         if phase == "dec":
             return ("dec", count + 1) if digit and count < self.precision else None
         return None
+
+    def _can_grow(self, phase: str, count: int) -> bool:
+        """Whether a number in this phase may take one more digit (directly or after a point)."""
+        if phase == "int":
+            return count < self.int_digits or self.precision > 0
+        if phase == "dec":
+            return count < self.precision
+        return phase in ("start", "sign", "dot")
 
     def _sep_step(self, s: tuple, ch: str) -> tuple | None:
         _, row, arm, field, i, rot = s
