@@ -68,20 +68,33 @@ def near_words(draw):
     return (n if fixed else None), precision, int_digits, prefix, text[len(prefix):]
 
 
+_LIVE: dict[tuple, bool] = {}
+_TRY = "1,]\n[0-."
+
+
 def _can_finish(lang: ActionListLanguage, state: tuple) -> bool:
-    """Whether some continuation of ``state`` is accepted (breadth-first over the alphabet's characters)."""
-    frontier, seen = [state], {state}
-    while frontier:
-        nxt = []
-        for s in frontier:
-            if lang.accepting(s):
-                return True
-            for ch in "0123456789-.,[]\n":
-                t = lang.advance(s, ch)
-                if t is not None and t not in seen:
-                    seen.add(t)
-                    nxt.append(t)
-        frontier = nxt
+    """Whether some continuation of ``state`` is accepted: a depth-first search that tries a non-zero
+    digit and the separators first (the shortest way on), remembering every verdict. "1" and "0" stand
+    for every digit: the automaton tells digits apart only as zero or not."""
+    stack, path, seen = [(state, iter(_TRY))], [state], {state}
+    while stack:
+        s, chars = stack[-1]
+        key = (lang, s)
+        if lang.accepting(s) or _LIVE.get(key):
+            for p in path:
+                _LIVE[(lang, p)] = True
+            return True
+        for ch in chars:
+            t = lang.advance(s, ch)
+            if t is not None and t not in seen and _LIVE.get((lang, t)) is not False:
+                seen.add(t)
+                stack.append((t, iter(_TRY)))
+                path.append(t)
+                break
+        else:
+            _LIVE[key] = False
+            stack.pop()
+            path.pop()
     return False
 
 
