@@ -325,6 +325,20 @@ def test_sampling_is_frozen_and_hashable():
 _HAVE_LLAMA = importlib.util.find_spec("llama_cpp") is not None
 
 
+@pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
+                    "install requirements/llm.txt (scripts/setup_llm.sh)")
+def test_the_embedded_runtime_has_no_amx_kernels():
+    """scripts/setup_llm.sh builds llama.cpp without Intel AMX: its AMX matrix kernels crash the first
+    decode of the Q4_K_M model on Sapphire Rapids CPUs (a segfault of the whole test worker)."""
+    import llama_cpp
+    from pathlib import Path
+
+    libs = [p for p in (Path(llama_cpp.__file__).parent / "lib").glob("libggml-cpu.so*") if p.is_file()]
+    assert libs, "llama_cpp ships no libggml-cpu.so"
+    with_amx = [p.name for p in libs if b"ggml_backend_amx_mul_mat" in p.read_bytes()]
+    assert not with_amx, f"{with_amx} built with AMX kernels: run `bash scripts/setup_llm.sh` to rebuild"
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not _HAVE_LLAMA, reason="llama_cpp (llama-cpp-python) is not importable: "
                     "install requirements/llm.txt (scripts/setup_llm.sh)")
