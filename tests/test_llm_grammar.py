@@ -13,7 +13,7 @@ import pytest
 from demoforge.lib.llm import FakeBackend, Sampling
 from demoforge.lib.llm.cache import cache_key
 from demoforge.lib.llm.grammar import (
-    MAX_ROWS, actions_gbnf, actions_json_schema, opened_prefix, response_format,
+    MAX_ROWS, actions_gbnf, actions_json_schema, longest_answer_chars, opened_prefix, response_format,
 )
 from demoforge.lib.llm.prompting import build_prompt, format_actions, parse_actions
 
@@ -106,6 +106,17 @@ def test_grammar_counts_exactly_n_waypoints_and_matches_the_prompt_format():
         actions_gbnf(2, prefix="x")
 
 
+@pytest.mark.parametrize("n, precision, int_digits, prefix", [(1, 3, 2, ""), (3, 3, 2, "[[["), (2, 0, 4, "[")])
+def test_longest_answer_chars_is_the_length_of_the_grammars_longest_word(n, precision, int_digits, prefix):
+    g = gbnf_regex(actions_gbnf(n, precision, prefix, int_digits=int_digits))
+    num = "-" + "9" * int_digits + ("." + "9" * precision if precision else "")
+    arm = ",".join([num] * 7 + ["1"])
+    longest = ("[[[" + ("]],\n[[".join([arm + "],[" + arm] * n)) + "]]]")[len(prefix):]
+    assert g.fullmatch(longest) and len(longest) == longest_answer_chars(n, precision, prefix, int_digits)
+    # one digit more anywhere is outside the language
+    assert not g.fullmatch(longest.replace(num, num[:2] + "9" + num[2:], 1))
+
+
 def test_json_schema_fixes_the_shape_and_parse_actions_reads_its_answers():
     s = actions_json_schema(3)
     a = s["properties"]["actions"]
@@ -166,7 +177,10 @@ def test_structured_greedy_answers_of_the_embedded_model_always_parse():
     b = LocalBackend(n_ctx=4096)
     for p in real_prompts():
         n = p.n_waypoints
-        c = b.complete(p, Sampling(temperature=0.0, max_tokens=60 * n, seed=0, stop=p.stop, structured=True))
+        # room for the longest answer the grammar admits: a shorter budget makes "always parses" depend
+        # on how many decimals the model happens to write (it wrote 3 on one CPU, 1-2 on another)
+        budget = longest_answer_chars(n, p.precision, p.answer_prefix)
+        c = b.complete(p, Sampling(temperature=0.0, max_tokens=budget, seed=0, stop=p.stop, structured=True))
         res = parse_actions(c.text, expected_waypoints=n, prefix=p.answer_prefix)
         assert res.status == "ok" and res.actions.shape == (n, 2, 8), (res.status, res.detail, c.text)
         assert c.finish_reason == "stop", c.text  # the grammar closed the list; nothing ran into max_tokens

@@ -101,6 +101,19 @@ def actions_gbnf(n_keyframes: int | None, precision: int = 3, prefix: str = "", 
     ])
 
 
+def longest_answer_chars(n_keyframes: int, precision: int = 3, prefix: str = "", int_digits: int = 2) -> int:
+    """Characters of the longest answer :func:`actions_gbnf` admits for exactly ``n_keyframes`` rows, every
+    optional newline taken. Every token is at least one character, so this also bounds the tokens a
+    structured answer can need: a ``max_tokens`` at least this large never cuts one."""
+    if not _OPEN.startswith(prefix):
+        raise ValueError(f"prefix must be a prefix of {_OPEN!r}, got {prefix!r}")
+    num = 1 + int(int_digits) + (1 + int(precision) if int(precision) > 0 else 0)   # "-", digits, ".", decimals
+    arm = 7 * num + 7 + 1                                                          # 7 numbers, 7 commas, grip
+    first = len(_OPEN) - len(prefix) + arm + len("],[") + arm + len("]]")
+    more = len(",\n[[") + arm + len("],[") + arm + len("]]")
+    return first + (int(n_keyframes) - 1) * more + len("]")
+
+
 def actions_json_schema(n_keyframes: int | None, max_rows: int = MAX_ROWS) -> dict:
     """JSON schema of ``{"actions": [[[8 numbers], [8 numbers]], ...]}`` with n_keyframes waypoints."""
     lo, hi = _rows_spec(n_keyframes, max_rows)
