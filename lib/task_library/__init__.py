@@ -5,7 +5,8 @@
     demo = task.scripted_demo(seed=0, mirror=False)
     result = task.replay(demo)        # physics replay, result.success / result.reason
 
-See base.py for conventions (frames, mirroring) and tasks.py for the tasks.
+See base.py for conventions (frames, mirroring), tasks.py for the tasks and scripting.py for how their
+scripted takes move.
 """
 
 from .base import Demo, Placement, ReplayResult, Segment, Task, TaskObject
