@@ -43,10 +43,13 @@ if [ "$state" != 0 ]; then
     [ "$state" = 2 ] && say "replacing the installed llama-cpp-python: it was built with AMX kernels, which crash"
     say "compiling llama-cpp-python $want from source without AMX (about 5 min on 2 cores)"
     start=$(date +%s)
-    # --no-cache-dir: pip's wheel cache does not know the compiler flags and may hold an AMX build
+    # --no-cache-dir: pip's wheel cache does not know the compiler flags and may hold an AMX build;
+    # an AMX build is rebuilt in place (its dependencies are there already)
+    flags="--no-cache-dir"
+    [ "$state" = 2 ] && flags="$flags --force-reinstall --no-deps"
     CMAKE_BUILD_PARALLEL_LEVEL="$(nproc)" \
     CMAKE_ARGS="-DCMAKE_C_FLAGS='$NO_AMX' -DCMAKE_CXX_FLAGS='$NO_AMX' ${CMAKE_ARGS:-}" \
-        "$PY" -m pip install -q --no-cache-dir --force-reinstall --no-deps "llama-cpp-python==$want"
+        "$PY" -m pip install -q $flags "llama-cpp-python==$want"
     state=0; installed_build || state=$?
     if [ "$state" != 0 ]; then
         say "error: llama-cpp-python $want still has AMX kernels or does not import (state $state); see the build log above"
