@@ -8,6 +8,7 @@ from typing import Sequence
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.synth import mirror_flags
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.synth import synthesize_take
 
@@ -42,11 +43,9 @@ def synthesize_takes(
     unknown = [t for t in tasks if t not in TASK_NAMES]
     if unknown:
         raise ValueError(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
-    if mirror not in ("no", "yes", "both"):
-        raise ValueError(f"mirror must be 'no', 'yes' or 'both', got {mirror!r}")
     if takes < 1:
         raise ValueError("takes must be at least 1")
-    flags = {"no": [False], "yes": [True], "both": [False, True]}[mirror]
+    flags = mirror_flags(mirror)
     out = Path(takes_dir) if takes_dir else default_takes_dir(warehouse)
     out.mkdir(parents=True, exist_ok=True)
     manifests = []

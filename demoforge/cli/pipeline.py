@@ -53,8 +53,10 @@ def evaluate(
     unknown = [t for t in (task or []) if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
-    if mirror not in ("both", "no", "yes"):
-        raise fail(f"--mirror must be both, no or yes, got {mirror!r}")
+    from demoforge.lib.synth import MIRROR_CHOICES
+
+    if mirror not in MIRROR_CHOICES:
+        raise fail(f"--mirror must be {', '.join(MIRROR_CHOICES[:-1])} or {MIRROR_CHOICES[-1]}, got {mirror!r}")
     from demoforge.flows.evaluate import detector_problem
     from demoforge.lib.evaluation.config import DETECTORS, EvaluateConfig
 

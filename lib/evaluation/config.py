@@ -11,12 +11,13 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
+from demoforge.lib.synth import MIRROR_CHOICES, mirror_flags
+
 __all__ = ["DETECTORS", "EvaluateConfig", "MIRROR_CHOICES"]
 
 # The hand detectors every take is ingested with, side by side: the simulated one (the ground truth
 # through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
 DETECTORS = ("simulated", "mediapipe")
-MIRROR_CHOICES = ("both", "no", "yes")
 
 
 def _names(value: Sequence[str] | str | None) -> tuple[str, ...] | None:
@@ -65,8 +66,7 @@ class EvaluateConfig:
     def __post_init__(self):
         for name in ("tasks", "llm_tasks", "policy_tasks", "detectors"):  # lists from the CLI or JSON
             object.__setattr__(self, name, _names(getattr(self, name)))
-        if self.mirror not in MIRROR_CHOICES:
-            raise ValueError(f"mirror must be both, no or yes, got {self.mirror!r}")
+        mirror_flags(self.mirror)  # refuses an unknown choice
         if int(self.takes) < 1 or int(self.episodes) < 1:
             raise ValueError(f"need takes >= 1 and episodes >= 1, got {self.takes} and {self.episodes}")
         counts = ("sim_episodes", "stability_episodes", "trials", "grid_scenes", "variation_trials",

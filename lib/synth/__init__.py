@@ -8,7 +8,18 @@
 Importing this package does not import MuJoCo; the submodules do (after ``import lib`` sets EGL).
 """
 
-__all__ = ["generate_take", "write_take", "TakeSummary", "SceneRenderer"]
+__all__ = ["generate_take", "write_take", "TakeSummary", "SceneRenderer", "MIRROR_CHOICES", "mirror_flags"]
+
+#: Which variants of a synthetic take to write: "no" the original hands' roles, "yes" the mirrored
+#: variant only, "both" the two.
+MIRROR_CHOICES = ("both", "no", "yes")
+
+
+def mirror_flags(mirror: str) -> list[bool]:
+    """The `mirror` flags of the takes to write for a MIRROR_CHOICES value (a one-line ValueError otherwise)."""
+    if mirror not in MIRROR_CHOICES:
+        raise ValueError(f"mirror must be both, no or yes, got {mirror!r}")
+    return {"no": [False], "yes": [True], "both": [False, True]}[mirror]
 
 
 def __getattr__(name):
