@@ -420,9 +420,9 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
             "mpjpe_2d_px": M.mpjpe_2d(raw["joints_px"][det, h], gt["joints_px"][det, h]),
             "pck_005": M.pck(raw["joints_px"][det, h], gt["joints_px"][det, h], 0.05),
             "pck_015": M.pck(raw["joints_px"][det, h], gt["joints_px"][det, h], 0.15),
-            "gripper_position_error_mm": float(np.nanmean(M.gripper_position_error_mm(gp["pose"][:, h], gg["pose"][:, h], in_view))),
-            "gripper_orientation_error_deg": float(np.nanmean(M.gripper_orientation_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view))),
-            "approach_axis_error_deg": float(np.nanmean(M.approach_axis_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view))),
+            "gripper_position_error_mm": M.mean_of_finite(M.gripper_position_error_mm(gp["pose"][:, h], gg["pose"][:, h], in_view)),
+            "gripper_orientation_error_deg": M.mean_of_finite(M.gripper_orientation_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view)),
+            "approach_axis_error_deg": M.mean_of_finite(M.approach_axis_error_deg(gp["pose"][:, h], gg["pose"][:, h], in_view)),
             "open_close_acc_threshold": M.open_close_accuracy(gp["g_threshold"][:, h], g_true[:, h], in_view),
             "open_close_acc_auto": M.open_close_accuracy(gp["g_auto"][:, h], g_true[:, h], in_view),
             "open_close_acc_manual": (None if np.isnan(g_man.astype(float)).all()

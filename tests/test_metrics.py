@@ -119,3 +119,14 @@ def test_gripper_metrics_by_hand():
     b[:, 3:7] *= -1
     np.testing.assert_allclose(gripper_orientation_error_deg(a, b), 0.0, atol=1e-5)
     assert np.allclose(quat_to_matrix(qs), quat_to_matrix(-qs))
+
+
+def test_mean_of_finite_is_nan_without_a_warning_when_nothing_is_finite():
+    import warnings
+
+    from demoforge.lib.evaluation.metrics import mean_of_finite
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "Mean of empty slice" would raise here
+        assert np.isnan(mean_of_finite(np.full(5, np.nan))) and np.isnan(mean_of_finite([]))
+        assert mean_of_finite([1.0, np.nan, 3.0]) == 2.0

@@ -30,6 +30,7 @@ import numpy as np
 from demoforge.lib.geometry import project_points as _project, quat_angle, quat_to_matrix, umeyama
 
 __all__ = [
+    "mean_of_finite",
     "joint_errors",
     "mpjpe",
     "pa_mpjpe",
@@ -223,7 +224,9 @@ def open_close_accuracy(g_pred, g_gt, mask=None) -> float:
     return float(np.count_nonzero(ok & ((gp >= 0.5) == (gg >= 0.5))) / n) if n else float("nan")
 
 
-def _nanmean(x) -> float:
+def mean_of_finite(x) -> float:
+    """The mean over the finite values of ``x``; NaN, without numpy's empty-slice warning, when there are none
+    (a hand the detector never found has no gripper pose to measure)."""
     x = np.asarray(x, dtype=np.float64)
     return float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
 
@@ -237,11 +240,11 @@ def gripper_metrics(pred8, gt8, mask=None) -> dict[str, float]:
     oe = gripper_orientation_error_deg(pred8, gt8, mask)
     ae = approach_axis_error_deg(pred8, gt8, mask)
     return {
-        "position_error_mm": _nanmean(pe),
+        "position_error_mm": mean_of_finite(pe),
         "position_error_mm_median": float(np.nanmedian(pe)) if np.isfinite(pe).any() else float("nan"),
-        "orientation_error_deg": _nanmean(oe),
+        "orientation_error_deg": mean_of_finite(oe),
         "orientation_error_deg_median": float(np.nanmedian(oe)) if np.isfinite(oe).any() else float("nan"),
-        "approach_error_deg": _nanmean(ae),
+        "approach_error_deg": mean_of_finite(ae),
         "open_close_accuracy": open_close_accuracy(pred8[..., 7], gt8[..., 7], mask),
     }
 
