@@ -148,3 +148,31 @@ def test_a_progress_bar_never_changes_a_stage_key():
             assert policy.compute_key(None, inputs, {}) == policy.compute_key(None, {**inputs, "show_progress": False}, {}), obj.name
             checked.append(obj.name)
     assert "detect_hands" in checked and "synthesize_take" in checked, checked
+
+
+def test_the_whole_run_key_sees_every_source_file_of_the_package(tmp_path):
+    """`demoforge evaluate`'s run-level cache (demoforge.runtime.run_cache) must change its key when any
+    source of the run changes; a fingerprint of no files would serve an old report after an update."""
+    import shutil
+
+    from demoforge.runtime import run_cache
+
+    root = Path(__file__).resolve().parents[1]
+    want = {"demoforge": root / "demoforge", "demoforge.lib": root / "lib", "demoforge.tasks": root / "tasks",
+            "demoforge.flows": root / "flows", "demoforge.schemas": root / "schemas"}
+    assert run_cache.code_dirs() == want
+    copy = {}
+    for name, folder in want.items():
+        copy[name] = tmp_path / name
+        shutil.copytree(folder, copy[name], ignore=shutil.ignore_patterns("__pycache__"))
+    copy["demoforge.lib"] = tmp_path / "checkout" / "lib"   # the pins beside lib/, as in a checkout
+    shutil.copytree(root / "lib", copy["demoforge.lib"], ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(root / "requirements", tmp_path / "checkout" / "requirements")
+    shutil.copy(root / "pyproject.toml", tmp_path / "checkout")
+    before = run_cache.code_fingerprint(copy)
+    assert before == run_cache.code_fingerprint(want)  # the content counts, not where it lies
+    geometry = copy["demoforge.lib"] / "geometry" / "__init__.py"
+    geometry.write_text(geometry.read_text() + "\n# changed\n")
+    assert run_cache.code_fingerprint(copy) != before
+    with pytest.raises(RuntimeError, match="no source files"):
+        run_cache.code_fingerprint({"demoforge.lib": tmp_path / "empty"})

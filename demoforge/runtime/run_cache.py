@@ -2,8 +2,9 @@
 
 Every stage is cached by Prefect on the content of its inputs, but confirming that for ~100 stages
 costs a Prefect API server and a minute of cache lookups. Before that, this module checks the whole
-run at once: the same parameters, the same code (content of every .py under lib/, tasks/, flows/,
-schemas/ and the dependency pins), the same external inputs (real photos, ARCTIC root, LLM settings)
+run at once: the same parameters, the same code (content of every .py of the demoforge package: lib/,
+tasks/, flows/, schemas/ and demoforge/ itself, wherever they are installed, and in a checkout the
+dependency pins), the same external inputs (real photos, ARCTIC root, LLM settings)
 and a warehouse whose files are exactly as the last complete run left them (size and modification
 time of every file). Any difference, including a table file deleted by hand, means a normal run, in
 which Prefect's per-stage cache recomputes only what changed.
@@ -22,20 +23,42 @@ from typing import Any
 from demoforge.lib.settings import read_settings
 from demoforge.schemas.core import file_sha256
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-CODE_DIRS = ("lib", "tasks", "flows", "schemas")
+CODE_PACKAGES = ("demoforge", "demoforge.lib", "demoforge.tasks", "demoforge.flows", "demoforge.schemas")
 RUNS_DIR = "_runs"
 # rebuilt by every query / owned by Prefect's per-stage cache: not outputs of the run
 IGNORED = {"catalog.duckdb", "catalog.duckdb.wal", "_prefect", RUNS_DIR}
 
 
-def code_fingerprint(root: Path = PROJECT_ROOT) -> str:
+def code_dirs() -> dict[str, Path]:
+    """{package: its folder}: the code of a run. Found through the imported packages, since the
+    folders are not nested the same way in a checkout (setup.py maps demoforge.lib to lib/) and in an
+    installed wheel."""
+    import importlib
+
+    return {name: Path(importlib.import_module(name).__file__).resolve().parent for name in CODE_PACKAGES}
+
+
+def code_fingerprint(dirs: dict[str, Path] | None = None) -> str:
+    """Hash of every .py file of ``dirs`` (default :func:`code_dirs`; a package's subpackages that are
+    packages of their own are hashed once, under their own name) and, in a checkout, the dependency pins."""
+    dirs = code_dirs() if dirs is None else dirs
+    own = set(dirs.values())
     h = hashlib.sha256()
-    files = [p for d in CODE_DIRS for p in (root / d).rglob("*.py")]
-    files += sorted((root / "requirements").glob("*.txt")) + [root / "pyproject.toml"]
-    for p in sorted(f for f in files if f.is_file()):
-        h.update(str(p.relative_to(root)).encode())
-        h.update(file_sha256(p).encode())
+    n = 0
+    for name, root in sorted(dirs.items()):
+        for p in sorted(root.rglob("*.py")):
+            if any(parent in own and parent != root for parent in p.parents):
+                continue  # hashed under the package that owns that folder
+            h.update(f"{name}/{p.relative_to(root)}".encode())
+            h.update(file_sha256(p).encode())
+            n += 1
+    if n == 0:
+        raise RuntimeError(f"no source files found under {sorted(map(str, own))}: the run cache cannot see the code")
+    checkout = dirs.get("demoforge.lib", Path("/nonexistent")).parent
+    for p in sorted((checkout / "requirements").glob("*.txt")) + [checkout / "pyproject.toml"]:
+        if p.is_file():
+            h.update(p.name.encode())
+            h.update(file_sha256(p).encode())
     return h.hexdigest()
 
 
