@@ -29,7 +29,7 @@ PREFIX = "DEMOFORGE_"
 #: name -> what it sets. The CLI options' variables are declared by the CLI with these names.
 VARIABLES: dict[str, str] = {
     # where things are
-    "DEMOFORGE_WAREHOUSE": "warehouse folder (default: ./warehouse of the project)",
+    "DEMOFORGE_WAREHOUSE": "warehouse folder (default: the checkout's warehouse/; ./warehouse for an installed package)",
     "DEMOFORGE_DIGEST_CACHE": "where folder digests are remembered (default: $XDG_CACHE_HOME/demoforge/digests)",
     "DEMOFORGE_GGUF_PATH": "the local LLM's GGUF file (default: the embedded Gemma 3 270M in the venv)",
     "DEMOFORGE_HAND_LANDMARKER": "MediaPipe's hand_landmarker.task (default: the one set-up fetched into the venv)",

@@ -38,13 +38,17 @@ class QueryRefused(UserError):
 
 
 def warehouse_root(explicit: str | os.PathLike | None = None) -> Path:
-    """``explicit`` if given, else ``$DEMOFORGE_WAREHOUSE``, else ``<project>/warehouse``."""
+    """``explicit`` if given, else ``$DEMOFORGE_WAREHOUSE``, else the checkout's ``warehouse/`` (the
+    design card's top-level folder) when demoforge runs from a checkout, and ``./warehouse`` of the
+    current directory when it is an installed package (never a folder inside site-packages)."""
     if explicit:
         return Path(explicit).expanduser().resolve()
     configured = read_settings().warehouse
     if configured:
         return configured.resolve()
-    return (PROJECT_ROOT / "warehouse").resolve()
+    if (PROJECT_ROOT / "pyproject.toml").is_file():
+        return (PROJECT_ROOT / "warehouse").resolve()
+    return (Path.cwd() / "warehouse").resolve()
 
 
 def _sql_literal(s: str) -> str:

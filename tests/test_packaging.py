@@ -71,6 +71,11 @@ def test_wheel_installs_one_package_that_runs_outside_the_checkout(tmp_path):
     rows = subprocess.run([str(demoforge), "sql", "SELECT count(*) AS n FROM takes", "--format", "csv"], cwd=work,
                           env=env, capture_output=True, text=True, timeout=300)
     assert rows.returncode == 0 and rows.stdout.split() == ['"n"', "1"], rows.stdout + rows.stderr
+    # without $DEMOFORGE_WAREHOUSE an installed demoforge keeps its tables in ./warehouse, not in site-packages
+    env.pop("DEMOFORGE_WAREHOUSE")
+    cat = subprocess.run([str(demoforge), "catalog"], cwd=work, env=env, capture_output=True, text=True, timeout=300)
+    assert cat.returncode == 0, cat.stdout + cat.stderr
+    assert (work / "warehouse" / "catalog.duckdb").is_file() and not (site / "demoforge" / "warehouse").exists()
 
 
 def test_checkout_packages_are_reached_only_through_demoforge():
