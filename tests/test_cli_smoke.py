@@ -43,8 +43,12 @@ def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_
     """augment -> llm-eval (the LLM-free strategies) -> variations (default strategies, the spatial kind)
     -> render-episode, on trash_take's ingest."""
     wh = ingested_warehouse
-    _run("augment", str(trash_take), "-n", "20", "--mirrored", "10")
+    r = _run("augment", str(trash_take), "-n", "20", "--mirrored", "10")
     assert _count("episodes", wh) == 21  # the original, 10 translated, 10 mirrored
+    # the demonstration every episode comes from, executed by the robot and said in one line
+    assert "robot check of the ingested demonstration: success: can centre in bin frame" in r.output
+    assert query("SELECT success FROM ingested_demo_checks WHERE take = ?", wh, [trash_take.name]).to_pylist() == [
+        {"success": True}]
 
     r = _run("llm-eval", "--task", "trash_in_bin", "--strategy", "replay_top1", "--strategy", "transform_demo",
              "--trials", "1")
@@ -85,3 +89,21 @@ def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
 
     out = json.loads(_run("sql", "SELECT count(*) AS n FROM benchmarks", "-f", "json").output)
     assert out == {"n": 1}
+
+
+def test_augment_warns_on_stderr_when_the_robot_fails_the_demonstration_itself(tmp_path, capsys):
+    import pyarrow as pa
+
+    from demoforge.cli.pipeline import _say_demo_check
+    from demoforge.schemas.core import write_table
+    from demoforge.tasks.common import Manifest
+
+    row = {"task": "pouring", "take": "my_take", "detector": "mediapipe", "status": "executed", "success": False,
+           "failure": "table_collision", "detail": "arm 1 pushes on the table with 65 N at t = 1.13 s",
+           "frames": 359, "wall_s": 0.04, "valid_left": 0.5, "valid_right": 0.9, "trusted_hands": 2}
+    written = write_table("ingested_demo_checks", pa.Table.from_pylist([row]), tmp_path / "wh")
+    _say_demo_check(Manifest.from_written("ingested_demo_checks", written), tmp_path / "my_take")
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.startswith("warning: the robot fails the ingested demonstration itself: "
+                                                "table_collision (arm 1 pushes on the table")
+    assert "every episode of this database is built from it" in out.err and out.err.count("\n") == 1

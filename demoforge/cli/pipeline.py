@@ -142,6 +142,24 @@ def augment(
     t = query("SELECT kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid FROM episodes "
               "WHERE take = ? GROUP BY kind ORDER BY kind", current_warehouse(), [Path(path).resolve().name])
     _emit(t, OutputFormat.table, None, 10)
+    _say_demo_check(result.get("demo_check"), path)
+
+
+def _say_demo_check(check, path: Path) -> None:
+    """One line on the robot executing the ingested demonstration; a failure is a warning on stderr:
+    every episode of the database is built from that trajectory."""
+    from demoforge.schemas.core import read_table_file
+
+    rows = [r for f in (check.files if check is not None else []) for r in read_table_file("ingested_demo_checks", f).to_pylist()]
+    if not rows:
+        return
+    r = rows[0]
+    if r["success"]:
+        typer.echo(f"robot check of the ingested demonstration: {r['detail']}")  # "success: ..."
+    else:
+        typer.echo(f"warning: the robot fails the ingested demonstration itself: {r['failure']} ({r['detail']}); "
+                   f"every episode of this database is built from it. Check the hand detections "
+                   f"(demoforge view {path} --rrd take.rrd) or ingest with another detector", err=True)
 
 
 @app.command()
