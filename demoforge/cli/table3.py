@@ -19,7 +19,7 @@ def table3_cmd(
     protocol: Optional[List[str]] = typer.Option(None, "--protocol", "-p", help="thesis (default: query scenes from each take's own augmentation sampler, held-out seeds) or novel (the task library's independent placements with yaw, against a database built to cover them). Repeatable."),
     takes: int = typer.Option(5, min=1, help="Synthetic takes (seeds seed, seed+1, ...), each with its own database."),
     scenes: int = typer.Option(10, min=1, help="Query scenes per take (the thesis: 10)."),
-    llm_scenes: Optional[int] = typer.Option(None, min=0, help="Scenes of the three LLM strategies (default: all `scenes`; a trial of the local model takes 35-50 s on 2 cores)."),
+    llm_scenes: Optional[int] = typer.Option(None, min=0, help="Scenes of the three LLM strategies (default: all `scenes`; a trial of the local model takes 14-50 s on 2 cores, by CPU, examples and number format)."),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval (the LLM prompts), replay_original, replay_top1, knn_blend, transform_demo (LLM-free), policy (repeatable; default all)."),
     backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
     model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model name for the openai backend."),
