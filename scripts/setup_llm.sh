@@ -23,7 +23,9 @@ for tool in cmake g++; do
 done
 
 want=$(sed -n 's/^llama-cpp-python==//p' requirements/llm.txt)
-NO_AMX="-mno-amx-tile -mno-amx-int8 -mno-amx-bf16"
+# (x86-64 only: other compilers' targets have no such flags)
+NO_AMX=""
+[ "$(uname -m)" = x86_64 ] && NO_AMX="-mno-amx-tile -mno-amx-int8 -mno-amx-bf16"
 # 0: the wanted version, built without AMX kernels; 1: not installed or another version; 2: AMX build
 installed_build() {
     "$PY" - "$want" <<'PY' 2>/dev/null
@@ -48,7 +50,7 @@ if [ "$state" != 0 ]; then
     flags="--no-cache-dir"
     [ "$state" = 2 ] && flags="$flags --force-reinstall --no-deps"
     CMAKE_BUILD_PARALLEL_LEVEL="$(nproc)" \
-    CMAKE_ARGS="-DCMAKE_C_FLAGS='$NO_AMX' -DCMAKE_CXX_FLAGS='$NO_AMX' ${CMAKE_ARGS:-}" \
+    CMAKE_ARGS="${NO_AMX:+-DCMAKE_C_FLAGS='$NO_AMX' -DCMAKE_CXX_FLAGS='$NO_AMX' }${CMAKE_ARGS:-}" \
         "$PY" -m pip install -q $flags "llama-cpp-python==$want"
     state=0; installed_build || state=$?
     if [ "$state" != 0 ]; then
