@@ -150,7 +150,8 @@ def _say_demo_check(check, path: Path) -> None:
     every episode of the database is built from that trajectory."""
     from demoforge.schemas.core import read_table_file
 
-    rows = [r for f in (check.files if check is not None else []) for r in read_table_file("ingested_demo_checks", f).to_pylist()]
+    files = check.files if check is not None else []
+    rows = [r for f in files for r in read_table_file("ingested_demo_checks", f).to_pylist()]
     if not rows:
         return
     r = rows[0]
