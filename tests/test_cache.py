@@ -161,12 +161,10 @@ def test_the_whole_run_key_sees_every_source_file_of_the_package(tmp_path):
     want = {"demoforge": root / "demoforge", "demoforge.lib": root / "lib", "demoforge.tasks": root / "tasks",
             "demoforge.flows": root / "flows", "demoforge.schemas": root / "schemas"}
     assert run_cache.code_dirs() == want
-    copy = {}
+    # a copy laid out like a checkout: lib/ with the dependency pins beside it
+    copy = {name: tmp_path / "checkout" / folder.name for name, folder in want.items()}
     for name, folder in want.items():
-        copy[name] = tmp_path / name
         shutil.copytree(folder, copy[name], ignore=shutil.ignore_patterns("__pycache__"))
-    copy["demoforge.lib"] = tmp_path / "checkout" / "lib"   # the pins beside lib/, as in a checkout
-    shutil.copytree(root / "lib", copy["demoforge.lib"], ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(root / "requirements", tmp_path / "checkout" / "requirements")
     shutil.copy(root / "pyproject.toml", tmp_path / "checkout")
     before = run_cache.code_fingerprint(copy)
