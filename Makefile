@@ -5,8 +5,9 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
-# test processes (pytest-xdist, whole files per worker); 0 runs the suite in this process
-PYTEST_WORKERS ?= 2
+# test processes (pytest-xdist, whole files per worker): one more than the cores, up to 4, since about a
+# sixth of the suite waits on servers and subprocesses; 0 runs the suite in this process
+PYTEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); echo $$(( n < 3 ? n + 1 : 4 )))
 
 .PHONY: setup test evaluate bench catalog table3 help check-exports
 
