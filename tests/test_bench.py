@@ -1,5 +1,9 @@
 """`make bench` machinery: cases are checked against their baseline and land in `benchmarks`."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -83,6 +87,19 @@ def test_bench_flow_writes_rows_queryable_in_sql(prefect_api, warehouse):
                for r in t.to_pylist())
     with pytest.raises(ValueError, match="unknown benchmark stage"):
         run_benchmarks(str(warehouse), stages=["nope"], quick=True)
+
+
+def test_the_cases_scratch_files_are_removed_when_the_process_ends(tmp_path):
+    scratch = tmp_path / "tmpdir"
+    scratch.mkdir()
+    code = ("import pathlib, sys; from demoforge.bench.run import CASE_FACTORIES; "
+            "from demoforge.bench.timing import run_case; [run_case(c) for c in CASE_FACTORIES['warehouse'](True)]; "
+            "print(sum(p.is_file() for p in pathlib.Path(sys.argv[1]).rglob('*.parquet')))")
+    r = subprocess.run([sys.executable, "-c", code, str(scratch)], capture_output=True, text=True,
+                       env={**os.environ, "TMPDIR": str(scratch)}, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout.split()[-1]) >= 2  # the fast path's and the baseline's tables were written there
+    assert list(scratch.iterdir()) == []
 
 
 def test_the_help_names_every_registered_stage():

@@ -1,7 +1,10 @@
 """demoforge.lib.takes.reader: a synthetic take read back, and every kind of bad input."""
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -157,6 +160,32 @@ def test_truncated_video_keeps_decodable_frames(synth_take, tmp_path):
     png = cv2.imread(str(synth_take / "rgb" / "000002.png"))[..., ::-1]
     assert np.abs(rgb[2].astype(int) - png).mean() < 8
     assert take.notes and "truncated" in take.notes[0]
+
+
+def test_salvaged_streams_are_decoded_and_their_folders_removed_when_the_process_ends(synth_take, tmp_path):
+    """Without a cache_dir the salvaged stream lives in a temporary folder: there while the process
+    reads the take, gone after it exits, and no folder is left behind by a video that cannot be saved."""
+    trunc, broken = tmp_path / "trunc", tmp_path / "broken"
+    for dst in (trunc, broken):
+        shutil.copytree(synth_take, dst)
+        shutil.rmtree(dst / "rgb")
+    data = (trunc / "rgb.mp4").read_bytes()
+    (trunc / "rgb.mp4").write_bytes(data[: int(len(data) * 0.6)])
+    (broken / "rgb.mp4").write_bytes(b"\x00\x00\x00\x18ftypisom" + b"\x00" * 100)
+    scratch = tmp_path / "tmpdir"
+    scratch.mkdir()
+    code = ("import sys, pathlib; from demoforge.lib.takes import open_take; "
+            "t = open_take(sys.argv[1]); b = open_take(sys.argv[2]); "
+            "print(sorted(p.name for p in pathlib.Path(sys.argv[3]).rglob('*'))); "
+            "print(sum(f.status == 'ok' for f in t.frames), sum(f.status == 'ok' for f in b.frames))")
+    r = subprocess.run([sys.executable, "-c", code, str(trunc), str(broken), str(scratch)], capture_output=True,
+                       text=True, env={**os.environ, "TMPDIR": str(scratch)}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    during, ok = r.stdout.splitlines()[-2:]
+    assert "rgb.salvaged.m4v" in during and during.count("demoforge_video_") == 1  # the failed one: none
+    n_trunc, n_broken = map(int, ok.split())
+    assert 3 <= n_trunc < 12 and n_broken == 0
+    assert list(scratch.iterdir()) == []
 
 
 def test_unopenable_video_is_reported_not_fatal(take_copy):

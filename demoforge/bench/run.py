@@ -21,6 +21,16 @@ from demoforge.schemas.core import Column, TableSchema, keypoints3d, write_table
 CASE_FACTORIES: dict[str, Callable[[bool], list[BenchCase]]] = {}
 
 
+def _scratch_folder(prefix: str = "demoforge-bench-") -> Path:
+    """A temporary folder for a case's files, removed when the process ends (tens of MB per run)."""
+    import atexit
+    import shutil
+
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, True)
+    return folder
+
+
 def register(stage: str) -> Callable:
     def deco(factory: Callable[[bool], list[BenchCase]]) -> Callable[[bool], list[BenchCase]]:
         CASE_FACTORIES[stage] = factory
@@ -42,7 +52,7 @@ def _warehouse_cases(quick: bool) -> list[BenchCase]:
         rng = np.random.default_rng(0)
         joints = rng.normal(size=(n, 21, 3))
         frame = np.arange(n, dtype=np.int64)
-        tmp = Path(tempfile.mkdtemp(prefix="demoforge-bench-"))
+        tmp = _scratch_folder()
 
         def fast():
             return write_table(_SCRATCH, {"frame": frame, "joints": joints}, tmp / "fast")
@@ -196,7 +206,7 @@ def _synth_cases(quick: bool) -> list[BenchCase]:
     def setup_write(n: int):
         from demoforge.lib.synth.take import generate_take
 
-        root = Path(tempfile.mkdtemp(prefix="demoforge-bench-take-"))
+        root = _scratch_folder("demoforge-bench-take-")
         generate_take("pouring", 0, False, root / "warm-up", max_frames=2)  # imports, EGL, codecs: untimed
 
         def run(queue: int):
@@ -246,7 +256,7 @@ def _augmentation_cases(quick: bool) -> list[BenchCase]:
         task = get_task("empty_vase")
         batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1,
                                   n_mirrored=(k - 1) // 2, seed=0, materialize=True)
-        tmp = Path(tempfile.mkdtemp(prefix="demoforge-bench-"))
+        tmp = _scratch_folder()
 
         def fast():
             return write_table("episode_steps", episode_steps_columns("empty_vase", "bench", batch), tmp)[0].rows

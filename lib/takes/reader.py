@@ -38,6 +38,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -50,6 +51,16 @@ from demoforge.lib.takes.media import (
     _video_props,
 )
 
+
+def _folder_removed_at_exit(prefix: str) -> Path:
+    """A temporary folder for a salvaged video stream, which is decoded until this process ends: removed
+    then, so that reading truncated takes does not fill the temporary directory."""
+    import atexit
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, True)
+    return folder
 
 def open_take(path: str | os.PathLike, *, prefer: str = "images",
               cache_dir: str | os.PathLike | None = None) -> Take:
@@ -97,9 +108,7 @@ def open_take(path: str | os.PathLike, *, prefer: str = "images",
     if video is not None:
         props = _video_props(video)
         if props is None:
-            import tempfile
-
-            where = Path(cache_dir) if cache_dir is not None else Path(tempfile.mkdtemp(prefix="demoforge_video_"))
+            where = Path(cache_dir) if cache_dir is not None else _folder_removed_at_exit("demoforge_video_")
             salv = _salvage_mp4(video, camera, where)
             if salv is not None:
                 decode_path, n_ok = salv
@@ -108,6 +117,8 @@ def open_take(path: str | os.PathLike, *, prefer: str = "images",
                               f"recovered, the rest of the video is lost")
                 notes.append(video_note)
             else:
+                if cache_dir is None:
+                    shutil.rmtree(where, ignore_errors=True)
                 video_note = (f"{video.name} cannot be opened by OpenCV (truncated or corrupt file: its index "
                               f"may be missing); re-export the video or provide rgb/ frames")
                 notes.append(video_note)
