@@ -39,6 +39,7 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_DASK_ADDRESS": "scheduler of an existing Dask cluster",
     "DEMOFORGE_DASK_WORKERS": "worker processes of a local Dask cluster (default 2)",
     "DEMOFORGE_DEBUG": "full tracebacks instead of one-line errors",
+    "DEMOFORGE_NATIVE_LOGS": "1: MediaPipe's C++ warnings go to stderr (default: kept out of the terminal)",
     "DEMOFORGE_DETECTORS": "hand detectors `evaluate` ingests every take with",
     # the LLM
     "DEMOFORGE_LLM_BACKEND": "local (embedded Gemma 3 270M) or openai",
@@ -109,6 +110,7 @@ class Settings:
     task_runner: str = "threads"
     dask_address: str | None = None
     dask_workers: str = "2"
+    native_logs: bool = False
     llm_backend: str | None = None
     llm_model: str | None = None
     openai_base_url: str | None = None
@@ -138,6 +140,7 @@ def read_settings(environ: Mapping[str, str] | None = None) -> Settings:
         task_runner=(env.get("DEMOFORGE_TASK_RUNNER") or "threads").strip().lower() or "threads",
         dask_address=env.get("DEMOFORGE_DASK_ADDRESS") or None,
         dask_workers=env.get("DEMOFORGE_DASK_WORKERS", "2"),
+        native_logs=env.get("DEMOFORGE_NATIVE_LOGS", "").strip() not in ("", "0"),
         llm_backend=env.get("DEMOFORGE_LLM_BACKEND") or None,
         llm_model=env.get("DEMOFORGE_LLM_MODEL") or None,
         openai_base_url=env.get("OPENAI_BASE_URL") or None,

@@ -37,8 +37,11 @@ labelled photos). On the default synthetic takes video mode finds far more hands
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
 import sys
+import tempfile
 import threading
 import weakref
 from pathlib import Path
@@ -50,12 +53,78 @@ from demoforge.lib.perception.detectors import (
     N_JOINTS, DetectorError, HandCandidate, HandDetector, fit_translation_to_2d,
 )
 
-__all__ = ["MediaPipeDetector", "default_model_path", "LABEL_IS_PERSON_HAND"]
+__all__ = ["MediaPipeDetector", "default_model_path", "LABEL_IS_PERSON_HAND", "native_stderr"]
 
 MODEL_ENV = "DEMOFORGE_HAND_LANDMARKER"
 #: Whether MediaPipe Tasks' category name equals the person's hand on a NON-mirrored image
 #: (measured on the labelled photos, see the module docstring).
 LABEL_IS_PERSON_HAND = True
+
+
+#: Set to 1 to let MediaPipe's C++ warnings through to the terminal (they are kept out by default).
+SHOW_NATIVE_LOGS_ENV = "DEMOFORGE_NATIVE_LOGS"  # read by demoforge.lib.settings
+#: What MediaPipe's C++ side (glog, TFLite) writes on every graph it builds or first runs: warnings about
+#: the model file and the graph, none of them about the user's data.
+_NATIVE_NOISE = re.compile(rb"^(?:[WI]0000 |INFO: Created TensorFlow Lite|WARNING: Logging before InitGoogle|"
+                           rb"WARNING: Read-only tensor)")
+
+
+class NativeStderr:
+    """File descriptor 2 diverted to a scratch file around each call into MediaPipe's C++ code, which
+    writes to it directly (Python's ``sys.stderr`` and logging cannot filter it, and glog's and TF's
+    environment variables do not silence it): the known warnings are kept in :attr:`messages`, any
+    other byte (an error, or another thread's output) is written through to the real stderr."""
+
+    MAX_MESSAGES = 200
+
+    def __init__(self):
+        self.messages: list[str] = []
+        self._lock = threading.Lock()  # fd 2 belongs to the whole process
+        self._scratch = None
+
+    @contextlib.contextmanager
+    def diverted(self):
+        from demoforge.lib.settings import read_settings
+
+        if read_settings().native_logs:
+            yield
+            return
+        with self._lock:
+            try:
+                sys.stderr.flush()
+                saved = os.dup(2)
+            except (OSError, ValueError, AttributeError):  # no usable stderr: nothing to keep clean
+                yield
+                return
+            if self._scratch is None:
+                self._scratch = tempfile.TemporaryFile()
+            os.dup2(self._scratch.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                self._sort()
+
+    def _sort(self) -> None:
+        f = self._scratch
+        f.seek(0)
+        data = f.read()
+        f.seek(0)
+        f.truncate()
+        keep = []
+        for line in data.splitlines(keepends=True):
+            if _NATIVE_NOISE.match(line):
+                if len(self.messages) < self.MAX_MESSAGES:
+                    self.messages.append(line.decode("utf-8", "replace").rstrip())
+            else:
+                keep.append(line)
+        if keep:
+            os.write(2, b"".join(keep))
+
+
+#: The process's one diversion of fd 2 (shared by every MediaPipe detector).
+native_stderr = NativeStderr()
 
 
 def default_model_path() -> Path:
@@ -137,7 +206,8 @@ class MediaPipeDetector(HandDetector):
             base_options=self._base_options(model_asset_path=str(self.model_path)),
             running_mode=vision.RunningMode.VIDEO if mode == "video" else vision.RunningMode.IMAGE, **self._opts)
         try:
-            return vision.HandLandmarker.create_from_options(opts)
+            with native_stderr.diverted():
+                return vision.HandLandmarker.create_from_options(opts)
         except Exception as e:  # noqa: BLE001 - bad model file etc.
             raise DetectorError(f"MediaPipe could not load {self.model_path}: {e}") from e
 
@@ -199,9 +269,11 @@ class MediaPipeDetector(HandDetector):
             ts = max(ts, self._last_ts + 1)
             self._last_ts = ts
             lm = self._take_landmarker if self._take_landmarker is not None else self._landmarker
-            res = lm.detect_for_video(mp_img, ts)
+            with native_stderr.diverted():
+                res = lm.detect_for_video(mp_img, ts)
         else:
-            res = self._landmarker.detect(mp_img)
+            with native_stderr.diverted():
+                res = self._landmarker.detect(mp_img)
         out = []
         for k, lms in enumerate(res.hand_landmarks):
             cat = res.handedness[k][0] if res.handedness and res.handedness[k] else None
