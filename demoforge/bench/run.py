@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import secrets
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Iterable
@@ -15,20 +14,11 @@ from prefect import flow, get_run_logger
 
 from demoforge.bench.timing import BenchCase, BenchResult, run_case
 from demoforge.runtime.provenance import git_commit, machine_info
+from demoforge.lib.scratch import folder_removed_at_exit
 from demoforge.schemas.core import Column, TableSchema, keypoints3d, write_table
 
 # Each stage registers a function quick -> list[BenchCase] here.
 CASE_FACTORIES: dict[str, Callable[[bool], list[BenchCase]]] = {}
-
-
-def _scratch_folder(prefix: str = "demoforge-bench-") -> Path:
-    """A temporary folder for a case's files, removed when the process ends (tens of MB per run)."""
-    import atexit
-    import shutil
-
-    folder = Path(tempfile.mkdtemp(prefix=prefix))
-    atexit.register(shutil.rmtree, folder, True)
-    return folder
 
 
 def register(stage: str) -> Callable:
@@ -52,7 +42,7 @@ def _warehouse_cases(quick: bool) -> list[BenchCase]:
         rng = np.random.default_rng(0)
         joints = rng.normal(size=(n, 21, 3))
         frame = np.arange(n, dtype=np.int64)
-        tmp = _scratch_folder()
+        tmp = folder_removed_at_exit("demoforge-bench-")
 
         def fast():
             return write_table(_SCRATCH, {"frame": frame, "joints": joints}, tmp / "fast")
@@ -206,7 +196,7 @@ def _synth_cases(quick: bool) -> list[BenchCase]:
     def setup_write(n: int):
         from demoforge.lib.synth.take import generate_take
 
-        root = _scratch_folder("demoforge-bench-take-")
+        root = folder_removed_at_exit("demoforge-bench-take-")
         generate_take("pouring", 0, False, root / "warm-up", max_frames=2)  # imports, EGL, codecs: untimed
 
         def run(queue: int):
@@ -256,7 +246,7 @@ def _augmentation_cases(quick: bool) -> list[BenchCase]:
         task = get_task("empty_vase")
         batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1,
                                   n_mirrored=(k - 1) // 2, seed=0, materialize=True)
-        tmp = _scratch_folder()
+        tmp = folder_removed_at_exit("demoforge-bench-")
 
         def fast():
             return write_table("episode_steps", episode_steps_columns("empty_vase", "bench", batch), tmp)[0].rows

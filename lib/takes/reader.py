@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Iterator, Sequence
 import numpy as np
 
+from demoforge.lib.scratch import folder_removed_at_exit
 from demoforge.lib.takes.types import DEPTH_EXTS, FrameBatch, FrameInfo, IMAGE_EXTS, Take, TakeError
 from demoforge.lib.takes.metadata import _load_json, parse_annotations, parse_camera
 from demoforge.lib.takes.media import (
@@ -51,16 +52,6 @@ from demoforge.lib.takes.media import (
     _video_props,
 )
 
-
-def _folder_removed_at_exit(prefix: str) -> Path:
-    """A temporary folder for a salvaged video stream, which is decoded until this process ends: removed
-    then, so that reading truncated takes does not fill the temporary directory."""
-    import atexit
-    import tempfile
-
-    folder = Path(tempfile.mkdtemp(prefix=prefix))
-    atexit.register(shutil.rmtree, folder, True)
-    return folder
 
 def open_take(path: str | os.PathLike, *, prefer: str = "images",
               cache_dir: str | os.PathLike | None = None) -> Take:
@@ -108,7 +99,7 @@ def open_take(path: str | os.PathLike, *, prefer: str = "images",
     if video is not None:
         props = _video_props(video)
         if props is None:
-            where = Path(cache_dir) if cache_dir is not None else _folder_removed_at_exit("demoforge_video_")
+            where = Path(cache_dir) if cache_dir is not None else folder_removed_at_exit("demoforge_video_")
             salv = _salvage_mp4(video, camera, where)
             if salv is not None:
                 decode_path, n_ok = salv
