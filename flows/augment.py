@@ -9,12 +9,14 @@ import numpy as np
 from prefect import flow
 
 import demoforge.lib  # noqa: F401
-from demoforge.flows.ingest import ingest_take
+from demoforge.flows.ingest import check_demonstration, ingest_take
 from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.takes import open_take
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.ingest import take_task_name
 
 
 @flow(name="augment-take")
@@ -47,7 +49,7 @@ def augment_take_flow(
     ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
         from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
-        from demoforge.lib.takes import TakeError, open_take
+        from demoforge.lib.takes import TakeError
 
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
     if not allow_untrusted_hands:
@@ -57,27 +59,11 @@ def augment_take_flow(
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
                          seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}))
-    return {**ingested, "segments": segments, "episodes": episodes,
-            "demo_check": check_demonstration(path, warehouse, task, ingested)}
-
-
-def check_demonstration(path: str, warehouse: str, task: str | None, ingested: dict) -> Manifest | None:
-    """The robot executing the take's ingested demonstration, the trajectory every episode of the
-    database is built from (`ingested_demo_checks`, cached): when it fails, so will the episodes, and the
-    user hears it at once instead of after a whole-database robot check. None for a task the robot
-    simulator does not know (a custom task)."""
-    from demoforge.lib.sim import scene_fingerprint
-    from demoforge.lib.takes import open_take
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.tasks.ingest import take_task_name
-    from demoforge.tasks.sim import check_ingested_demo
-
-    name = take_task_name(open_take(path), task)
-    if name not in TASK_NAMES:
-        return None
-    return run_stage(check_ingested_demo, warehouse, take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
-                     grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"],
-                     presence=ingested["hand_presence"], scene=scene_fingerprint(name))
+    # the robot executing the demonstration every episode is built from: when it fails, so will the
+    # episodes, and the user hears it at once instead of after a whole-database robot check
+    demo_check = check_demonstration(Path(path).resolve(), warehouse, task, take_task_name(open_take(path), task),
+                                     ingested)
+    return {**ingested, "segments": segments, "episodes": episodes, "demo_check": demo_check}
 
 
 def require_trusted_hands(presence: Manifest) -> None:

@@ -110,10 +110,9 @@ def ingest_side_by_side(
     from demoforge.runtime.runners import run_flow
     from demoforge.lib.errors import one_line
     from demoforge.lib.takes import open_take
-    from demoforge.lib.sim import scene_fingerprint
     from demoforge.lib.task_library import TASK_NAMES
     from demoforge.tasks.ingest import ingest_keypoint_metrics
-    from demoforge.tasks.sim import check_ingested_demo, demo_failure_row
+    from demoforge.tasks.sim import demo_failure_row
 
     logger = get_run_logger()
     take_dir = Path(path).resolve()
@@ -131,10 +130,8 @@ def ingest_side_by_side(
             if variant is not None:
                 res["keypoints"] = run_stage(ingest_keypoint_metrics, warehouse, **common,
                                              hand_keypoints=ingested["hand_keypoints"], **var)
-            if check_demo and ingested["object_keypoints"] is not None and name in TASK_NAMES:
-                res["demo"] = run_stage(check_ingested_demo, warehouse, **common, grippers=ingested["gripper_poses"],
-                                        objects=ingested["object_keypoints"], presence=ingested["hand_presence"],
-                                        scene=scene_fingerprint(name), **var)
+            if check_demo:
+                res["demo"] = check_demonstration(take_dir, warehouse, task, name, ingested, **var)
         except Exception as e:  # noqa: BLE001  (one detector's failure must not hide the other's rows)
             res["error"] = f"{type(e).__name__}: {one_line(e)}"[:2000]
             logger.warning("take %s, detector %s: %s", take_dir.name, det, res["error"])
@@ -145,3 +142,19 @@ def ingest_side_by_side(
                                                                      res["error"]), warehouse)
         out[det] = res
     return out
+
+
+def check_demonstration(take_dir: Path, warehouse: str, task: str | None, task_name: str, ingested: dict,
+                        **variant) -> Manifest | None:
+    """The robot executing the ingested demonstration in MuJoCo (`ingested_demo_checks`, cached), or None
+    for a take without object keypoints or a task the robot simulator does not know (a custom task).
+    ``variant``: the detector's variant of the ingest (see detector_variant)."""
+    from demoforge.lib.sim import scene_fingerprint
+    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.tasks.sim import check_ingested_demo
+
+    if ingested["object_keypoints"] is None or task_name not in TASK_NAMES:
+        return None
+    return run_stage(check_ingested_demo, warehouse, take_dir=take_dir, task=task, warehouse=warehouse,
+                     grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"],
+                     presence=ingested["hand_presence"], scene=scene_fingerprint(task_name), **variant)
