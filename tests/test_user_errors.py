@@ -122,3 +122,18 @@ def test_usage_errors_stay_clicks_own(warehouse):
     assert r.exit_code == 2 and "No such option" in r.stderr and "crashed" not in r.stderr
     r = runner.invoke(app, ["sql", "SELECT 1", "--max-rows", "many"])
     assert r.exit_code == 2 and "crashed" not in r.stderr
+
+
+def test_output_into_a_closed_pipe_ends_quietly(tmp_path):
+    """`demoforge sql ... | head -1`: once the reader has gone, writing to stdout fails (EPIPE). That is
+    no crash of demoforge: no "crashed ... this is a bug" report, exit code 1 as Click's own commands."""
+    for args in (["sql", "SELECT * FROM range(200000)", "--format", "csv"], ["tables"]):
+        read_end, write_end = os.pipe()
+        os.close(read_end)  # the reader is gone before demoforge writes its first byte
+        try:
+            p = subprocess.run([sys.executable, "-m", "demoforge.cli", *args], cwd=PROJECT, stdout=write_end,
+                               stderr=subprocess.PIPE, text=True, timeout=120,
+                               env={**os.environ, "DEMOFORGE_WAREHOUSE": str(tmp_path / "warehouse")})
+        finally:
+            os.close(write_end)
+        assert (p.returncode, p.stderr) == (1, ""), (args, p.stderr)

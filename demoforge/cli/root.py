@@ -32,6 +32,8 @@ class _ErrorsAtTheBoundary(TyperGroup):
             return super().invoke(ctx)
         except _CLICK_OWN:
             raise
+        except BrokenPipeError:
+            raise  # the reader of stdout went away (`| head`): Typer ends quietly, as Unix tools do
         except Exception as e:
             if State.debug:
                 raise
