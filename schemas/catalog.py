@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import threading
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -57,12 +58,22 @@ def _sql_literal(s: str) -> str:
     return "'" + s.replace("'", "''") + "'"
 
 
+_TYPES: dict[pa.Schema, list[str]] = {}
+_TYPES_LOCK = threading.Lock()
+_TYPES_CONNECTION: list[duckdb.DuckDBPyConnection] = []  # one in-memory connection, made on first use
+
+
 def _duckdb_types(schema: TableSchema) -> list[str]:
-    con = duckdb.connect()
-    try:
-        return [str(t) for t in con.from_arrow(schema.arrow.empty_table()).types]
-    finally:
-        con.close()
+    """The DuckDB type of each column of the contract. Asked of DuckDB once per contract and process,
+    on one connection: each catalog build needs all of them, and a fresh connection per contract per
+    build made them most of the build's time (about 0.5 s for 30 tables)."""
+    arrow = schema.arrow
+    with _TYPES_LOCK:
+        if arrow not in _TYPES:
+            if not _TYPES_CONNECTION:
+                _TYPES_CONNECTION.append(duckdb.connect())
+            _TYPES[arrow] = [str(t) for t in _TYPES_CONNECTION[0].from_arrow(arrow.empty_table()).types]
+        return list(_TYPES[arrow])
 
 
 def _view_sql(root: Path, schema: TableSchema) -> str:

@@ -15,7 +15,7 @@ from prefect import flow, get_run_logger
 from demoforge.bench.timing import BenchCase, BenchResult, run_case
 from demoforge.runtime.provenance import git_commit, machine_info
 from demoforge.lib.scratch import folder_removed_at_exit
-from demoforge.schemas.core import Column, TableSchema, keypoints3d, write_table
+from demoforge.schemas.core import Column, TableSchema, keypoints3d, registry, write_table
 
 # Each stage registers a function quick -> list[BenchCase] here.
 CASE_FACTORIES: dict[str, Callable[[bool], list[BenchCase]]] = {}
@@ -57,9 +57,52 @@ def _warehouse_cases(quick: bool) -> list[BenchCase]:
 
         return fast, baseline
 
+    def catalog_setup(n: int):
+        from demoforge.schemas import catalog
+
+        root = folder_removed_at_exit("demoforge-bench-") / "warehouse"
+
+        def views(path: Path) -> list[tuple[str, str]]:
+            import duckdb
+
+            con = duckdb.connect(str(path), read_only=True)
+            try:
+                return con.execute("SELECT view_name, sql FROM duckdb_views() WHERE NOT internal AND "
+                                   "view_name <> '_catalog' ORDER BY view_name").fetchall()
+            finally:
+                con.close()
+
+        def fast():
+            return views(catalog.build_catalog(root))
+
+        def fresh_types(schema: TableSchema) -> list[str]:
+            import duckdb
+
+            con = duckdb.connect()
+            try:
+                return [str(t) for t in con.from_arrow(schema.arrow.empty_table()).types]
+            finally:
+                con.close()
+
+        def baseline():
+            # what every build did before: a new DuckDB connection per contract to learn its column types
+            cached, catalog._duckdb_types = catalog._duckdb_types, fresh_types
+            try:
+                return views(catalog.build_catalog(root))
+            finally:
+                catalog._duckdb_types = cached
+
+        return fast, baseline
+
+    def same_views(a, b):
+        assert a == b, "the catalog's views differ"
+
     return [
         BenchCase("warehouse", "validate+atomic write, 21x3 keypoints", rows, "rows",
                   "per-row Python lists -> pyarrow -> Parquet, no validation", setup),
+        BenchCase("warehouse", "catalog rebuild (a view per contract)", len(registry()), "views",
+                  "the same build with a new DuckDB connection per contract for its column types", catalog_setup,
+                  check=same_views),
     ]
 
 
