@@ -75,7 +75,7 @@ def pytest_terminal_summary(terminalreporter):
 # no two of them run at the same time on the 2 cores (each ran 3-7 x slower when they did).
 LONGEST_FIRST = (
     "test_resume.py", "test_bad_inputs.py", "test_ingest_augment_flow.py", "test_annotate.py",
-    "test_dask_runner.py", "test_evaluate.py", "test_table3.py", "test_catalog.py", "test_sim_stability.py",
+    "test_dask_runner.py", "test_table3.py", "test_catalog.py", "test_sim_stability.py",
     "test_task_library.py", "test_hand_tracking_flow.py", "test_real_detector_flow.py", "test_exports.py",
     "test_cli_smoke.py", "test_packaging.py", "test_deployments.py", "test_variations.py",
 )

@@ -1,9 +1,11 @@
-"""Robustness of the main job: interrupt `demoforge evaluate` with SIGINT, then kill it with SIGKILL
-(the whole process group, as a crash would), run it again: it resumes, does not redo finished stages,
-and its tables equal those of an uninterrupted run."""
+"""The main job end to end, and its robustness: `demoforge evaluate` on one task writes the report with
+every section; interrupted with SIGINT, then killed with SIGKILL (the whole process group, as a crash
+would), and run again, it resumes, does not redo finished stages, and its tables equal those of an
+uninterrupted run; a run with nothing changed returns from the cache."""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -97,16 +99,52 @@ def _table(warehouse: Path, name: str) -> pa.Table:
     return t.sort_by([(k, "ascending") for k in keys])
 
 
-def test_evaluate_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(tmp_path, prefect_api_env):
+def _check_report(reports: Path, have_photos: bool, have_mediapipe: bool) -> None:
+    """Every section of REPORT.md, its CSVs and figures, and the detectors side by side."""
+    text = (reports / "REPORT.md").read_text()
+    for heading in ("## Takes", "## Scripted demonstrations in physics", "## Ingest accuracy per task",
+                    "## Segmentation against the scripted boundaries", "## Augmented episodes",
+                    "## Table 1: MPJPE and PA-MPJPE (m) — synthetic, by detector",
+                    "## Robot success on the ingested demonstrations, per detector",
+                    "## Table 2: 2D MPJPE (px) and PCK", "## Appendix B: per take",
+                    "## A real detector on labelled real photos", "## How stable the robot check's verdicts are"):
+        assert heading in text
+    assert "synth_trash_in_bin_s0000" in text and "simulated" in text
+    assert "![synthetic takes](synthetic_takes.png)" in text and (reports / "synthetic_takes.png").stat().st_size > 10_000
+    assert (reports / "keypoints_per_take_synthetic_simulated.png").stat().st_size > 5_000
+    for name in ("report_takes", "report_ingest_accuracy", "report_augmentation", "report_segmentation",
+                 "report_table1_synthetic", "report_ingested_demos") + (("report_real_photos",) if have_photos else ()):
+        assert len((reports / f"{name}.csv").read_text().splitlines()) >= 2, name
+    stability = (reports / "report_sim_stability.csv").read_text().splitlines()
+    assert len(stability) == 2 and "sample-2-seed0-r2-j0.0001-s0" in stability[1]
+    # the detectors side by side: every table of the ingest's accuracy, Tables 1 and 2, the robot's check
+    detectors = ["simulated", "mediapipe"] if have_mediapipe else ["simulated"]
+    for name, rows_per_detector in (("report_ingest_by_task", 1), ("report_ingest_accuracy", 2),
+                                    ("report_table1_synthetic", 4), ("report_table2_synthetic", 2),
+                                    ("report_ingested_demos", 1)):
+        found = [r["detector"] for r in csv.DictReader((reports / f"{name}.csv").open())]
+        assert sorted(found) == sorted(d for d in detectors for _ in range(rows_per_detector)), (name, found)
+    if have_mediapipe:
+        assert (reports / "keypoints_per_take_synthetic_mediapipe.png").stat().st_size > 5_000
+    aug = (reports / "report_augmentation.csv").read_text()
+    assert '"original"' in aug and '"mirrored"' in aug and '"translated"' in aug
+
+
+def test_evaluate_writes_the_report_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(
+        tmp_path, prefect_api_env):
+    from demoforge.flows.evaluate import detector_problem
     from tests.conftest import SHARED_DATA, require_mediapipe_model
 
-    if (SHARED_DATA / "real_hands").is_dir():  # the main job runs the MediaPipe detector on the photos
+    have_photos = (SHARED_DATA / "real_hands").is_dir()
+    if have_photos:  # the main job runs the MediaPipe detector on the photos
         require_mediapipe_model()
+    have_mediapipe = detector_problem("mediapipe") is None  # else the main job leaves it out (warned)
     ref, crashed = tmp_path / "reference", tmp_path / "crashed"
     log = tmp_path / "evaluate.log"
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     _finish(_env(tmp_path, ref, prefect_api_env), tmp_path / "a", log)
+    _check_report(tmp_path / "a" / "reports", have_photos, have_mediapipe)
 
     env, own_server = _env(tmp_path, crashed, prefect_api_env), _env(tmp_path, crashed, {})
     # 1) Ctrl-C once the episode database is written, before the first robot check (parked there)
@@ -138,17 +176,18 @@ def test_evaluate_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_r
     episodes_stamp = episodes_file.stat().st_mtime_ns
     # no temporary files of interrupted writes are visible
     assert not [p for p in crashed.rglob("*") if p.is_file() and ".tmp" in p.name and "_prefect" not in p.parts]
-    from demoforge.flows.evaluate import detector_problem
-
     # the robot's check of MediaPipe's ingested demonstration: where the side-by-side ingest runs
-    for name in TABLES + (("ingested_demo_checks",) if detector_problem("mediapipe") is None else ()):
+    for name in TABLES + (("ingested_demo_checks",) if have_mediapipe else ()):
         a, b = _table(ref, name), _table(crashed, name)
         assert a.num_rows > 0, name
         assert _same_rows(a, b, ref, crashed), f"{name}: the resumed run's rows differ from the uninterrupted run"
 
-    # 4) a second run with nothing changed returns from the run-level cache; deleting a table file
-    # makes the next run notice it and recompute exactly that file
+    # 4) a second run with nothing changed returns from the run-level cache, with the same report;
+    # deleting a table file makes the next run notice it and recompute exactly that file
+    report = tmp_path / "b" / "reports" / "REPORT.md"
+    written = report.read_text()
     assert "nothing changed since the last complete run" in _finish(env, tmp_path / "b", log)
+    assert report.read_text() == written
     chunk = next(crashed.glob("sim_results/**/data.parquet"))
     chunk.unlink()
     assert "nothing changed" not in _finish(env, tmp_path / "b", log)
