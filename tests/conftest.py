@@ -150,13 +150,129 @@ def require_mediapipe_model():
     return path
 
 
+# Under pytest-xdist the controller starts one Prefect server for all workers, while they start up
+# and collect; each worker's session then talks to it instead of starting its own (about 9 s of CPU
+# each, and about 1.4 s a minute for its background services). Its URL reaches the workers in this
+# variable (not PREFECT_API_URL: tests that start demoforge without an API must still get its own
+# temporary server).
+SHARED_PREFECT_API, SHARED_PREFECT_LOG = "DEMOFORGE_TEST_PREFECT_API_URL", "DEMOFORGE_TEST_PREFECT_LOG"
+
+
+class _SharedPrefectServer:
+    """`prefect server start` on a free loopback port, with its own home and SQLite database in a
+    temporary folder; not waited for here (the workers wait for its health check)."""
+
+    def __init__(self):
+        import socket
+        import subprocess
+        import sys
+
+        self.folder = Path(tempfile.mkdtemp(prefix="demoforge-test-prefect-"))
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            port = sock.getsockname()[1]
+        self.api_url = f"http://127.0.0.1:{port}/api"
+        self.log = self.folder / "server.log"
+        env = {**os.environ, "PREFECT_HOME": str(self.folder / "home"), "PREFECT_UI_ENABLED": "false",
+               "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+               "PREFECT_SERVER_DATABASE_CONNECTION_URL": f"sqlite+aiosqlite:///{self.folder / 'prefect.db'}"}
+        with self.log.open("w") as log:
+            self.process = subprocess.Popen(
+                [str(Path(sys.executable).parent / "prefect"), "server", "start", "--host", "127.0.0.1", "--port",
+                 str(port), "--no-ui", "--analytics-off", "--log-level", "ERROR"],
+                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def stop(self):
+        self.process.terminate()
+        try:
+            self.process.wait(30)
+        except Exception:  # noqa: BLE001 (TimeoutExpired, or already gone)
+            self.process.kill()
+            self.process.wait()
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def pytest_configure(config):
+    if os.environ.get("PYTEST_XDIST_WORKER") or not getattr(config.option, "numprocesses", None):
+        return  # a worker, or no xdist: the session fixture starts a server when a test needs one
+    server = _SharedPrefectServer()
+    config._demoforge_prefect_server = server
+    # the workers, started after this hook, inherit both
+    os.environ.update({SHARED_PREFECT_API: server.api_url, SHARED_PREFECT_LOG: str(server.log)})
+
+
+def pytest_unconfigure(config):
+    server = getattr(config, "_demoforge_prefect_server", None)
+    if server is not None:
+        server.stop()
+        os.environ.pop(SHARED_PREFECT_API, None)
+        os.environ.pop(SHARED_PREFECT_LOG, None)
+
+
+def _wait_until_healthy(api_url: str, timeout_s: float = 180.0) -> None:
+    """Return once the shared server answers its health check; fail with its log if it does not come up."""
+    import time
+
+    import httpx
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            if httpx.get(f"{api_url}/health", timeout=5).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        if time.monotonic() > deadline:
+            log = Path(os.environ.get(SHARED_PREFECT_LOG, "/nonexistent"))
+            tail = log.read_text()[-2000:] if log.is_file() else "(no log)"
+            pytest.fail(f"the shared Prefect server at {api_url} did not answer its health check within "
+                        f"{timeout_s:.0f} s; its log ({log}):\n{tail}", pytrace=False)
+        time.sleep(0.2)
+
+
 @pytest.fixture(scope="session")
 def prefect_api():
-    """A real, temporary Prefect API for flows run by tests (started once per session)."""
-    from prefect.testing.utilities import prefect_test_harness
+    """A real Prefect API for flows run by tests: the server shared by the xdist workers, or else a
+    temporary one for this session (started once, on first use)."""
+    shared = os.environ.get(SHARED_PREFECT_API)
+    if not shared:
+        from prefect.testing.utilities import prefect_test_harness
 
-    with prefect_test_harness(server_startup_timeout=120):
-        yield
+        with prefect_test_harness(server_startup_timeout=120):
+            yield
+        return
+    import prefect.context
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    _wait_until_healthy(shared)
+    with temporary_settings(updates={PREFECT_API_URL: shared}):
+        # also for threads whose context was copied before this fixture (as prefect_test_harness does)
+        with prefect.context._temporary_global_settings_context(prefect.context.get_settings_context()):
+            yield
+            _drain_prefect_workers()
+
+
+def _drain_prefect_workers():
+    """Send the logs and events still queued in this process while the server is up (as
+    prefect_test_harness does before it stops its server)."""
+    import inspect
+
+    from prefect.events.worker import EventsWorker
+    from prefect.logging.handlers import APILogWorker
+    from prefect.utilities.asyncutils import run_coro_as_sync
+
+    async def drain():
+        try:
+            result = APILogWorker.instance().drain()
+            if inspect.isawaitable(result):
+                await result
+        except RuntimeError:  # never started
+            pass
+        result = EventsWorker.drain_all()
+        if inspect.isawaitable(result):
+            await result
+
+    run_coro_as_sync(drain())
 
 
 @pytest.fixture(scope="session")

@@ -67,9 +67,12 @@ def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_
 
 
 def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
+    from demoforge.bench.run import CASE_FACTORIES
+
     r = _run("bench", "--stage", "warehouse", "--quick")
     rows = query("SELECT stage, case_name FROM benchmarks", warehouse).to_pylist()
-    assert len(rows) == 1 and rows[0]["stage"] == "warehouse" and rows[0]["case_name"][:30] in r.output
+    n = len(CASE_FACTORIES["warehouse"](True))
+    assert len(rows) == n >= 1 and all(row["stage"] == "warehouse" and row["case_name"][:30] in r.output for row in rows)
 
     r = _run("catalog")
     assert (warehouse / "catalog.duckdb").is_file() and "catalog rebuilt" in r.output
@@ -83,12 +86,12 @@ def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
 
     listing = _run("tables").output
     line = next(ln for ln in listing.splitlines() if ln.split() and ln.split()[0] == "benchmarks")
-    assert "1" in line.split()[1:]  # one row
+    assert str(n) in line.split()[1:]  # one row per case
     described = _run("tables", "benchmarks").output
     assert "case_name" in described and "ratio" in described
 
     out = json.loads(_run("sql", "SELECT count(*) AS n FROM benchmarks", "-f", "json").output)
-    assert out == {"n": 1}
+    assert out == {"n": n}
 
 
 def test_augment_warns_on_stderr_when_the_robot_fails_the_demonstration_itself(tmp_path, capsys):
