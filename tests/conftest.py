@@ -234,18 +234,21 @@ def _wait_until_healthy(api_url: str, timeout_s: float = 180.0) -> None:
 def prefect_api():
     """A real Prefect API for flows run by tests: the server shared by the xdist workers, or else a
     temporary one for this session (started once, on first use)."""
+    from demoforge.runtime.runners import flow_heartbeats_off_unless_set
+
     shared = os.environ.get(SHARED_PREFECT_API)
     if not shared:
         from prefect.testing.utilities import prefect_test_harness
 
-        with prefect_test_harness(server_startup_timeout=120):
+        with prefect_test_harness(server_startup_timeout=120), flow_heartbeats_off_unless_set():
             yield
         return
     import prefect.context
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
     _wait_until_healthy(shared)
-    with temporary_settings(updates={PREFECT_API_URL: shared}):
+    # flows called directly by tests run as demoforge's commands run them (runners.run_flow)
+    with temporary_settings(updates={PREFECT_API_URL: shared}), flow_heartbeats_off_unless_set():
         # also for threads whose context was copied before this fixture (as prefect_test_harness does)
         with prefect.context._temporary_global_settings_context(prefect.context.get_settings_context()):
             yield

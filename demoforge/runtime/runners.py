@@ -123,9 +123,32 @@ def run_flow(flow_obj, *args: Any, **kwargs: Any) -> Any:
     """Call a flow with the configured task runner; stop here if Ctrl-C was pressed."""
     check_interrupted()
     guard_temporary_api_server()
-    result = with_runner(flow_obj)(*args, **kwargs)
+    with flow_heartbeats_off_unless_set():
+        result = with_runner(flow_obj)(*args, **kwargs)
     check_interrupted()
     return result
+
+
+HEARTBEAT_VARIABLES = ("PREFECT_FLOWS_HEARTBEAT_FREQUENCY", "PREFECT_RUNNER_HEARTBEAT_FREQUENCY")
+
+
+@contextlib.contextmanager
+def flow_heartbeats_off_unless_set():
+    """No flow-run heartbeats, unless the user set their frequency in the environment.
+
+    Prefect 3.8 starts a heartbeat thread for every flow run and subflow run (by default every 180 s)
+    and joins it when the run ends; the thread sleeps in 1-second steps, so every run ended up to a
+    second late (10 empty flows: 10.7 s with heartbeats, 0.8 s without). The main job runs a dozen
+    subflows, ingest-folder one per take. Heartbeats only feed a crashed-run automation, which
+    demoforge does not set up; flows served by `demoforge serve` run in processes of Prefect's own
+    and keep them."""
+    if any(os.environ.get(name) for name in HEARTBEAT_VARIABLES):
+        yield
+        return
+    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+
+    with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        yield
 
 
 _INTERRUPTED = threading.Event()
