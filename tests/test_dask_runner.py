@@ -45,7 +45,8 @@ def _table(warehouse: Path, name: str) -> pa.Table:
 
 
 def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_runner(trash_take, tmp_path,
-                                                                                   prefect_api_env):
+                                                                                   prefect_api_env,
+                                                                                   ingested_warehouse):
     from distributed import Client, LocalCluster
 
     for name in ("distributed", "distributed.nanny", "distributed.scheduler", "distributed.worker"):
@@ -54,7 +55,9 @@ def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_run
     # every command talks to the session's Prefect API instead of starting a temporary server
     base.update(prefect_api_env, PREFECT_HOME=str(tmp_path / "prefect_home"))
 
-    _run_pipeline(trash_take, tmp_path / "threads", {**base, "DEMOFORGE_TASK_RUNNER": "threads"})
+    # the default runner, from the session's ingest of the take (its stages come from the cache)
+    threads = ingested_warehouse
+    _run_pipeline(trash_take, threads, {**base, "DEMOFORGE_TASK_RUNNER": "threads"})
 
     # An existing cluster, as on a real deployment: a scheduler address plus a shared Prefect API.
     os.environ["PREFECT_API_URL"] = prefect_api_env["PREFECT_API_URL"]  # the workers spawned below inherit it
@@ -73,6 +76,6 @@ def test_augment_and_simulate_on_a_two_worker_dask_cluster_equal_the_default_run
     for stage in ("detect_hands", "map_grippers", "segment_take", "augment_take", "simulate_chunk"):
         assert stage in ran, f"{stage} did not run on the Dask cluster (ran: {ran})"
     for name in TABLES:
-        a, b = _table(tmp_path / "threads", name), _table(tmp_path / "dask", name)
+        a, b = _table(threads, name), _table(tmp_path / "dask", name)
         assert a.num_rows > 0, name
         assert _same_rows(a, b), f"{name}: the Dask run wrote different rows than the default runner"

@@ -23,7 +23,7 @@ print(json.dumps({
 """
 
 
-def test_wheel_installs_one_package_that_runs_outside_the_checkout(tmp_path):
+def test_wheel_installs_one_package_that_runs_outside_the_checkout(tmp_path, prefect_api_env):
     import json
 
     dist, venv, work, src = tmp_path / "dist", tmp_path / "venv", tmp_path / "elsewhere", tmp_path / "src"
@@ -48,7 +48,9 @@ def test_wheel_installs_one_package_that_runs_outside_the_checkout(tmp_path):
                    check=True, capture_output=True, timeout=300)
 
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH",)}
-    env.update(PREFECT_HOME=str(tmp_path / "prefect"), MUJOCO_GL="egl", DEMOFORGE_WAREHOUSE=str(tmp_path / "wh"))
+    # the session's Prefect API: the installed command's flow starts no temporary server of its own
+    env.update(prefect_api_env, PREFECT_HOME=str(tmp_path / "prefect"), MUJOCO_GL="egl",
+               DEMOFORGE_WAREHOUSE=str(tmp_path / "wh"))
     probe = subprocess.run([str(py), "-c", PROBE], cwd=work, env=env, capture_output=True, text=True, timeout=300)
     assert probe.returncode == 0, probe.stderr
     found = json.loads(probe.stdout)
