@@ -137,3 +137,17 @@ def test_output_into_a_closed_pipe_ends_quietly(tmp_path):
         finally:
             os.close(write_end)
         assert (p.returncode, p.stderr) == (1, ""), (args, p.stderr)
+
+
+def test_a_mistyped_path_is_reported_before_the_flow_modules_load(tmp_path):
+    """`ingest`, `augment` and `ingest-folder` check their path first: the one-line error comes before
+    Prefect and the flows are imported (about 2 s of CPU per command), not after."""
+    probe = ("import sys\nfrom demoforge.cli import main\nsys.argv = ['demoforge'] + sys.argv[1:]\n"
+             "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
+             "print(code, 'prefect' in sys.modules, 'demoforge.flows' in sys.modules)")
+    for args in (["ingest", str(tmp_path / "nowhere")], ["augment", str(tmp_path / "nowhere")],
+                 ["ingest-folder", str(tmp_path / "nowhere")]):
+        p = subprocess.run([sys.executable, "-c", probe, *args], cwd=PROJECT, capture_output=True, text=True,
+                           timeout=120, env={**os.environ, "DEMOFORGE_WAREHOUSE": str(tmp_path / "warehouse")})
+        assert p.stdout.split() == ["2", "False", "False"], (args, p.stdout, p.stderr)
+        assert "no such" in p.stderr and str(tmp_path / "nowhere") in p.stderr

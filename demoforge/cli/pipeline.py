@@ -116,15 +116,16 @@ def augment(
 
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
-    from demoforge.flows.augment import augment_take_flow
-    from demoforge.lib.ingest.options import IngestOptions
-    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
     from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
 
     status = annotation_status(_open_take_or_fail(path))
     if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
         raise fail(not_annotated_message(path, status.detail))
+    from demoforge.flows.augment import augment_take_flow  # (Prefect and the flow's modules: once needed)
+    from demoforge.lib.ingest.options import IngestOptions
+    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+
     try:
         augment_options = AugmentOptions(n=episodes, n_mirrored=mirrored, seed=seed, generation={
             "mode": mode, "independent": independent, "yaw_range": [-yaw, yaw]})

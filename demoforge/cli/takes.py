@@ -138,9 +138,6 @@ def ingest(
     truth). Depth that cannot be trusted stops the take (exit 2) unless --accept-bad-depth; a hand
     tracked in too few frames is reported as not trusted (and `augment` refuses it).
     """
-    from demoforge.flows.ingest import ingest_take
-    from demoforge.lib.ingest.options import IngestOptions
-    from demoforge.lib.perception.detectors import DetectorError
     from demoforge.lib.takes import TakeError
 
     options = {}
@@ -159,6 +156,12 @@ def ingest(
             raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
         options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
     take = _open_take_or_fail(path)
+    # the flow's modules (Prefect, the detectors) once the take is known to be readable: a mistyped
+    # path is reported at once
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.lib.ingest.options import IngestOptions
+    from demoforge.lib.perception.detectors import DetectorError
+
     try:
         ingest_options = IngestOptions(detector=detector, detector_options=options, state_method=state_method,
                                        smoothing=smoothing, grasp_prior=grasp_prior,
@@ -204,12 +207,12 @@ def ingest_folder_cmd(
     """Ingest every take under a folder; a take that fails is recorded in `folder_ingests` and skipped.
 
     This is the flow of the scheduled deployment (`demoforge serve`)."""
+    if not folder.is_dir():  # before the flow starts (and its modules load): one line, no flow-run traceback
+        raise fail(f"{folder}: no such folder to ingest takes from")
     from demoforge.flows.ingest_folder import ingest_folder
     from demoforge.lib.ingest.options import IngestOptions
     from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
-    if not folder.is_dir():  # before the flow starts: one line, no flow-run traceback
-        raise fail(f"{folder}: no such folder to ingest takes from")
     try:
         rows = run_flow(ingest_folder, str(folder), str(current_warehouse()), task=task,
                         ingest=IngestOptions(detector=detector),
