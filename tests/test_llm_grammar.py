@@ -175,7 +175,9 @@ def test_structured_greedy_answers_of_the_embedded_model_always_parse():
     from demoforge.lib.llm.local_backend import LocalBackend
 
     b = LocalBackend(n_ctx=4096)
-    for p in real_prompts():
+    # the third real prompt's structured answer is checked the same way in test_structured_decoding
+    # (test_fast_answers_equal_the_grammar_samplers_token_for_token), where it is decoded anyway
+    for p in real_prompts()[:2]:
         n = p.n_waypoints
         # room for the longest answer the grammar admits: a shorter budget makes "always parses" depend
         # on how many decimals the model happens to write (it wrote 3 on one CPU, 1-2 on another)

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from demoforge.lib.llm import Sampling
 from demoforge.lib.llm.grammar import actions_gbnf, longest_answer_chars
-from demoforge.lib.llm.prompting import build_prompt
+from demoforge.lib.llm.prompting import build_prompt, parse_actions
 from demoforge.lib.llm.structured_decoding import ActionListLanguage
 from tests.test_llm_grammar import demo, gbnf_regex, needs_llama, real_prompts
 
@@ -167,14 +167,18 @@ def test_fast_answers_equal_the_grammar_samplers_token_for_token():
     prompts = [ends,
                build_prompt([a], a[0] + 0.01, a[1], n_waypoints=2, number_format="compact"),  # integers, 4 digits
                build_prompt([a], a[0] - 0.01, a[1])]  # keyframes: the row count is not fixed (1..64)
-    reasons = []
+    reasons, answers = [], []
     for p, max_tokens in zip(prompts, [longest_answer_chars(2, ends.precision, ends.answer_prefix), 60, 40]):
         s = Sampling(temperature=0.0, max_tokens=max_tokens, seed=0, stop=p.stop, structured=True)
         want, got = gbnf.complete(p, s), fast.complete(p, s)
+        answers.append(got.text)
         assert got.text == want.text, (p.number_format, got.text, want.text)
         assert (got.completion_tokens, got.prompt_tokens, got.finish_reason) == \
             (want.completion_tokens, want.prompt_tokens, want.finish_reason)
         reasons.append(want.finish_reason)
     assert reasons == ["stop", "length", "length"]  # a natural end, and cut where llama.cpp cuts
+    # the answer that ended on its own parses into its waypoints (test_llm_grammar: the other real prompts)
+    res = parse_actions(answers[0], expected_waypoints=ends.n_waypoints, prefix=ends.answer_prefix)
+    assert res.status == "ok" and res.actions.shape == (ends.n_waypoints, 2, 8) and res.detail == "", answers[0]
     with pytest.raises(ValueError):
         LocalBackend(structured_decoder="regex")
