@@ -14,6 +14,7 @@ import sys
 import threading
 from pathlib import Path
 
+import psutil
 import pyarrow as pa
 import pytest
 
@@ -69,6 +70,18 @@ def _wait_for_hold(fifo: Path, proc: subprocess.Popen, log: Path, hold: str) -> 
         got = f.read()
     if got != hold:
         raise AssertionError(f"evaluate ended ({proc.returncode}) before its hold point {hold}:\n{log.read_text()[-3000:]}")
+
+
+def _own_servers(prefect_home: Path) -> list:
+    """The temporary Prefect API servers that runs with ``prefect_home`` started and that are alive."""
+    def ours(p: psutil.Process) -> bool:
+        try:
+            return "prefect.server.api.server:create_app" in " ".join(p.cmdline()) and \
+                p.environ().get("PREFECT_HOME") == str(prefect_home)
+        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+            return False
+
+    return [p for p in psutil.process_iter() if ours(p)]
 
 
 def _finish(env: dict, cwd: Path, log: Path) -> str:
@@ -151,8 +164,12 @@ def test_evaluate_writes_the_report_resumes_after_sigint_and_sigkill_and_equals_
     proc = _start(own_server, tmp_path / "b", log, "robot_check", tmp_path / "hold1")
     _wait_for_hold(tmp_path / "hold1", proc, log, "robot_check")
     assert next(crashed.glob("episodes/**/data.parquet"), None) and not list(crashed.glob("sim_results/**/*.parquet"))
+    servers = _own_servers(tmp_path / "prefect_home")
+    assert len(servers) == 1  # its own temporary API server, in a session of its own (not signalled)
     os.killpg(proc.pid, signal.SIGINT)
     assert proc.wait(120) != 0
+    # ... which went when the run ended (stopped at its exit)
+    assert psutil.wait_procs(servers, timeout=30)[1] == [], "the interrupted run left its temporary API server"
     # stages that had finished: the take, its ingest and its episode database
     finished = [next(crashed.glob("synthetic/*/camera.json"))] + \
         [next(f for f in sorted(crashed.glob(f"{t}/**/data.parquet")) if "detector=" not in f.as_posix())
@@ -164,8 +181,12 @@ def test_evaluate_writes_the_report_resumes_after_sigint_and_sigkill_and_equals_
     proc = _start(own_server, tmp_path / "b", log, "after_sim_chunk", tmp_path / "hold2")
     _wait_for_hold(tmp_path / "hold2", proc, log, "after_sim_chunk")
     assert len(list(crashed.glob("sim_results/**/data.parquet"))) == 1
+    servers = _own_servers(tmp_path / "prefect_home")
+    assert len(servers) == 1
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(60)
+    # its temporary server was not in the killed process group, and gets SIGTERM when its parent dies
+    assert psutil.wait_procs(servers, timeout=30)[1] == [], "the killed run left its temporary API server"
 
     # 3) run again to the end
     assert "nothing changed" not in _finish(env, tmp_path / "b", log)
