@@ -5,9 +5,9 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.demoforge-setup
 export MUJOCO_GL ?= egl
 export PREFECT_HOME ?= $(CURDIR)/.prefect
-# test processes (pytest-xdist, whole files per worker): one more than the cores, up to 4, since about a
-# sixth of the suite waits on servers and subprocesses; 0 runs the suite in this process
-PYTEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); echo $$(( n < 3 ? n + 1 : 4 )))
+# test processes (pytest-xdist, whole files per worker): one per core, up to 4 (the suite now rarely waits:
+# on 2 cores 2 workers took 343 s, 3 workers 352 s, docs/results/issue-24-tests.md); 0 runs it in this process
+PYTEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); echo $$(( n < 4 ? n : 4 )))
 
 .PHONY: setup test evaluate bench catalog table3 help check-exports
 
