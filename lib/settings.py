@@ -30,7 +30,7 @@ PREFIX = "DEMOFORGE_"
 VARIABLES: dict[str, str] = {
     # where things are
     "DEMOFORGE_WAREHOUSE": "warehouse folder (default: the checkout's warehouse/; ./warehouse for an installed package)",
-    "DEMOFORGE_DIGEST_CACHE": "where folder digests are remembered (default: $XDG_CACHE_HOME/demoforge/digests)",
+    "DEMOFORGE_DIGEST_CACHE": "where file and folder digests and recordings' frame indexes are remembered (default: $XDG_CACHE_HOME/demoforge/digests)",
     "DEMOFORGE_GGUF_PATH": "the local LLM's GGUF file (default: the embedded Gemma 3 270M in the venv)",
     "DEMOFORGE_HAND_LANDMARKER": "MediaPipe's hand_landmarker.task (default: the one set-up fetched into the venv)",
     "DEMOFORGE_ARCTIC_ROOT": "an ARCTIC download for evaluate-keypoints --dataset arctic",
@@ -126,6 +126,15 @@ class Settings:
         return {"arctic_root": str(self.arctic_root) if self.arctic_root else None,
                 "llm_backend": self.llm_backend, "llm_model": self.llm_model,
                 "openai_base_url": self.openai_base_url, "task_runner": self.task_runner}
+
+
+def digest_cache_dir() -> Path:
+    """Where file digests and recordings' frame indexes are remembered across processes
+    ($DEMOFORGE_DIGEST_CACHE, else $XDG_CACHE_HOME/demoforge/digests or ~/.cache/demoforge/digests)."""
+    configured = read_settings().digest_cache
+    if configured:
+        return configured
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "demoforge" / "digests"
 
 
 def read_settings(environ: Mapping[str, str] | None = None) -> Settings:

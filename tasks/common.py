@@ -91,15 +91,7 @@ def _file_digest(path: Path) -> str:
     return digest
 
 
-def digest_cache_dir() -> Path:
-    """Where folder digests are remembered across processes ($DEMOFORGE_DIGEST_CACHE, else
-    $XDG_CACHE_HOME/demoforge/digests or ~/.cache/demoforge/digests)."""
-    from demoforge.lib.settings import read_settings
-
-    configured = read_settings().digest_cache
-    if configured:
-        return configured
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "demoforge" / "digests"
+from demoforge.lib.settings import digest_cache_dir  # noqa: E402  (re-exported: where digests are remembered)
 
 
 def _dir_file_digests(folder: Path) -> list[tuple[str, str]]:

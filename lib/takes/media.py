@@ -26,13 +26,13 @@ def frame_number(name: str) -> int | None:
     return int(nums[-1]) if nums else None
 
 
-def _list_files(folder: Path, exts: Sequence[str]) -> list[Path]:
+def list_files(folder: Path, exts: Sequence[str]) -> list[Path]:
     if not folder.is_dir():
         return []
     return [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in exts and not p.name.startswith(".")]
 
 
-def _numbered(files: list[Path], what: str, folder: Path) -> dict[int, Path] | None:
+def numbered_files(files: list[Path], what: str, folder: Path) -> dict[int, Path] | None:
     """Map frame number -> file; None when some name has no number (pair by position instead)."""
     nums = [frame_number(p.name) for p in files]
     if any(n is None for n in nums):
@@ -46,7 +46,7 @@ def _numbered(files: list[Path], what: str, folder: Path) -> dict[int, Path] | N
     return out
 
 
-def _png_size(path: Path) -> tuple[int, int, int, int] | None:
+def png_size(path: Path) -> tuple[int, int, int, int] | None:
     """(width, height, bit depth, colour type) from a PNG's IHDR, or None if not a PNG."""
     with open(path, "rb") as f:
         head = f.read(29)
@@ -56,7 +56,7 @@ def _png_size(path: Path) -> tuple[int, int, int, int] | None:
     return w, h, head[24], head[25]
 
 
-def _jpg_size(path: Path) -> tuple[int, int] | None:
+def jpg_size(path: Path) -> tuple[int, int] | None:
     """(width, height) from a JPEG's SOF marker, or None if it cannot be found."""
     with open(path, "rb") as f:
         data = f.read(1 << 20)
@@ -79,14 +79,14 @@ def _jpg_size(path: Path) -> tuple[int, int] | None:
     return None
 
 
-def _image_header_size(path: Path) -> tuple[int, int] | None:
-    s = _png_size(path)
+def image_header_size(path: Path) -> tuple[int, int] | None:
+    s = png_size(path)
     if s is not None:
         return s[0], s[1]
-    return _jpg_size(path)
+    return jpg_size(path)
 
 
-def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype] | None:
+def npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype] | None:
     try:
         with open(path, "rb") as f:
             version = np.lib.format.read_magic(f)
@@ -99,7 +99,7 @@ def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype] | None:
         return None
 
 
-def _find_video(root: Path) -> Path | None:
+def find_video(root: Path) -> Path | None:
     v = root / "rgb.mp4"
     if v.is_file():
         return v
@@ -165,7 +165,7 @@ def _reference_mp4v_header(width: int, height: int, fps: float) -> bytes | None:
     return r[k:k + ln] if p == k and ln > 0 else None
 
 
-def _salvage_mp4(path: Path, camera: CameraInfo, out_dir: Path) -> tuple[Path, int] | None:
+def salvage_mp4(path: Path, camera: CameraInfo, out_dir: Path) -> tuple[Path, int] | None:
     """Recover the complete frames of an mp4 whose index (moov box, written last) was cut off.
 
     Works for MPEG-4 Part 2 video (OpenCV's ``mp4v`` writer, used by demoforge.lib.synth.take): the complete
@@ -200,7 +200,7 @@ def _salvage_mp4(path: Path, camera: CameraInfo, out_dir: Path) -> tuple[Path, i
     return out, len(starts)
 
 
-def _video_props(path: Path) -> tuple[int, int, int] | None:
+def video_props(path: Path) -> tuple[int, int, int] | None:
     """(frame count from the container, width, height), or None if OpenCV cannot open it."""
     import cv2
 

@@ -16,7 +16,7 @@ from demoforge.lib.takes.types import Annotations, CameraInfo, DEFAULT_DEPTH_SCA
 # camera.json and annotations.json
 # ------------------------------------------------------------------------------------------------
 
-def _load_json(path: Path, what: str) -> Any:
+def load_json(path: Path, what: str) -> Any:
     try:
         text = path.read_text()
     except OSError as e:
@@ -46,8 +46,11 @@ def _matrix(obj: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarr
     return m
 
 
-def parse_camera(obj: Any, path: str | os.PathLike = "camera.json") -> CameraInfo:
-    """Validate a camera.json object. Raises :class:`TakeError` naming the key and the fix."""
+def parse_camera(obj: Any, path: str | os.PathLike = "camera.json", require_pose: bool = True) -> CameraInfo:
+    """Validate a camera.json object. Raises :class:`TakeError` naming the key and the fix.
+
+    ``require_pose=False`` accepts a camera.json without ``T_world_camera`` (``T_world_camera`` None: a
+    take to calibrate, ``demoforge calibrate``)."""
     path = Path(path)
     if not isinstance(obj, dict):
         raise TakeError(f"{path}: must be a JSON object with keys K, width, height, T_world_camera")
@@ -67,17 +70,7 @@ def parse_camera(obj: Any, path: str | os.PathLike = "camera.json") -> CameraInf
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v <= 0:
             raise TakeError(f"{path}: {key!r} must be a positive integer (pixels), got {v!r}")
         size[key] = int(v)
-    T = _matrix(obj, "T_world_camera", (4, 4), path)
-    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
-        raise TakeError(f"{path}: T_world_camera's last row must be [0, 0, 0, 1], got {T[3].tolist()}")
-    R = T[:3, :3]
-    ortho = np.abs(R.T @ R - np.eye(3)).max()
-    det = np.linalg.det(R)
-    if ortho > 1e-3 or abs(det - 1.0) > 1e-3:
-        raise TakeError(
-            f"{path}: T_world_camera is not a rigid transform (rotation part: max |R^T R - I| = {ortho:.3g}, "
-            f"det = {det:.4g}; need an orthonormal R with det +1). It must be the 4x4 camera-to-world "
-            f"pose in metres, OpenCV camera axes; no scale or reflection")
+    T = parse_pose(obj, path, require_pose)
     fps = obj.get("fps", DEFAULT_FPS)
     if fps is None:
         fps = DEFAULT_FPS
@@ -93,6 +86,31 @@ def parse_camera(obj: Any, path: str | os.PathLike = "camera.json") -> CameraInf
         raise TakeError(f"{path}: 'depth_scale' must be a positive number (metres per depth unit), got {scale!r}")
     return CameraInfo(K=K, width=size["width"], height=size["height"], T_world_camera=T,
                       fps=float(fps), depth_scale=float(scale))
+
+
+def parse_pose(obj: dict, path: Path, require: bool = True) -> np.ndarray | None:
+    """camera.json's ``T_world_camera`` checked as a rigid 4x4 camera-to-world transform; None when it is
+    absent and not required."""
+    if obj.get("T_world_camera") is None and "T_world_camera" in obj:
+        obj = {k: v for k, v in obj.items() if k != "T_world_camera"}
+    if "T_world_camera" not in obj:
+        if not require:
+            return None
+        raise TakeError(f"{path}: key 'T_world_camera' is missing (the camera's 4x4 pose in the table frame); "
+                        f"run `demoforge calibrate {path.parent}` to find it (a printed board on the table, or "
+                        f"the table plane), or add it as a 4x4 nested list")
+    T = _matrix(obj, "T_world_camera", (4, 4), path)
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+        raise TakeError(f"{path}: T_world_camera's last row must be [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    ortho = np.abs(R.T @ R - np.eye(3)).max()
+    det = np.linalg.det(R)
+    if ortho > 1e-3 or abs(det - 1.0) > 1e-3:
+        raise TakeError(
+            f"{path}: T_world_camera is not a rigid transform (rotation part: max |R^T R - I| = {ortho:.3g}, "
+            f"det = {det:.4g}; need an orthonormal R with det +1). It must be the 4x4 camera-to-world "
+            f"pose in metres, OpenCV camera axes; no scale or reflection")
+    return T
 
 
 def _int_pair_list(v: Any, where: str, path: Path) -> list[tuple[int, int]]:

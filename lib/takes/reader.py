@@ -35,190 +35,45 @@ It also reads the keypoint JSON of the thesis's public code (Jiayun-Zhang/Hand_k
 
 from __future__ import annotations
 
-import json
 import os
-import re
-import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Iterator, Sequence
 import numpy as np
 
-from demoforge.lib.scratch import folder_removed_at_exit
-from demoforge.lib.takes.types import DEPTH_EXTS, FrameBatch, FrameInfo, IMAGE_EXTS, Take, TakeError
-from demoforge.lib.takes.metadata import _load_json, parse_annotations, parse_camera
-from demoforge.lib.takes.media import (
-    _find_video, _image_header_size, _list_files, _npy_header, _numbered, _png_size, _salvage_mp4,
-    _video_props,
-)
+from demoforge.lib.takes.types import CameraInfo, FrameBatch, FrameInfo, Take, TakeError
+from demoforge.lib.takes.metadata import parse_annotations, parse_camera  # noqa: F401  (re-exported)
 
 
 def open_take(path: str | os.PathLike, *, prefer: str = "images",
-              cache_dir: str | os.PathLike | None = None) -> Take:
-    """Open a take folder: validate camera.json / annotations.json and index the frames.
+              cache_dir: str | os.PathLike | None = None, require_pose: bool = True, **options) -> Take:
+    """Open a take: a take folder, or a recording file or folder (demoforge.lib.takes.sources: the
+    first registered source that claims the path opens it). Validates camera.json / annotations.json
+    and indexes the frames; nothing is decoded yet.
 
     Args:
-        path: the take folder.
-        prefer: ``"images"`` (default) uses ``rgb/`` when both ``rgb/`` and a video exist;
-            ``"video"`` uses the video.
+        path: the take folder, or a recording (RealSense .bag/.db3, Record3D .r3d or export folder,
+            ROS 2 bag .mcap/.db3 or its folder, a take folder's .mp4).
+        prefer: for a take folder, ``"images"`` (default) uses ``rgb/`` when both ``rgb/`` and a video
+            exist; ``"video"`` uses the video.
         cache_dir: where a truncated mp4's recovered stream is written (default: a temporary
             folder). A truncated mp4 whose index survived decodes up to the cut; one whose index was
-            lost (OpenCV writes it last) is recovered by :func:`_salvage_mp4` when it is mp4v.
+            lost (OpenCV writes it last) is recovered by :func:`salvage_mp4` when it is mp4v.
+        require_pose: raise when the camera's pose (T_world_camera) is unknown; False opens such a
+            take with ``camera.T_world_camera`` None (to calibrate it).
+        options: source options (a ROS 2 bag's ``rgb_topic``, ``depth_topic``, ``info_topic``).
 
     Raises:
-        TakeError: no such folder, missing or invalid camera.json, no frames, RGB size different
-            from camera.json, malformed annotations.json.
+        TakeError: no such path, not a take, missing or invalid camera.json, no frames, RGB size
+            different from camera.json, malformed annotations.json, a recording that cannot be read.
     """
+    from demoforge.lib.takes.sources import source_for
+
     root = Path(path)
-    if not root.is_dir():
-        raise TakeError(f"{root}: take folder does not exist (expected rgb/ or rgb.mp4, depth/, camera.json)")
-    cam_path = root / "camera.json"
-    if not cam_path.is_file():
-        raise TakeError(f"{cam_path}: camera.json is missing; write it with K (3x3), width, height and "
-                        f"T_world_camera (4x4 camera-to-world) (fps optional, default 30)")
-    camera = parse_camera(_load_json(cam_path, "camera.json"), cam_path)
-
-    rgb_files = sorted(_list_files(root / "rgb", IMAGE_EXTS))
-    video = None
-    if prefer not in ("images", "video"):
-        raise ValueError(f"prefer must be 'images' or 'video', got {prefer!r}")
-    if not rgb_files or prefer == "video":
-        try:
-            video = _find_video(root)
-        except TakeError:
-            if not rgb_files:
-                raise
-    if video is not None:
-        rgb_files = []
-    depth_files = sorted(_list_files(root / "depth", DEPTH_EXTS))
-
-    rgb_map: dict[int, str] = {}
-    video_note = ""
-    decode_path = video
-    notes: list[str] = []
-    if video is not None:
-        props = _video_props(video)
-        if props is None:
-            where = Path(cache_dir) if cache_dir is not None else folder_removed_at_exit("demoforge_video_")
-            salv = _salvage_mp4(video, camera, where)
-            if salv is not None:
-                decode_path, n_ok = salv
-                props = (n_ok, camera.width, camera.height)
-                video_note = (f"{video.name} is truncated (its index is missing); {n_ok} complete frames "
-                              f"recovered, the rest of the video is lost")
-                notes.append(video_note)
-            else:
-                if cache_dir is None:
-                    shutil.rmtree(where, ignore_errors=True)
-                video_note = (f"{video.name} cannot be opened by OpenCV (truncated or corrupt file: its index "
-                              f"may be missing); re-export the video or provide rgb/ frames")
-                notes.append(video_note)
-        if props is None:
-            n_video = 0
-        else:
-            n_video, vw, vh = props
-            if (vw, vh) != (camera.width, camera.height) and vw > 0:
-                raise TakeError(f"{cam_path}: width x height = {camera.width} x {camera.height} but {video.name} "
-                                f"is {vw} x {vh}; fix camera.json (and K) to the video's size")
-            rgb_map = {i: f"{video}#{i}" for i in range(n_video)}
-    else:
-        numbered = _numbered(rgb_files, "rgb", root / "rgb")
-        if numbered is None:
-            numbered = {i: p for i, p in enumerate(sorted(rgb_files, key=lambda p: p.name))}
-        first = min(numbered) if numbered else 0
-        rgb_map = {n - first: str(p) for n, p in numbered.items()}
-        if rgb_files:
-            p0 = numbered[first]
-            size = _image_header_size(p0)
-            if size is not None and size != (camera.width, camera.height):
-                raise TakeError(f"{cam_path}: width x height = {camera.width} x {camera.height} but {p0.name} is "
-                                f"{size[0]} x {size[1]}; fix camera.json (and K) to the frames' size")
-
-    depth_numbered = _numbered(depth_files, "depth", root / "depth")
-    if depth_numbered is None:
-        depth_map = {i: str(p) for i, p in enumerate(sorted(depth_files, key=lambda p: p.name))}
-    else:
-        if video is None and rgb_files:
-            first = min(n for n in (_numbered(rgb_files, "rgb", root / "rgb") or {0: None}))
-        else:
-            first = min(depth_numbered) if depth_numbered else 0
-        depth_map = {n - first: str(p) for n, p in depth_numbered.items()}
-
-    if not rgb_map and not depth_map:
-        raise TakeError(f"{root}: no frames found: need rgb/ with .png/.jpg frames or an .mp4 video, and depth/"
-                        + (f" ({video_note})" if video_note else ""))
-    keys = set(rgb_map) | set(depth_map)
-    lo, hi = min(keys), max(keys)
-    if lo < 0:
-        keys_sorted = sorted(keys)
-        remap = {k: i for i, k in enumerate(keys_sorted)}
-        rgb_map = {remap[k]: v for k, v in rgb_map.items()}
-        depth_map = {remap[k]: v for k, v in depth_map.items()}
-        lo, hi = 0, len(keys_sorted) - 1
-    n = hi + 1
-    frames: list[FrameInfo] = []
-    fps = camera.fps
-    for i in range(n):
-        f = FrameInfo(index=i, timestamp_s=i / fps, rgb_source=rgb_map.get(i), depth_source=depth_map.get(i))
-        if f.rgb_source is None:
-            if video is not None and video_note:
-                f.flag("unreadable_rgb", f"frame {i}: {video_note}")
-            elif video is not None:
-                f.flag("missing_rgb", f"{video.name} has only {len(rgb_map)} frames (depth has {len(depth_map)})")
-            else:
-                f.flag("missing_rgb", f"no rgb/ image for frame {i}")
-        if f.depth_source is None:
-            f.flag("missing_depth", f"no depth/ file for frame {i}" if depth_map else "take has no depth/ folder")
-        else:
-            _check_depth_header(f, camera)
-        frames.append(f)
-    if video is None and rgb_files:
-        for f in frames:
-            if f.rgb_source is not None and os.path.getsize(f.rgb_source) == 0:
-                f.flag("unreadable_rgb", f"{Path(f.rgb_source).name} is empty (0 bytes)")
-
-    annotations = None
-    ann_path = root / "annotations.json"
-    if ann_path.is_file():
-        annotations = parse_annotations(_load_json(ann_path, "annotations.json"), ann_path, n_frames=n)
-    meta = {}
-    if (root / "take.json").is_file():
-        try:
-            meta = json.loads((root / "take.json").read_text())
-        except (OSError, json.JSONDecodeError):
-            meta = {}
-    return Take(path=root, camera=camera, frames=frames, annotations=annotations,
-                rgb_kind="video" if video is not None else "images", video_path=video, meta=meta,
-                video_decode_path=decode_path, notes=notes)
-
-
-def _check_depth_header(f: FrameInfo, camera: CameraInfo) -> None:
-    """Cheap checks of a depth file from its header: empty, unreadable header, wrong size."""
-    p = Path(f.depth_source)
-    want = (camera.height, camera.width)
-    try:
-        if p.stat().st_size == 0:
-            f.flag("unreadable_depth", f"{p.name} is empty (0 bytes)")
-            return
-        if p.suffix.lower() == ".npy":
-            hdr = _npy_header(p)
-            if hdr is None:
-                f.flag("unreadable_depth", f"{p.name}: not a valid .npy file")
-                return
-            shape = tuple(hdr[0])
-            if len(shape) == 3 and shape[2] == 1:
-                shape = shape[:2]
-        else:
-            s = _png_size(p)
-            if s is None:
-                f.flag("unreadable_depth", f"{p.name}: not a valid PNG file")
-                return
-            shape = (s[1], s[0])
-    except OSError as e:
-        f.flag("unreadable_depth", f"{p.name}: {e}")
-        return
-    if shape != want:
-        f.flag("depth_size_mismatch", f"{p.name} has shape {shape}, camera.json says (height, width) = {want}")
+    cls = source_for(root)
+    if cls.name in ("folder", "mp4"):
+        return cls().open(root, require_pose=require_pose, prefer=prefer, cache_dir=cache_dir)
+    return cls().open(root, require_pose=require_pose, **options)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -345,6 +200,9 @@ def iter_frames(take: Take, batch_size: int = 16, *, frames: Sequence[int] | Non
         return FrameBatch(np.array([b[0] for b in buf], np.int64), np.stack([b[1] for b in buf]),
                           np.stack([b[2] for b in buf]))
 
+    if take.decoder is not None:
+        yield from _batches(_recording_frames(take, idx), emit, batch_size)
+        return
     pool = ThreadPoolExecutor(max_workers=max(1, num_workers)) if num_workers > 1 else None
     try:
         if take.rgb_kind == "video":
@@ -386,6 +244,43 @@ def iter_frames(take: Take, batch_size: int = 16, *, frames: Sequence[int] | Non
             pool.shutdown(wait=True)
 
 
+def _batches(items: Iterator[tuple[int, np.ndarray, np.ndarray]], emit, batch_size: int) -> Iterator[FrameBatch]:
+    buf: list = []
+    for item in items:
+        buf.append(item)
+        if len(buf) == batch_size:
+            yield emit(buf)
+            buf = []
+    if buf:
+        yield emit(buf)
+
+
+def _recording_depth(f: FrameInfo, depth: np.ndarray | None, camera: CameraInfo, msg: str) -> np.ndarray:
+    """A recording's decoded depth checked as a depth file is: right size, valid values, not all zero."""
+    shape = (camera.height, camera.width)
+    if depth is None:
+        f.flag("unreadable_depth" if msg else "missing_depth", msg or f"frame {f.index}: no depth frame")
+        return np.zeros(shape, np.float32)
+    if depth.shape != shape:
+        f.flag("depth_size_mismatch", f"frame {f.index}: depth is {depth.shape[1]} x {depth.shape[0]}, the RGB "
+                                      f"{camera.width} x {camera.height}")
+        return np.zeros(shape, np.float32)
+    m = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32, copy=False)
+    if not m.any():
+        f.flag("all_zero_depth", f"frame {f.index}: no valid depth pixel (all 0 / NaN)")
+    return m
+
+
+def _recording_frames(take: Take, idx: list[int]) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """A recording's frames streamed by its decoder; a frame without usable RGB is flagged and skipped."""
+    for i, rgb, depth, msg in take.decoder.frames(idx):
+        f = take.frames[i]
+        if rgb is None:
+            f.flag("unreadable_rgb", msg or f"frame {i}: colour frame cannot be decoded")
+            continue
+        yield i, rgb, _recording_depth(f, depth, take.camera, msg)
+
+
 def iter_depth(take: Take, batch_size: int = 32, *, num_workers: int = 2
                ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Depth only, every frame in order: yields (indices (B,), depth float32 (B, H, W) m, invalid = 0).
@@ -396,6 +291,9 @@ def iter_depth(take: Take, batch_size: int = 32, *, num_workers: int = 2
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     idx = np.arange(take.n_frames)
+    if take.decoder is not None:
+        yield from _recording_depth_batches(take, batch_size)
+        return
 
     def load(i: int) -> np.ndarray:
         return _decode_depth(take.frames[int(i)], take.camera)
@@ -406,8 +304,30 @@ def iter_depth(take: Take, batch_size: int = 32, *, num_workers: int = 2
             yield chunk, np.stack(list(pool.map(load, chunk)))
 
 
+def _recording_depth_batches(take: Take, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    cam = take.camera
+    zeros = np.zeros((cam.height, cam.width), np.float32)
+    decoded = iter(take.decoder.frames(list(range(take.n_frames))))
+    pending = next(decoded, None)
+    for start in range(0, take.n_frames, batch_size):
+        chunk = np.arange(start, min(start + batch_size, take.n_frames))
+        out = []
+        for i in chunk:
+            f = take.frames[int(i)]
+            if pending is not None and pending[0] == i:
+                out.append(_recording_depth(f, pending[2], cam, pending[3]))
+                pending = next(decoded, None)
+            else:
+                out.append(zeros)
+                if f.status == "ok":
+                    f.flag("missing_depth", f"frame {i}: no depth frame")
+        yield chunk, np.stack(out)
+
+
 def read_frame(take: Take, index: int) -> tuple[np.ndarray | None, np.ndarray]:
     """One frame: (rgb uint8 (H, W, 3) or None if unusable, depth float32 metres, invalid = 0)."""
     for b in iter_frames(take, batch_size=1, frames=[index], num_workers=1):
         return b.rgb[0], b.depth[0]
+    if take.decoder is not None:
+        return None, np.zeros((take.camera.height, take.camera.width), np.float32)
     return None, _decode_depth(take.frames[index], take.camera)

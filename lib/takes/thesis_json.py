@@ -10,7 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from demoforge.lib.takes.types import TakeError
-from demoforge.lib.takes.metadata import _load_json
+from demoforge.lib.takes.metadata import load_json
 from demoforge.lib.takes.media import frame_number
 
 
@@ -56,7 +56,7 @@ def read_thesis_keypoints_json(path: str | os.PathLike, *, take: Take | None = N
         TakeError: unreadable JSON or a malformed entry (naming the image and hand).
     """
     p = Path(path)
-    obj = _load_json(p, "keypoint JSON")
+    obj = load_json(p, "keypoint JSON")
     if not isinstance(obj, dict):
         raise TakeError(f"{p}: must map image file names to {{'left': ..., 'right': ...}}")
     names = list(frame_names) if frame_names is not None else None

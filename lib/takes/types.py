@@ -15,9 +15,12 @@ from demoforge.lib.errors import UserError
 FRAME_STATUSES = (
     "ok", "missing_depth", "missing_rgb", "unreadable_rgb", "unreadable_depth",
     "depth_size_mismatch", "all_zero_depth",
+    # recordings (demoforge.lib.takes.sources): a frame the camera's timestamps say was dropped, a frame
+    # delivered twice (the copy is discarded), a frame where the camera had moved (Record3D's poses)
+    "dropped_frame", "repeated_frame", "camera_moved",
 )
 #: Statuses for which the frame has no usable RGB (skipped by :func:`iter_frames`).
-RGB_BAD = ("missing_rgb", "unreadable_rgb")
+RGB_BAD = ("missing_rgb", "unreadable_rgb", "dropped_frame")
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 DEPTH_EXTS = (".npy", ".png")
@@ -40,7 +43,7 @@ class CameraInfo:
     K: np.ndarray                 # (3, 3) float64
     width: int
     height: int
-    T_world_camera: np.ndarray    # (4, 4) float64, camera to world
+    T_world_camera: np.ndarray | None  # (4, 4) float64, camera to world; None: not calibrated yet
     fps: float = DEFAULT_FPS
     depth_scale: float = DEFAULT_DEPTH_SCALE  # metres per unit of integer depth files
 
@@ -108,6 +111,15 @@ class Take:
     #: what is actually decoded for a video take (a salvaged stream when the mp4 was truncated)
     video_decode_path: Path | None = None
     notes: list[str] = field(default_factory=list)  # take-level remarks (e.g. video salvaged)
+    #: the take source that opened it (demoforge.lib.takes.sources: "folder", "mp4", "record3d", ...)
+    source: str = "folder"
+    #: where demoforge keeps the take's camera.json / annotations.json / take.json / ground_truth: the
+    #: folder itself, or a recording's side folder ``<recording>.demoforge/``
+    meta_dir: Path | None = None
+    #: how T_world_camera was found: "camera.json" (given), "board", "table_plane", ... (None: no pose)
+    pose_method: str | None = None
+    #: decodes a recording's frames (a :class:`demoforge.lib.takes.sources.Recording`); None for folders
+    decoder: Any = field(default=None, repr=False)
 
     @property
     def n_frames(self) -> int:
@@ -123,7 +135,12 @@ class Take:
 
     @property
     def take_id(self) -> str:
-        return str(self.meta.get("take_id") or self.meta.get("take") or self.path.name)
+        name = self.path.name if self.decoder is None else self.path.name.split(".")[0]
+        return str(self.meta.get("take_id") or self.meta.get("take") or name)
+
+    @property
+    def has_pose(self) -> bool:
+        return self.camera.T_world_camera is not None
 
     @property
     def timestamps_s(self) -> np.ndarray:
@@ -144,7 +161,7 @@ class Take:
 
     @property
     def ground_truth_dir(self) -> Path:
-        return self.path / "ground_truth"
+        return (self.meta_dir or self.path) / "ground_truth"
 
     @property
     def has_ground_truth(self) -> bool:

@@ -93,7 +93,7 @@ class SimulatedDetector(HandDetector):
 
         if not isinstance(take, Take):
             take = open_take(take)
-        gt = load_gt_hand_joints(take.path, take.n_frames)
+        gt = load_gt_hand_joints(take.meta_dir or take.path, take.n_frames)
         seed = self.seed
         if seed is None:
             seed = take.meta.get("seed", self.config.seed)

@@ -1,0 +1,93 @@
+"""The take-source interface and its registry.
+
+A take source turns one kind of path (a take folder, a RealSense recording, a Record3D export, a ROS 2
+bag) into a :class:`demoforge.lib.takes.types.Take`: intrinsics, the frame index with each frame's
+timestamp and problems, and, for a recording, a decoder that streams RGB (uint8) and depth (float32
+metres along the camera z, registered to the RGB image, 0 = invalid) frame by frame.
+
+Adding a source::
+
+    class MySource(TakeSource):
+        name = "mine"; description = "..."
+        @classmethod
+        def claims(cls, path): ...          # cheap: suffix, a header, a file in the folder
+        def open(self, path, *, require_pose=True, **options): ...  # -> Take
+    register_source("mine", MySource)
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+from pathlib import Path
+from typing import Any
+
+from demoforge.lib.takes.types import Take, TakeError
+
+
+class TakeSource(abc.ABC):
+    """One kind of take on disk."""
+
+    name: str = ""
+    description: str = ""
+
+    @classmethod
+    @abc.abstractmethod
+    def claims(cls, path: Path) -> bool:
+        """True if ``path`` is this kind of take (decided from names and headers, never by decoding)."""
+
+    @abc.abstractmethod
+    def open(self, path: Path, *, require_pose: bool = True, **options: Any) -> Take:
+        """The opened take; raises :class:`TakeError` (one line: what is wrong, how to fix it)."""
+
+
+# name -> "module:Class" (imported on first use: pyrealsense2 and rosbags load only when needed);
+# the order is the order :func:`source_for` asks them in
+_BUILTIN = {
+    "folder": "demoforge.lib.takes.sources.folder:FolderSource",
+    "mp4": "demoforge.lib.takes.sources.folder:Mp4Source",
+    "realsense": "demoforge.lib.takes.sources.realsense:RealSenseSource",
+    "rosbag2": "demoforge.lib.takes.sources.rosbag2:RosBag2Source",
+    "record3d": "demoforge.lib.takes.sources.record3d:Record3DSource",
+}
+_REGISTRY: dict[str, type[TakeSource] | str] = dict(_BUILTIN)
+
+#: what a take can be, for error messages
+KINDS = ("a take folder (camera.json + rgb/ or rgb.mp4 + depth/), a RealSense recording (.bag, .db3), "
+         "a Record3D export (.r3d or its folder), or a ROS 2 bag (.mcap, .db3 or its folder)")
+
+
+def register_source(name: str, source: type[TakeSource]) -> None:
+    """Add (or replace) a take source; sources registered later are asked after the built-in ones."""
+    _REGISTRY[name] = source
+
+
+def available_sources() -> list[str]:
+    return list(_REGISTRY)
+
+
+def get_source(name: str) -> type[TakeSource]:
+    try:
+        entry = _REGISTRY[name]
+    except KeyError:
+        raise TakeError(f"unknown take source {name!r}; choose one of: {', '.join(_REGISTRY)}") from None
+    if isinstance(entry, str):
+        module, cls = entry.split(":")
+        entry = getattr(importlib.import_module(module), cls)
+        _REGISTRY[name] = entry
+    return entry
+
+
+def source_for(path: Path) -> type[TakeSource]:
+    """The first registered source that claims ``path``; :class:`TakeError` when none does."""
+    if not path.exists():
+        raise TakeError(f"{path}: take folder does not exist (expected rgb/ or rgb.mp4, depth/, camera.json; "
+                        f"or a recording file)")
+    for name in list(_REGISTRY):
+        cls = get_source(name)
+        if cls.claims(path):
+            return cls
+    if path.is_dir() and not (path / "camera.json").is_file():
+        raise TakeError(f"{path / 'camera.json'}: camera.json is missing; write it with K (3x3), width, height and "
+                        f"T_world_camera (4x4 camera-to-world) (fps optional, default 30); or give {KINDS}")
+    raise TakeError(f"{path}: not a take demoforge can read; expected {KINDS}")

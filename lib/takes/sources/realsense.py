@@ -1,0 +1,185 @@
+"""Intel RealSense recordings read with the SDK (``pyrealsense2``, playback without a camera): the
+``.bag`` files of the RealSense Viewer and ``rs.recorder`` (ROS 1 bag layout, SDK before 2.57) and the
+``.db3`` files the SDK writes since (ROS 2 bag layout, ``/device_0/...`` topics).
+
+Depth is aligned to the colour image with the SDK's own ``rs.align``; the intrinsics come from the
+colour stream's profile, the depth scale from the depth sensor (``depth_units``), the timestamps are
+the colour frames' (hardware clock when the recording has it). A frame missing from the colour stream
+(a jump in the timestamps) is a ``dropped_frame``, a colour frame delivered twice a ``repeated_frame``.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from demoforge.lib.takes.sources.recording import (
+    Recording, RecordingIndex, RecordingSource, place_on_time_axis,
+)
+from demoforge.lib.takes.types import TakeError
+
+WAIT_MS = 2000
+
+
+def is_realsense_db3(path: Path) -> bool:
+    """A ``.db3`` written by the RealSense SDK (its topics start with ``/device_0/``)."""
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            names = [r[0] for r in con.execute("SELECT name FROM topics LIMIT 200")]
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return False
+    return any(n.startswith("/device_0/") for n in names)
+
+
+class RealSenseRecording(Recording):
+    version = "1"
+
+    def _start(self):
+        """A started pipeline playing the file as fast as it is read, and the aligner."""
+        import pyrealsense2 as rs
+
+        cfg = rs.config()
+        try:
+            cfg.enable_device_from_file(str(self.path), repeat_playback=False)
+            pipe = rs.pipeline()
+            profile = pipe.start(cfg)
+        except RuntimeError as e:
+            raise TakeError(f"{self.path}: the RealSense SDK cannot play this recording ({e}); the file is truncated "
+                            f"or corrupt, or has no colour and depth streams") from None
+        profile.get_device().as_playback().set_real_time(False)
+        return pipe, profile, rs.align(rs.stream.color)
+
+    def build_index(self) -> RecordingIndex:
+        import pyrealsense2 as rs
+
+        pipe, profile, _ = self._start()
+        try:
+            streams = {s.stream_type(): s for s in profile.get_streams()}
+            if rs.stream.color not in streams:
+                raise TakeError(f"{self.path}: the recording has no colour stream (only "
+                                f"{', '.join(str(s) for s in streams)}); record colour and depth")
+            if rs.stream.depth not in streams:
+                raise TakeError(f"{self.path}: the recording has no depth stream; record colour and depth")
+            colour = streams[rs.stream.color].as_video_stream_profile()
+            intr = colour.get_intrinsics()
+            depth_sensor = profile.get_device().first_depth_sensor()
+            scale = float(depth_sensor.get_depth_scale())
+            numbers, times, has_depth, domains = [], [], {}, set()
+            while True:
+                ok, fs = pipe.try_wait_for_frames(WAIT_MS)
+                if not ok:
+                    break
+                c = fs.get_color_frame()
+                if not c:
+                    continue
+                n = int(c.get_frame_number())
+                numbers.append(n)
+                times.append(float(c.get_timestamp()) / 1000.0)
+                domains.add(str(c.get_frame_timestamp_domain()).rsplit(".", 1)[-1])
+                has_depth[n] = has_depth.get(n, False) or bool(fs.get_depth_frame())
+        except RuntimeError as e:
+            raise TakeError(f"{self.path}: the RealSense recording cannot be read to the end ({e}); the file is "
+                            f"truncated or corrupt") from None
+        finally:
+            pipe.stop()
+        if not numbers:
+            raise TakeError(f"{self.path}: no colour frames could be read from the recording (truncated or empty)")
+        return self._index(numbers, times, has_depth, domains, intr, scale, colour.fps())
+
+    def _index(self, numbers, times, has_depth, domains, intr, scale, fps) -> RecordingIndex:
+        first_time: dict[int, float] = {}
+        repeats: dict[int, int] = {}
+        for n, t in zip(numbers, times):
+            if n in first_time:
+                repeats[n] = repeats.get(n, 0) + 1
+            else:
+                first_time[n] = t
+        nums = sorted(first_time, key=first_time.get)
+        fps, stamps, keys, status, message = place_on_time_axis(
+            np.array([first_time[n] for n in nums]), nums, float(fps), str(self.path))
+        for i, n in enumerate(keys):
+            if n is None:
+                continue
+            if n in repeats:
+                status[i], message[i] = "repeated_frame", (f"colour frame {n} delivered {repeats[n] + 1} times; "
+                                                           f"the copies are discarded")
+            elif not has_depth.get(n):
+                status[i], message[i] = "missing_depth", f"no depth frame with colour frame {n}"
+        K = [[intr.fx, 0.0, intr.ppx], [0.0, intr.fy, intr.ppy], [0.0, 0.0, 1.0]]
+        dropped = sum(s == "dropped_frame" for s in status)
+        notes = [f"RealSense recording: {len(nums)} colour frames at {fps:.1f} fps ({', '.join(sorted(domains))} "
+                 f"timestamps), depth scale {scale * 1000:.3f} mm/unit, depth aligned to colour by the SDK"
+                 + (f"; {dropped} frame(s) dropped" if dropped else "")
+                 + (f"; {len(repeats)} frame(s) repeated" if repeats else "")]
+        info = {"format": "realsense", "depth_scale": scale, "timestamp_domains": sorted(domains),
+                "distortion": str(intr.model), "coeffs": list(intr.coeffs)}
+        return RecordingIndex(width=int(intr.width), height=int(intr.height), K=K, fps=fps, timestamps_s=stamps,
+                              keys=keys, status=status, message=message, notes=notes, info=info)
+
+    def decode(self, index: RecordingIndex, wanted: list[int]
+               ) -> Iterator[tuple[int, np.ndarray | None, np.ndarray | None, str]]:
+        slot = {index.keys[i]: i for i in wanted}
+        position = {n: i for i, n in enumerate(index.keys) if n is not None}
+        last = max(wanted)
+        done: set[int] = set()
+        scale = np.float32(index.info["depth_scale"])
+        pipe, _, align = self._start()
+        try:
+            while len(done) < len(wanted):
+                ok, fs = pipe.try_wait_for_frames(WAIT_MS)
+                if not ok:
+                    break
+                c = fs.get_color_frame()
+                if not c:
+                    continue
+                n = int(c.get_frame_number())
+                i = slot.get(n)
+                if i is None or i in done:
+                    if position.get(n, -1) > last:
+                        break
+                    continue
+                done.add(i)
+                aligned = align.process(fs)
+                d = aligned.get_depth_frame()
+                rgb = _colour(aligned.get_color_frame() or c)
+                depth = np.asanyarray(d.get_data()).astype(np.float32) * scale if d else None
+                yield i, rgb, depth, "" if rgb is not None else f"colour format {c.get_profile().format()} not read"
+        finally:
+            pipe.stop()
+        for i in wanted:
+            if i not in done:
+                yield i, None, None, "frame not found when playing the recording back (truncated?)"
+
+
+def _colour(frame) -> np.ndarray | None:
+    import cv2
+    import pyrealsense2 as rs
+
+    img = np.asanyarray(frame.get_data())
+    fmt = frame.get_profile().format()
+    if fmt == rs.format.rgb8:
+        return np.array(img, copy=True)
+    conv = {rs.format.bgr8: cv2.COLOR_BGR2RGB, rs.format.rgba8: cv2.COLOR_RGBA2RGB,
+            rs.format.bgra8: cv2.COLOR_BGRA2RGB, rs.format.yuyv: cv2.COLOR_YUV2RGB_YUYV}.get(fmt)
+    return None if conv is None else cv2.cvtColor(np.ascontiguousarray(img), conv)
+
+
+class RealSenseSource(RecordingSource):
+    """A RealSense recording: ``.bag`` (ROS 1 layout) or an SDK-written ``.db3`` (ROS 2 layout)."""
+
+    name = "realsense"
+    description = "RealSense recording (.bag, or the .db3 the SDK writes since 2.57), read with pyrealsense2"
+    recording_cls = RealSenseRecording
+
+    @classmethod
+    def claims(cls, path: Path) -> bool:
+        if not path.is_file():
+            return False
+        suffix = path.suffix.lower()
+        return suffix == ".bag" or (suffix == ".db3" and is_realsense_db3(path))
