@@ -40,10 +40,10 @@ class AnnotationSession:
         from demoforge.lib.takes.annotate import task_for_take
         from demoforge.lib.takes import open_take
 
-        self.take = open_take(Path(take_dir).resolve())
+        self.take = open_take(Path(take_dir).resolve(), require_pose=False)  # the page can calibrate it
         self.task = task_for_take(self.take, task, keypoints, task_file)
         self.warehouse = Path(warehouse) if warehouse is not None else None
-        self.path = self.take.path / "annotations.json"
+        self.path = (self.take.meta_dir or self.take.path) / "annotations.json"  # a recording's: its side folder
         self._frames: OrderedDict[int, tuple[np.ndarray | None, np.ndarray]] = OrderedDict()
         self._lock = threading.Lock()
 
@@ -79,8 +79,13 @@ class AnnotationSession:
         from demoforge.lib.takes.annotate import point_info
 
         _, depth = self.frame(int(frame))
-        return point_info(np.asarray(uv, float).reshape(-1, 2), depth, self.take.K,
-                          self.take.camera.T_world_camera)
+        pose = self.take.camera.T_world_camera
+        out = point_info(np.asarray(uv, float).reshape(-1, 2), depth, self.take.K,
+                         np.eye(4) if pose is None else pose)
+        if pose is None:  # no table frame yet: camera-frame points only
+            for p in out:
+                p["world"] = None
+        return out
 
     # --- ingest results ----------------------------------------------------------------------------
     def ingest_signals(self) -> dict | None:
@@ -151,8 +156,9 @@ class AnnotationSession:
         keep = self.take.annotations.raw if self.take.annotations is not None else None
         obj = build_annotations(task, payload.get("points") or {}, int(payload.get("frame", 0)),
                                 payload.get("ranges") or {}, self.take.n_frames, keep=keep)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         write_annotations(self.path, obj)
-        self.take = open_take(self.take.path)  # re-read: what ingest will see
+        self.take = open_take(self.take.path, require_pose=False)  # re-read: what ingest will see
         self.task = task
         from demoforge.lib.takes.annotate import annotation_status
 

@@ -13,11 +13,14 @@ from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
 
 def find_take_folders(folder: str | Path) -> list[Path]:
-    """Take folders under ``folder`` (any depth): folders holding a camera.json, sorted by path."""
+    """Takes under ``folder`` (any depth), sorted by path: folders holding a camera.json and recordings
+    (demoforge.lib.takes.sources.find_takes)."""
+    from demoforge.lib.takes.sources import find_takes
+
     root = Path(folder)
     if not root.is_dir():
         raise ValueError(f"{root}: no such folder to ingest takes from")
-    return sorted(p.parent for p in root.rglob("camera.json"))
+    return find_takes(root)
 
 
 @flow(name="ingest-folder")
@@ -54,7 +57,8 @@ def ingest_folder(
     logger.info("%d take folder(s) under %s", len(takes), folder_abs)
     rows = []
     for take_dir in takes:
-        row = {"folder": str(folder_abs), "take": take_dir.name, "path": str(take_dir), "detector": opts.detector,
+        row = {"folder": str(folder_abs), "take": take_dir.name if take_dir.is_dir() else take_dir.name.split(".")[0],
+               "path": str(take_dir), "detector": opts.detector,
                "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
         try:
             status = annotation_status(open_take(take_dir))

@@ -81,14 +81,40 @@ class Manifest:
 _FILE_HASH_MEMO: dict[tuple, str] = {}
 
 
-def _file_digest(path: Path) -> str:
+def _file_digest(path: Path, remember: bool = False) -> str:
+    """sha256 of a file, once per process; with ``remember`` also across processes (the digest is kept
+    under digest_cache_dir() with the file's identity, as for folders): a multi-GB recording given as a
+    take is hashed once, not by every command that ingests, annotates or augments it."""
     st = path.stat()
     key = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
     digest = _FILE_HASH_MEMO.get(key)
+    if digest is not None:
+        return digest
+    record = None
+    if remember:
+        record = digest_cache_dir() / "files" / (hashlib.sha256(key[0].encode()).hexdigest()[:32] + ".json")
+        try:
+            known = json.loads(record.read_text())
+            if known.get("identity") == list(key[1:]):
+                digest = str(known["sha256"])
+        except (OSError, ValueError, KeyError, AttributeError):
+            pass
     if digest is None:
         digest = file_sha256(path)
-        _FILE_HASH_MEMO[key] = digest
+        if record is not None:
+            _write_record(record, {"identity": list(key[1:]), "sha256": digest})
+    _FILE_HASH_MEMO[key] = digest
     return digest
+
+
+def _write_record(record: Path, obj: Any) -> None:
+    try:  # atomic; a failure only costs hashing again next time
+        record.parent.mkdir(parents=True, exist_ok=True)
+        tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(obj))
+        os.replace(tmp, record)
+    except OSError:
+        pass
 
 
 from demoforge.lib.settings import digest_cache_dir  # noqa: E402  (re-exported: where digests are remembered)
@@ -115,13 +141,36 @@ def _dir_file_digests(folder: Path) -> list[tuple[str, str]]:
         fresh[rel] = [ident, digest]
         out.append((rel, digest))
     if fresh != known:
-        try:  # atomic; a failure only costs hashing again next time
-            record.parent.mkdir(parents=True, exist_ok=True)
-            tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(fresh))
-            os.replace(tmp, record)
-        except OSError:
-            pass
+        _write_record(record, fresh)
+    return out
+
+
+def sidecar_of(path: Path) -> Path | None:
+    """A recording's side folder (its pose, annotations, options), part of its content as a task input."""
+    from demoforge.lib.takes.sources.recording import sidecar_dir
+
+    side = sidecar_dir(path)
+    return side if side.is_dir() else None
+
+
+def _path_fingerprint(value: Path) -> Any:
+    if value.is_file():
+        out = {"file": value.name, "sha256": _file_digest(value, remember=True)}
+    elif value.is_dir():
+        h = hashlib.sha256()
+        for rel, digest in _dir_file_digests(value):
+            h.update(rel.encode())
+            h.update(digest.encode())
+        out = {"dir": value.name, "sha256": h.hexdigest()}
+    else:
+        return {"missing_path": str(value)}
+    side = sidecar_of(value)
+    if side is not None:
+        h = hashlib.sha256()
+        for rel, digest in _dir_file_digests(side):
+            h.update(rel.encode())
+            h.update(digest.encode())
+        out["sidecar"] = h.hexdigest()
     return out
 
 
@@ -130,15 +179,7 @@ def content_fingerprint(value: Any) -> Any:
     if isinstance(value, Manifest):
         return {"manifest": value.table, "hash": value.content_hash}
     if isinstance(value, Path):
-        if value.is_file():
-            return {"file": value.name, "sha256": _file_digest(value)}
-        if value.is_dir():
-            h = hashlib.sha256()
-            for rel, digest in _dir_file_digests(value):
-                h.update(rel.encode())
-                h.update(digest.encode())
-            return {"dir": value.name, "sha256": h.hexdigest()}
-        return {"missing_path": str(value)}
+        return _path_fingerprint(value)
     if isinstance(value, dict):
         return {str(k): content_fingerprint(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
     if isinstance(value, (list, tuple)):

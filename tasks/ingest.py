@@ -24,17 +24,26 @@ ANNOTATIONS = "annotations.json"
 
 
 def take_media_key(take_dir: Path) -> str:
-    """Content hash of a take folder (its name and every file) except annotations.json: the cache key
-    of the stages that never read the annotation (frames, detection, alignment), so annotating a take
-    after a first ingest does not redo its hand detection. Per-file digests come from the same
-    remembered records as every other folder key (demoforge.tasks.common), so an unchanged take is only stat'ed."""
+    """Content hash of a take (its name and every file; a recording's file and its side folder) except
+    annotations.json: the cache key of the stages that never read the annotation (frames, detection,
+    alignment), so annotating a take after a first ingest does not redo its hand detection. Digests come
+    from the same remembered records as every other key (demoforge.tasks.common), so an unchanged take,
+    a multi-GB recording too, is only stat'ed."""
     import hashlib
 
-    from demoforge.tasks.common import _dir_file_digests
+    from demoforge.tasks.common import _dir_file_digests, _file_digest, sidecar_of
 
     take_dir = Path(take_dir)
     h = hashlib.sha256(take_dir.name.encode())
-    for rel, digest in _dir_file_digests(take_dir):
+    if take_dir.is_file():
+        h.update(_file_digest(take_dir, remember=True).encode())
+        files = []
+    else:
+        files = _dir_file_digests(take_dir)
+    side = sidecar_of(take_dir)
+    if side is not None:
+        files = files + [(f"{side.name}/{rel}", d) for rel, d in _dir_file_digests(side) if rel != ANNOTATIONS]
+    for rel, digest in files:
         if rel != ANNOTATIONS:
             h.update(rel.encode())
             h.update(digest.encode())

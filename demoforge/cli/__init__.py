@@ -10,6 +10,7 @@ from __future__ import annotations
 from demoforge.cli import warehouse
 from demoforge.cli import benchmarks
 from demoforge.cli import takes
+from demoforge.cli import capture
 from demoforge.cli import pipeline
 from demoforge.cli import evaluation
 from demoforge.cli import export
@@ -19,7 +20,7 @@ from demoforge.cli import table3
 from demoforge.cli import variations
 from demoforge.cli.root import EXIT_USER_ERROR, State, app, current_warehouse, fail  # noqa: F401
 
-for _area in (warehouse, benchmarks, takes, pipeline, evaluation, export, hamer, policy, table3, variations):
+for _area in (warehouse, benchmarks, takes, capture, pipeline, evaluation, export, hamer, policy, table3, variations):
     app.add_typer(_area.app)
 
 

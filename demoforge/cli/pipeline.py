@@ -96,7 +96,7 @@ def evaluate(
 
 @app.command()
 def augment(
-    path: Path = typer.Argument(..., help="Take folder of the demonstration."),
+    path: Path = typer.Argument(..., help="The demonstration's take folder or recording."),
     task: Optional[str] = typer.Option(None, help="Task of the take (synthetic takes know theirs)."),
     detector: str = typer.Option("simulated", "--detector", "-d", help="Detector used to ingest it."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes to generate."),

@@ -53,22 +53,40 @@ def synth(
         typer.echo(m.path)
 
 
-def _open_take_or_fail(path: Path):
-    """The opened take, or a one-line error (exit 2) before any flow starts: missing folder, missing or
-    malformed camera.json / annotations.json."""
-    from demoforge.lib.takes import TakeError, open_take
+TAKE_HELP = ("Take: a take folder (rgb/ or .mp4, depth/, camera.json) or a recording: RealSense .bag/.db3, "
+             "Record3D .r3d or export folder, ROS 2 bag (.mcap, .db3 or its folder).")
+RGB_TOPIC = typer.Option(None, "--rgb-topic", help="ROS 2 bag: the colour topic (Image or CompressedImage); default: found from the topic list. Remembered in the bag's side folder.")
+DEPTH_TOPIC = typer.Option(None, "--depth-topic", help="ROS 2 bag: the depth topic aligned to colour (16UC1 mm or 32FC1 m).")
+INFO_TOPIC = typer.Option(None, "--info-topic", help="ROS 2 bag: the colour camera's CameraInfo topic.")
 
-    if not path.is_dir():
-        raise fail(f"{path}: no such take folder" if not path.exists() else f"{path}: is a file, not a take folder")
+
+def _open_take_or_fail(path: Path, require_pose: bool = True, rgb_topic: Optional[str] = None,
+                       depth_topic: Optional[str] = None, info_topic: Optional[str] = None):
+    """The opened take, or a one-line error (exit 2) before any flow starts: missing folder or recording,
+    missing or malformed camera.json / annotations.json, an unreadable recording, no camera pose.
+    Topics given are remembered in the recording's side folder; a recording's notes go to stderr."""
+    from demoforge.lib.takes import TakeError, open_take
+    from demoforge.lib.takes.sources import remember_options
+
+    if not path.exists():
+        raise fail(f"{path}: no such take folder or recording file")
     try:
-        return open_take(path)
+        if rgb_topic or depth_topic or info_topic:
+            if path.is_dir() and (path / "camera.json").is_file():
+                raise TakeError("--rgb-topic/--depth-topic/--info-topic are for ROS 2 bags, not take folders")
+            remember_options(path, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic)
+        take = open_take(path, require_pose=require_pose)
     except (TakeError, FileNotFoundError) as e:
         raise fail(str(e))
+    if take.decoder is not None:
+        for note in take.notes:
+            typer.echo(f"note: {note}", err=True)
+    return take
 
 
 @app.command()
 def annotate(
-    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    path: Path = typer.Argument(..., help=TAKE_HELP),
     task: Optional[str] = typer.Option(None, "--task", "-t", help="Task of the take (pouring, ...), or `custom` / "
                                        "`custom:NAME` (with --keypoints) for a task of your own. Default: what "
                                        "annotations.json says."),
@@ -78,18 +96,23 @@ def annotate(
                                              '"objects": [{"name": ..., "arm": "left"|"right", "keypoints": [...]}]}.'),
     port: int = typer.Option(8765, "--port", "-p", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port)."),
     open_browser: bool = typer.Option(False, "--open", help="Also open the page in the default browser."),
+    rgb_topic: Optional[str] = RGB_TOPIC, depth_topic: Optional[str] = DEPTH_TOPIC,
+    info_topic: Optional[str] = INFO_TOPIC,
 ) -> None:
     """Annotate a take in the browser: click the object keypoints, mark gripper open/close ranges, save.
 
     Serves a page on 127.0.0.1 (printed) until Ctrl-C. It shows the frames (scrub with the slider or
     the arrow keys), asks for the task's keypoints one by one and shows each click's depth and world
     position, and plots the fingertip distance of an earlier `demoforge ingest` with the automatic
-    method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited).
+    method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited; a
+    recording's go to its side folder RECORDING.demoforge/). A take whose camera pose is not known yet
+    can be calibrated on the page (a board on the table, or the table plane and two clicks on its
+    robot-side edge), as `demoforge calibrate` does.
     """
     from demoforge.flows.annotate import AnnotationSession, server_url, start_server
     from demoforge.lib.takes import TakeError
 
-    _open_take_or_fail(path)
+    _open_take_or_fail(path, require_pose=False, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic)
     try:
         session = AnnotationSession(path, current_warehouse(), task=task, keypoints=keypoints, task_file=task_file)
     except TakeError as e:
@@ -115,7 +138,7 @@ def annotate(
 
 @app.command()
 def ingest(
-    path: Path = typer.Argument(..., help="Take folder (rgb/ or .mp4, depth/, camera.json)."),
+    path: Path = typer.Argument(..., help=TAKE_HELP),
     detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed, hamer (local checkpoint)."),
     predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
     task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
@@ -129,6 +152,8 @@ def ingest(
     box_source: str = typer.Option("previous", "--box-source", help="For --detector hamer: 'previous' (last frame's keypoints; MediaPipe finds untracked hands) or 'mediapipe' (every frame)."),
     accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="Go on when the take's depth fails a check (empty, wrong unit, misaligned): every row is flagged in `depth_problem` instead of stopping."),
     mediapipe_mode: str = typer.Option("auto", "--mediapipe-mode", help="For --detector mediapipe: auto (video mode: landmark tracking between palm detections; default) or image (every frame on its own)."),
+    rgb_topic: Optional[str] = RGB_TOPIC, depth_topic: Optional[str] = DEPTH_TOPIC,
+    info_topic: Optional[str] = INFO_TOPIC,
 ) -> None:
     """Ingest one take: frames, hand keypoints, depth checks, hand tracking, depth alignment, gripper
     poses, object keypoints.
@@ -155,7 +180,9 @@ def ingest(
         if box_source not in ("previous", "mediapipe"):
             raise fail(f"--box-source must be previous or mediapipe, got {box_source!r}")
         options.update(checkpoint=str(hamer_checkpoint.resolve()), mano_model=str(mano_model.resolve()), box_source=box_source)
-    take = _open_take_or_fail(path)
+    take = _open_take_or_fail(path, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic)
+    if take.pose_method not in (None, "camera.json"):
+        typer.echo(f"camera pose: {take.pose_method} (demoforge calibrate)", err=True)
     # the flow's modules (Prefect, the detectors) once the take is known to be readable: a mistyped
     # path is reported at once
     from demoforge.flows.ingest import ingest_take
@@ -198,7 +225,7 @@ def _echo_hand_presence(presence) -> None:
 
 @app.command("ingest-folder")
 def ingest_folder_cmd(
-    folder: Path = typer.Argument(..., help="Folder whose take folders (any folder with camera.json) to ingest."),
+    folder: Path = typer.Argument(..., help="Folder whose takes to ingest: take folders (with camera.json) and recordings (.bag, .db3, .r3d, .mcap, bag and Record3D folders), at any depth."),
     detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
     task: Optional[str] = typer.Option(None, help="Task of the takes (synthetic takes know theirs)."),
     augment: bool = typer.Option(False, "--augment", help="Also generate each take's episode database."),
@@ -222,4 +249,4 @@ def ingest_folder_cmd(
     for r in rows:
         typer.echo(f"{r['status']:<16} {r['take']}  {r['error']}")
     if not rows:
-        typer.echo(f"no take folders (folders with camera.json) under {folder}")
+        typer.echo(f"no takes (folders with camera.json, or recordings) under {folder}")

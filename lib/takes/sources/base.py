@@ -78,6 +78,35 @@ def get_source(name: str) -> type[TakeSource]:
     return entry
 
 
+def find_takes(root: Path) -> list[Path]:
+    """Every take under ``root`` (any depth), sorted: take folders (camera.json) and recordings. A
+    claimed folder is not searched further (a bag folder's .db3 is the bag, not another take), and
+    recordings' side folders (``*.demoforge``) are skipped."""
+    found: list[Path] = []
+
+    def claimed(p: Path) -> bool:
+        for name in list(_REGISTRY):
+            if name != "mp4" or p.is_dir():
+                if get_source(name).claims(p):
+                    return True
+        return False
+
+    def walk(folder: Path) -> None:
+        for p in sorted(folder.iterdir()):
+            if p.name.startswith(".") or p.name.endswith(".demoforge"):
+                continue
+            if p.is_dir():
+                if claimed(p):
+                    found.append(p)
+                else:
+                    walk(p)
+            elif p.suffix.lower() != ".mp4" and claimed(p):
+                found.append(p)
+
+    walk(root)
+    return sorted(found)
+
+
 def source_for(path: Path) -> type[TakeSource]:
     """The first registered source that claims ``path``; :class:`TakeError` when none does."""
     if not path.exists():

@@ -21,7 +21,8 @@ from demoforge.lib.takes.sources.recording import (
 )
 from demoforge.lib.takes.types import TakeError
 
-WAIT_MS = 2000
+WAIT_MS = 200      # one wait for the next frameset; the end of the file is the playback's "stopped"
+STALL_S = 30.0     # no frame for this long while the playback says it is playing: give up
 
 
 def is_realsense_db3(path: Path) -> bool:
@@ -55,6 +56,23 @@ class RealSenseRecording(Recording):
         profile.get_device().as_playback().set_real_time(False)
         return pipe, profile, rs.align(rs.stream.color)
 
+    @staticmethod
+    def _framesets(pipe, profile) -> Iterator:
+        """Every frameset of the playback, until it stops."""
+        import pyrealsense2 as rs
+
+        playback = profile.get_device().as_playback()
+        waited = 0.0
+        while True:
+            ok, fs = pipe.try_wait_for_frames(WAIT_MS)
+            if ok:
+                waited = 0.0
+                yield fs
+                continue
+            waited += WAIT_MS / 1000
+            if playback.current_status() == rs.playback_status.stopped or waited > STALL_S:
+                return
+
     def build_index(self) -> RecordingIndex:
         import pyrealsense2 as rs
 
@@ -68,13 +86,11 @@ class RealSenseRecording(Recording):
                 raise TakeError(f"{self.path}: the recording has no depth stream; record colour and depth")
             colour = streams[rs.stream.color].as_video_stream_profile()
             intr = colour.get_intrinsics()
+            registered = _registered(streams[rs.stream.depth].as_video_stream_profile(), colour)
             depth_sensor = profile.get_device().first_depth_sensor()
             scale = float(depth_sensor.get_depth_scale())
             numbers, times, has_depth, domains = [], [], {}, set()
-            while True:
-                ok, fs = pipe.try_wait_for_frames(WAIT_MS)
-                if not ok:
-                    break
+            for fs in self._framesets(pipe, profile):
                 c = fs.get_color_frame()
                 if not c:
                     continue
@@ -90,7 +106,12 @@ class RealSenseRecording(Recording):
             pipe.stop()
         if not numbers:
             raise TakeError(f"{self.path}: no colour frames could be read from the recording (truncated or empty)")
-        return self._index(numbers, times, has_depth, domains, intr, scale, colour.fps())
+        index = self._index(numbers, times, has_depth, domains, intr, scale, colour.fps())
+        index.info["registered"] = registered
+        if registered:
+            index.notes[0] = index.notes[0].replace("depth aligned to colour by the SDK",
+                                                    "depth recorded already registered to colour (used as is)")
+        return index
 
     def _index(self, numbers, times, has_depth, domains, intr, scale, fps) -> RecordingIndex:
         first_time: dict[int, float] = {}
@@ -117,7 +138,7 @@ class RealSenseRecording(Recording):
                  f"timestamps), depth scale {scale * 1000:.3f} mm/unit, depth aligned to colour by the SDK"
                  + (f"; {dropped} frame(s) dropped" if dropped else "")
                  + (f"; {len(repeats)} frame(s) repeated" if repeats else "")]
-        info = {"format": "realsense", "depth_scale": scale, "timestamp_domains": sorted(domains),
+        info = {"format": "realsense", "depth_scale": scale, "depth_integer_scale": scale, "timestamp_domains": sorted(domains),
                 "distortion": str(intr.model), "coeffs": list(intr.coeffs)}
         return RecordingIndex(width=int(intr.width), height=int(intr.height), K=K, fps=fps, timestamps_s=stamps,
                               keys=keys, status=status, message=message, notes=notes, info=info)
@@ -129,11 +150,10 @@ class RealSenseRecording(Recording):
         last = max(wanted)
         done: set[int] = set()
         scale = np.float32(index.info["depth_scale"])
-        pipe, _, align = self._start()
+        pipe, profile, align = self._start()
         try:
-            while len(done) < len(wanted):
-                ok, fs = pipe.try_wait_for_frames(WAIT_MS)
-                if not ok:
+            for fs in self._framesets(pipe, profile):
+                if len(done) == len(wanted):
                     break
                 c = fs.get_color_frame()
                 if not c:
@@ -145,7 +165,7 @@ class RealSenseRecording(Recording):
                         break
                     continue
                 done.add(i)
-                aligned = align.process(fs)
+                aligned = fs if index.info.get("registered") else align.process(fs)
                 d = aligned.get_depth_frame()
                 rgb = _colour(aligned.get_color_frame() or c)
                 depth = np.asanyarray(d.get_data()).astype(np.float32) * scale if d else None
@@ -155,6 +175,17 @@ class RealSenseRecording(Recording):
         for i in wanted:
             if i not in done:
                 yield i, None, None, "frame not found when playing the recording back (truncated?)"
+
+
+def _registered(depth, colour) -> bool:
+    """Depth already in the colour camera's pixels (same intrinsics, identity extrinsics): the SDK's
+    align would only resample it (holes where its pixel footprints round apart), so it is used as is."""
+    a, b = depth.get_intrinsics(), colour.get_intrinsics()
+    same = (a.width, a.height) == (b.width, b.height) and np.allclose(
+        [a.fx, a.fy, a.ppx, a.ppy], [b.fx, b.fy, b.ppx, b.ppy], atol=1e-3)
+    e = depth.get_extrinsics_to(colour)
+    return bool(same and np.allclose(e.rotation, np.eye(3).reshape(-1), atol=1e-6)
+                and np.allclose(e.translation, 0.0, atol=1e-6))
 
 
 def _colour(frame) -> np.ndarray | None:

@@ -112,7 +112,7 @@ class Record3DRecording(Recording):
             for i, d in enumerate(moved):
                 if d > MOVED_M and status[i] == "ok":
                     status[i], message[i] = "camera_moved", f"camera {d * 100:.1f} cm from its first pose"
-        info = {"format": "record3d", "rgb_size": [w, h], "depth_size": _depth_size(meta),
+        info = {"format": "record3d", "depth_integer_scale": None, "rgb_size": [w, h], "depth_size": _depth_size(meta),
                 "max_camera_motion_m": None if moved is None else float(np.nanmax(moved))}
         return RecordingIndex(width=w, height=h, K=K.tolist(), fps=fps, timestamps_s=stamps_s, keys=keys,
                               status=status, message=message, notes=notes, info=info)

@@ -164,7 +164,9 @@ class RosBag2Recording(Recording):
                      f"{np.median(paired) / 1e6 if paired.size else float('nan'):.2f} ms, max "
                      f"{paired.max() / 1e6 if paired.size else float('nan'):.2f} ms")
         info = {"format": "rosbag2", "rgb_topic": rgb, "depth_topic": depth, "info_topic": info_topic,
-                "depth_encoding": depth_meta["encoding"], "pairing_tolerance_s": tol / 1e9}
+                "depth_encoding": depth_meta["encoding"], "pairing_tolerance_s": tol / 1e9,
+                "depth_integer_scale": (None if depth_meta["encoding"] == "32FC1"
+                                        else float(self.options.get("depth_scale") or 0.001))}
         return RecordingIndex(width=w, height=h, K=K.tolist(), fps=fps, timestamps_s=stamps_s, keys=keys,
                               status=status, message=message, notes=notes, info=info)
 
