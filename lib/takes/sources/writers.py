@@ -182,6 +182,7 @@ def write_realsense(take_dir: str | os.PathLike, out: str | os.PathLike, *, dept
     queue = rs.frame_queue(64)
     ds.start(queue)
     cs.start(queue)
+    time.sleep(0.1)  # the recorder drops frames sent before it has started writing
 
     def send(sensor, profile, pixels, bpp, i):
         f = rs.software_video_frame()
