@@ -11,6 +11,9 @@ small JSON API over the take:
     POST /api/points           {"frame": N, "uv": [[u, v], ...]} -> depth, camera and world point per click
     POST /api/save             {"frame", "points": {name: [u, v]}, "ranges": {"left": [[s, e]], ...},
                                 "task": {...}} -> annotations.json written atomically
+    POST /api/calibrate        {"method": "board" | "plane", "edge": [[u, v], [u, v]] (optional: the table's
+                                robot-side edge, left end then right end)} -> the camera pose found
+                                (demoforge.lib.calibration) and written where the take keeps it
 
 The pure logic (format, validation, back-projection, suggestion) is demoforge.lib.takes.annotate; this module is glue.
 """
@@ -32,7 +35,41 @@ import demoforge.lib  # noqa: F401
 PAGE = Path(demoforge.lib.__file__).resolve().parent / "takes" / "annotate" / "page.html"
 
 
-class AnnotationSession:
+class CalibrationMixin:
+    """The page's calibration of a take without a pose (`demoforge calibrate` in the browser)."""
+
+    def pose_state(self) -> dict:
+        from demoforge.lib.takes.pose import pose_file
+
+        take = self.take
+        return {"known": take.camera.T_world_camera is not None, "method": take.pose_method,
+                "file": str(pose_file(take))}
+
+    def calibrate(self, payload: dict) -> dict:
+        from demoforge.lib.calibration import calibrate
+        from demoforge.lib.takes import open_take
+        from demoforge.lib.takes.pose import write_pose
+
+        if not isinstance(payload, dict):
+            raise ValueError("the request body must be a JSON object")
+        method = str(payload.get("method") or "auto")
+        edge = payload.get("edge")
+        if edge is not None:
+            edge = np.asarray(edge, float)
+            if edge.shape != (2, 2) or not np.isfinite(edge).all():
+                raise ValueError("edge must be two [u, v] pixels: the robot-side table edge's left end, then its right end")
+            method = "plane"
+        result = calibrate(self.take, method=method, edge_clicks=edge)
+        written = write_pose(self.take, result.T_world_camera, result.method, result.details)
+        self.take = open_take(self.take.path, require_pose=False)
+        T = result.T_world_camera
+        return {"method": result.method, "details": result.details, "file": str(written),
+                "T_world_camera": np.round(T, 6).tolist(), "pose": self.pose_state(),
+                "summary": f"{result.method}: camera at ({T[0, 3]:+.3f}, {T[1, 3]:+.3f}, {T[2, 3]:+.3f}) m, "
+                           f"written to {written}"}
+
+
+class AnnotationSession(CalibrationMixin):
     """The take being annotated: frames and depth on demand (a few cached), the task, saving."""
 
     def __init__(self, take_dir: str | Path, warehouse: str | Path | None = None, task: str | None = None,
@@ -140,6 +177,7 @@ class AnnotationSession:
             "frame_status": [f.status for f in self.take.frames],
             "annotations_file": str(self.path), "exists": self.path.is_file(),
             "status": annotation_status(self.take).__dict__,
+            "pose": self.pose_state(),
             "task": self.task.to_json(), "library_tasks": list(TASK_NAMES),
             "current": current, "ingest": signals,
         }
@@ -206,6 +244,7 @@ def make_handler(session: AnnotationSession):
                 self._error(e, 500)
 
         def do_POST(self) -> None:  # noqa: N802
+            from demoforge.lib.errors import UserError
             from demoforge.lib.takes import TakeError
 
             try:
@@ -215,9 +254,11 @@ def make_handler(session: AnnotationSession):
                     self._json({"points": session.points(int(body.get("frame", 0)), body.get("uv", []))})
                 elif self.path == "/api/save":
                     self._json(session.save(body))
+                elif self.path == "/api/calibrate":
+                    self._json(session.calibrate(body))
                 else:
                     self._json({"error": f"no such endpoint {self.path}"}, HTTPStatus.NOT_FOUND)
-            except (TakeError, ValueError, KeyError, TypeError, json.JSONDecodeError) as e:
+            except (TakeError, UserError, ValueError, KeyError, TypeError, json.JSONDecodeError) as e:
                 self._error(e)
             except Exception as e:  # noqa: BLE001
                 self._error(e, 500)

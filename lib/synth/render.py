@@ -105,6 +105,23 @@ def project(points_world: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray)
     return project_points(pc, K), pc[..., 2]
 
 
+# --- a calibration board on the table --------------------------------------------------------------
+
+BOARD_LIFT_M = 0.0005  # above the table top: drawn on it without z-fighting; 0.5 mm is below what calibration resolves
+
+
+def board_xml(spec, png_path: str, origin_xy=(0.0, 0.0)) -> tuple[str, str]:
+    """(asset, worldbody) MJCF of a printed ChArUco board (demoforge.lib.calibration.board.BoardSpec,
+    its image at ``png_path``) lying face up on the table, centred at ``origin_xy``, its printed top
+    edge towards +y: the pose demoforge.lib.calibration.board.T_world_board describes."""
+    w, h = spec.size_m
+    asset = (f'<texture name="demoforge_board_tex" type="2d" file="{png_path}"/>'
+             f'<material name="demoforge_board_mat" texture="demoforge_board_tex" texrepeat="1 1" texuniform="false"/>')
+    geom = (f'<geom name="demoforge_board" type="plane" pos="{origin_xy[0]:.9g} {origin_xy[1]:.9g} {BOARD_LIFT_M}" '
+            f'size="{w / 2:.9g} {h / 2:.9g} 0.01" material="demoforge_board_mat" contype="0" conaffinity="0"/>')
+    return asset, geom
+
+
 # --- hands in MJCF -------------------------------------------------------------------------------
 
 def _hand_body_names(side: str, n: int) -> list[str]:
@@ -470,7 +487,7 @@ def joint_visibility(joints_world: np.ndarray, depth: np.ndarray, K: np.ndarray,
 
 __all__ = [
     "WIDTH", "HEIGHT", "FX", "FY", "CX", "CY", "CAMERA_POS", "CAMERA_TARGET", "CAMERA_NAME",
-    "camera_K", "camera_T_world_camera", "camera_fovy_deg", "camera_xml", "world_to_camera", "project",
+    "board_xml", "camera_K", "camera_T_world_camera", "camera_fovy_deg", "camera_xml", "world_to_camera", "project",
     "HAND_STYLES", "DEFAULT_HAND_STYLE", "hands_xml", "hands_assets_xml", "extra_worldbody_xml", "with_camera_and_hands", "add_depth_noise", "Frame",
     "SceneRenderer", "joint_visibility",
 ]

@@ -334,11 +334,35 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
                   depth_noise: bool = True, video: bool = True,
                   progress: Callable[[int, int], None] | None = None,
                   max_frames: int | None = None, write_queue: int = 4,
-                  hand_style: str = DEFAULT_HAND_STYLE) -> TakeSummary:
+                  hand_style: str = DEFAULT_HAND_STYLE, board: Any = None,
+                  board_origin: Sequence[float] = (0.0, 0.0)) -> TakeSummary:
     """Script ``task_name``'s demo for ``seed`` (mirrored: hands' roles swapped), render and write it.
 
-    ``max_frames`` keeps only the first frames (tests, previews). See :func:`write_take`.
+    ``max_frames`` keeps only the first frames (tests, previews). ``board``: a ChArUco board
+    (demoforge.lib.calibration.board.BoardSpec) printed on the table, centred at ``board_origin``
+    (recorded in take.json as ``calibration_board``), to measure ``demoforge calibrate`` against the
+    known pose. See :func:`write_take`.
     """
+    if board is not None:
+        import tempfile
+
+        import cv2
+
+        from demoforge.lib.synth.render import board_xml
+
+        with tempfile.TemporaryDirectory(prefix="demoforge_board_") as d:
+            png = os.path.join(d, "board.png")
+            cv2.imwrite(png, board.image(px_per_m=4000))  # 4 px per mm: sharper than the camera sees it
+            extra = board_xml(board, png, board_origin)
+            meta = {"calibration_board": {**board.to_json(), "origin_xy": [float(x) for x in board_origin]}}
+            return _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames,
+                             write_queue, hand_style, extra, meta)
+    return _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames, write_queue,
+                     hand_style, ("", ""), {})
+
+
+def _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames, write_queue, hand_style,
+              extra_xml: tuple[str, str], extra_meta: dict) -> TakeSummary:
     from demoforge.lib.task_library import get_task
 
     task = get_task(task_name)
@@ -346,13 +370,13 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
     if max_frames is not None:
         demo = _TruncatedDemo(demo, int(max_frames))
     styles = hand_styles_for(seed)
-    scene = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles, hand_style=hand_style),
-                           extra_assets=hands_assets_xml(styles, hand_style))
+    scene = task.scene_xml(demo.placement, extra_worldbody=extra_worldbody_xml(styles, hand_style=hand_style)
+                           + extra_xml[1], extra_assets=hands_assets_xml(styles, hand_style) + extra_xml[0])
     return write_take(
         out_dir, task_name=task_name, seed=seed, mirror=mirror, scene_xml=scene,
         object_names=list(task.object_names), keypoint_names=list(task.keypoint_names), demo=demo,
         styles=styles, depth_noise=depth_noise, video=video, progress=progress,
-        extra_meta={"placement": demo.placement}, write_queue=write_queue, hand_style=hand_style,
+        extra_meta={"placement": demo.placement, **extra_meta}, write_queue=write_queue, hand_style=hand_style,
     )
 
 
