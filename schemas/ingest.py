@@ -19,10 +19,10 @@ FRAMES = table(
     columns=[
         _TAKE, _TASK, _FRAME,
         Column("time_s", pa.float64(), "Timestamp since the take's start, s (frame / fps)."),
-        Column("status", pa.string(), "`ok`, `missing_depth`, `missing_rgb`, `unreadable_rgb`, `unreadable_depth`, `depth_size_mismatch` or `all_zero_depth`."),
+        Column("status", pa.string(), "`ok`, `missing_depth`, `missing_rgb`, `unreadable_rgb`, `unreadable_depth`, `depth_size_mismatch`, `all_zero_depth`; recordings also `dropped_frame` (the camera's timestamps skip it), `repeated_frame` (delivered twice, the copy discarded), `camera_moved` (Record3D: the camera > 1 cm from its first pose)."),
         Column("message", pa.string(), "What was wrong, in words (empty when ok)."),
-        Column("rgb_source", pa.string(), "RGB file, or `<video>#<index>` for a frame of an .mp4; empty when missing."),
-        Column("depth_source", pa.string(), "Depth file; empty when missing."),
+        Column("rgb_source", pa.string(), "RGB file, or `<video>#<index>` for a frame of an .mp4, `<recording>#<index>` for a recording's; empty when missing."),
+        Column("depth_source", pa.string(), "Depth file, or `<recording>#<index>`; empty when missing."),
     ],
     partition_by=_PARTS,
 )

@@ -368,6 +368,13 @@ def _hamer_cases(quick: bool) -> list[BenchCase]:
     return cases(quick)
 
 
+@register("takes")
+def _takes_cases(quick: bool) -> list[BenchCase]:
+    from demoforge.bench.cases_takes import cases
+
+    return cases(quick)
+
+
 @register("exports")
 def _exports_cases(quick: bool) -> list[BenchCase]:
     from demoforge.bench.cases_exports import cases

@@ -138,18 +138,27 @@ def write_rosbag2(take_dir: str | os.PathLike, out: str | os.PathLike, *, storag
     return out
 
 
-def write_realsense(take_dir: str | os.PathLike, out: str | os.PathLike, *, depth_units: float = 0.0001,
-                    drop: tuple[int, ...] = (), depth_size: tuple[int, int] | None = None) -> Path:
+def write_realsense(take_dir: str | os.PathLike | None, out: str | os.PathLike, *, depth_units: float = 0.0001,
+                    drop: tuple[int, ...] = (), depth_size: tuple[int, int] | None = None,
+                    frames: Iterator[tuple[int, np.ndarray, np.ndarray]] | None = None, camera=None,
+                    pace_s: float = 0.0) -> Path:
     """A RealSense recording written by the SDK (``rs.recorder`` on a ``software_device``: colour rgb8
     and z16 depth in ``depth_units`` metres; hardware-clock timestamps). ``out`` must end in .db3 (what
     SDK 2.59 records). ``drop``: frame indices left out (dropped by the camera). ``depth_size`` (w, h):
     depth at another resolution (intrinsics scaled), so that reading it needs the SDK's ``align``;
-    default: the colour's, registered to it."""
+    default: the colour's, registered to it. ``frames`` (index, RGB, depth m) and ``camera``
+    (CameraInfo) instead of a take folder: a long recording without the folder on disk. ``pace_s``:
+    seconds between frames (the recorder's writer drops frames it is handed faster than it writes;
+    1 / fps, as a camera does, for recordings longer than a few dozen frames)."""
     import pyrealsense2 as rs
 
-    take_dir, out = Path(take_dir), Path(out)
-    take = open_take(take_dir)
-    cam = take.camera
+    out = Path(out)
+    if frames is None:
+        take_dir = Path(take_dir)
+        take = open_take(take_dir)
+        cam, frames = take.camera, _frames(take)
+    else:
+        cam = camera
     dev = rs.software_device()
     ds, cs = dev.add_sensor("Depth"), dev.add_sensor("Color")
     intr = rs.intrinsics()
@@ -191,9 +200,12 @@ def write_realsense(take_dir: str | os.PathLike, out: str | os.PathLike, *, dept
         f.profile = profile.as_video_stream_profile()
         sensor.on_video_frame(f)
 
-    for i, rgb, d in _frames(take):
+    start = time.monotonic()
+    for i, rgb, d in frames:
         if i in drop:
             continue
+        if pace_s:
+            time.sleep(max(0.0, start + i * pace_s - time.monotonic()))
         if (dw, dh) != (cam.width, cam.height):
             import cv2
 
@@ -208,5 +220,6 @@ def write_realsense(take_dir: str | os.PathLike, out: str | os.PathLike, *, dept
         s.stop()
         s.close()
     del recorder
-    copy_metadata(take_dir, out)
+    if take_dir is not None:
+        copy_metadata(Path(take_dir), out)
     return out
