@@ -1,5 +1,6 @@
 """Each recording format against the take folder it was made from: a synthetic trash_in_bin take
-(seed 0, the first N frames) written as a RealSense recording (the SDK's recorder), ROS 2 bags (rosbags:
+(seed 0, the first N frames) written as a RealSense recording (the SDK's recorder; a .bag in the SDK's
+ROS 1 layout written with rosbags), ROS 2 bags (rosbags:
 MCAP with 16UC1 depth, SQLite with 32FC1), Record3D (.r3d, depth at the RGB's size and at a quarter of
 it), each ingested with the simulated detector like the folder; prints the largest gripper position
 difference (mm) and rotation difference (deg) over the frames where both have a pose, and how long
@@ -21,7 +22,7 @@ import pyarrow.parquet as pq
 from demoforge.flows.ingest import ingest_take
 from demoforge.lib.synth.take import generate_take
 from demoforge.lib.takes import open_take
-from demoforge.lib.takes.sources.writers import write_realsense, write_record3d, write_rosbag2
+from demoforge.lib.takes.sources.writers import write_realsense, write_realsense_bag, write_record3d, write_rosbag2
 
 
 def poses(wh: Path) -> np.ndarray:
@@ -42,6 +43,7 @@ def main() -> None:
         ref = poses(d / "wh_folder")
         writers = {
             "realsense .db3 (SDK recorder, z16 0.1 mm)": lambda p: write_realsense(take, p.with_suffix(".db3")),
+            "realsense .bag (the SDK's ROS 1 layout, rosbags; mono16 0.1 mm)": lambda p: write_realsense_bag(take, p.with_suffix(".bag")),
             "ROS 2 MCAP (16UC1 mm)": lambda p: write_rosbag2(take, p, storage="mcap", depth_encoding="16UC1"),
             "ROS 2 SQLite .db3 (32FC1 m)": lambda p: write_rosbag2(take, p, storage="sqlite3", depth_encoding="32FC1"),
             "Record3D .r3d (depth at 640x480)": lambda p: write_record3d(take, p.with_suffix(".r3d")),

@@ -19,6 +19,7 @@ import hashlib
 import json
 import logging
 import os
+import time
 from dataclasses import asdict, dataclass, is_dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -79,6 +80,10 @@ class Manifest:
 # --- content hashing of inputs -------------------------------------------------------------------
 
 _FILE_HASH_MEMO: dict[tuple, str] = {}
+# A file changed less than this long ago is not remembered by its identity: the file system's clock
+# ticks coarser than its nanosecond times, so a write in the same tick would keep the identity
+# (git's "racily clean" files).
+RACY_NS = 2_000_000_000
 
 
 def _file_digest(path: Path, remember: bool = False) -> str:
@@ -101,6 +106,8 @@ def _file_digest(path: Path, remember: bool = False) -> str:
             pass
     if digest is None:
         digest = file_sha256(path)
+        if time.time_ns() - st.st_mtime_ns < RACY_NS:
+            return digest  # still being written, perhaps: a later write could keep these times, so hash it again next time
         if record is not None:
             _write_record(record, {"identity": list(key[1:]), "sha256": digest})
     _FILE_HASH_MEMO[key] = digest

@@ -102,8 +102,9 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
     if verify_decode:
         for _ in iter_frames(take, batch_size=32):
             pass
-        for _ in iter_depth(take):
-            pass
+        if take.decoder is None:  # a recording's decoder gave every frame's depth with its RGB: one pass
+            for _ in iter_depth(take):
+                pass
     f = take.frames
     written = write_table("frames", {
         "take": [take.take_id] * len(f), "task": [take_task_name(take, task)] * len(f),

@@ -7,7 +7,9 @@ recording's cache key reads it once."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ from typer.testing import CliRunner
 from demoforge.cli import app
 from demoforge.lib.takes import iter_frames, open_take
 from demoforge.lib.takes.sources import sidecar_dir
-from demoforge.lib.takes.sources.writers import write_realsense, write_record3d, write_rosbag2
+from demoforge.lib.takes.sources.writers import write_realsense, write_realsense_bag, write_record3d, write_rosbag2
 
 N_FRAMES = 12
 runner = CliRunner()
@@ -50,6 +52,7 @@ def _frames(take) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 WRITERS = {
     "realsense.db3": lambda take, out: write_realsense(take, out),
+    "realsense.bag": lambda take, out: write_realsense_bag(take, out),
     "rosbag2_mcap": lambda take, out: write_rosbag2(take, out, storage="mcap", depth_encoding="32FC1"),
     "rosbag2_db3": lambda take, out: write_rosbag2(take, out, storage="sqlite3", depth_encoding="32FC1"),
     "record3d.r3d": lambda take, out: write_record3d(take, out),
@@ -180,6 +183,7 @@ def test_a_recordings_cache_key_reads_it_once(base, tmp_path, monkeypatch):
     from demoforge.tasks.ingest import take_media_key
 
     rec = write_record3d(base["take"], tmp_path / "once.r3d")
+    os.utime(rec, (time.time() - 60, time.time() - 60))  # recorded a minute ago (a file written in the last 2 s is hashed again)
     monkeypatch.setenv("DEMOFORGE_DIGEST_CACHE", str(tmp_path / "digests"))
     read = []
     real = common.file_sha256

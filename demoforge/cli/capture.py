@@ -60,7 +60,7 @@ def _board_spec(board: str, square_mm: float, marker_mm: Optional[float], dictio
 
     try:
         nx, ny = (int(x) for x in board.lower().split("x"))
-        marker = marker_mm if marker_mm is not None else square_mm * 0.74
+        marker = marker_mm if marker_mm is not None else square_mm * 28 / 38  # the default board: 38 mm squares, 28 mm markers
         return BoardSpec(nx, ny, square_mm / 1000, marker / 1000, f"DICT_{dictionary.upper().removeprefix('DICT_')}")
     except ValueError as e:
         raise fail(f"--board {board!r} / --square-mm / --marker-mm / --dictionary: {e}".replace("invalid literal for int() with base 10", "need COLSxROWS, e.g. 7x5, got"))
@@ -72,7 +72,7 @@ def calibrate(
     method: str = typer.Option("auto", "--method", "-m", help="auto (the board when it is seen, else the table plane), board, or plane."),
     board: str = typer.Option("7x5", "--board", help="The ChArUco board's squares, COLSxROWS."),
     square_mm: float = typer.Option(38.0, "--square-mm", help="Side of a board square as printed, mm (measure it)."),
-    marker_mm: Optional[float] = typer.Option(None, "--marker-mm", help="Side of a marker, mm (default 0.74 x the square)."),
+    marker_mm: Optional[float] = typer.Option(None, "--marker-mm", help="Side of a marker, mm (default 28/38 of the square: 28 mm on the default board)."),
     dictionary: str = typer.Option("4X4_50", "--dictionary", help="ArUco dictionary: 4X4_50, 4X4_100, 5X5_50, 5X5_100, 6X6_50, 6X6_250."),
     board_origin: Optional[str] = typer.Option(None, "--board-origin", help="X,Y: where the board's centre lies in the table frame, m (default 0,0: the board's centre is the origin)."),
     edge: Optional[str] = typer.Option(None, "--edge", help="U1,V1,U2,V2: two pixels on the table's robot-side edge, its left end then its right end (what the annotate page's two clicks give); the plane method then takes x along it and the origin at its middle."),

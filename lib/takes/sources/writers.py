@@ -4,7 +4,8 @@ against a take of your own.
 
 - :func:`write_realsense`: the RealSense SDK itself (``pyrealsense2``: a ``software_device`` recorded
   by ``rs.recorder``). SDK 2.59 records to the ROS 2 layout, a ``.db3`` file (it refuses a ``.bag``
-  name); it plays back both that and the older ``.bag``.
+  name); it plays back both that and the older ``.bag``, which :func:`write_realsense_bag` writes with
+  ``rosbags`` in the SDK's ROS 1 topic layout.
 - :func:`write_rosbag2`: ``rosbags``' rosbag2 writer (MCAP or SQLite storage), the RealSense ROS driver's
   topic names.
 - :func:`write_record3d`: Record3D's layout (``metadata`` + ``rgbd/N.jpg``, LZFSE ``N.depth``/``N.conf``),
@@ -219,7 +220,88 @@ def write_realsense(take_dir: str | os.PathLike | None, out: str | os.PathLike, 
     for s in (ds, cs):
         s.stop()
         s.close()
-    del recorder
+    del recorder, ds, cs, dp, cp, queue, dev
+    _wait_until_written(out)  # the SDK closes the file from its own threads
     if take_dir is not None:
         copy_metadata(Path(take_dir), out)
+    return out
+
+
+def _wait_until_written(path: Path, quiet_s: float = 0.3, limit_s: float = 20.0) -> None:
+    import gc
+
+    gc.collect()
+    last, still, t0 = None, time.monotonic(), time.monotonic()
+    while time.monotonic() - t0 < limit_s:
+        st = path.stat()
+        now = (st.st_size, st.st_mtime_ns)
+        if now != last:
+            last, still = now, time.monotonic()
+        elif time.monotonic() - still >= quiet_s:
+            return
+        time.sleep(0.05)
+
+
+def write_realsense_bag(take_dir: str | os.PathLike, out: str | os.PathLike, *, depth_units: float = 0.0001) -> Path:
+    """A RealSense ``.bag`` in the SDK's ROS 1 layout (file version 2, what the RealSense Viewer wrote
+    before SDK 2.57), written with ``rosbags`` since SDK 2.59's recorder writes only ``.db3``:
+    ``/file_version``, ``/device_0/info``, per sensor its ``info``, ``property`` (Depth Units),
+    ``<stream>/info`` (``realsense_msgs/StreamInfo``), ``info/camera_info``, ``tf/0`` (identity: depth
+    registered to colour), and per frame ``image/data`` (mono16 depth, rgb8 colour; header seq = the
+    frame counter, stamp = hardware time) with its ``image/metadata``."""
+    from rosbags.rosbag1 import Writer as Bag1Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    take_dir, out = Path(take_dir), Path(out)
+    take = open_take(take_dir)
+    cam = take.camera
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    ts.register(get_types_from_msg("uint32 fps\nstring encoding\nbool is_recommended", "realsense_msgs/msg/StreamInfo"))
+    T, KV = ts.types, "diagnostic_msgs/msg/KeyValue"
+    t0 = 10**9
+
+    def header(t: int, seq: int = 0):
+        return T["std_msgs/msg/Header"](seq=seq, stamp=T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9),
+                                        frame_id="0")
+
+    with Bag1Writer(out) as w:
+        conns: dict = {}
+
+        def put(topic: str, msgtype: str, msg, t: int = t0) -> None:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, msgtype, typestore=ts)
+            w.write(conns[topic], t, ts.serialize_ros1(msg, msgtype))
+
+        put("/file_version", "std_msgs/msg/UInt32", T["std_msgs/msg/UInt32"](data=2))
+        for k, v in {"Name": "Intel RealSense D435", "Serial Number": "000000000000", "Product Id": "0B07"}.items():
+            put("/device_0/info", KV, T[KV](key=k, value=v))
+        roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        vec, quat = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0), T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+        streams = (("Stereo Module", "Depth_0", "mono16"), ("RGB Camera", "Color_0", "rgb8"))
+        for s, (name, stream, enc) in enumerate(streams):
+            base = f"/device_0/sensor_{s}"
+            put(f"{base}/info", KV, T[KV](key="Name", value=name))
+            if s == 0:
+                put(f"{base}/property", KV, T[KV](key="Depth Units", value=f"{depth_units:.6f}"))
+            put(f"{base}/{stream}/info", "realsense_msgs/msg/StreamInfo",
+                T["realsense_msgs/msg/StreamInfo"](fps=int(round(cam.fps)), encoding=enc, is_recommended=True))
+            put(f"{base}/{stream}/info/camera_info", "sensor_msgs/msg/CameraInfo", T["sensor_msgs/msg/CameraInfo"](
+                header=header(0), height=cam.height, width=cam.width, distortion_model="Brown Conrady", D=np.zeros(5),
+                K=np.asarray(cam.K, float).reshape(-1), R=np.zeros(9), P=np.zeros(12), binning_x=0, binning_y=0, roi=roi))
+            put(f"{base}/{stream}/tf/0", "geometry_msgs/msg/Transform", T["geometry_msgs/msg/Transform"](translation=vec, rotation=quat))
+        Image = T["sensor_msgs/msg/Image"]
+        for i, rgb, d in _frames(take):
+            t = t0 + int(round(i * 1e9 / cam.fps))
+            units = np.clip(np.rint(d / depth_units), 0, 65535).astype("<u2")
+            put("/device_0/sensor_0/Depth_0/image/data", "sensor_msgs/msg/Image", Image(
+                header=header(t, i), height=cam.height, width=cam.width, encoding="mono16", is_bigendian=0,
+                step=cam.width * 2, data=units.view(np.uint8).reshape(-1)), t)
+            put("/device_0/sensor_1/Color_0/image/data", "sensor_msgs/msg/Image", Image(
+                header=header(t, i), height=cam.height, width=cam.width, encoding="rgb8", is_bigendian=0,
+                step=cam.width * 3, data=np.ascontiguousarray(rgb).reshape(-1)), t)
+            for s, (_, stream, _) in enumerate(streams):
+                for k, v in {"Frame Counter": str(i), "Frame Timestamp": str(int(i * 1e6 / cam.fps)),
+                             "timestamp_domain": "Hardware Clock"}.items():
+                    put(f"/device_0/sensor_{s}/{stream}/image/metadata", KV, T[KV](key=k, value=v), t)
+    copy_metadata(take_dir, out)
     return out
