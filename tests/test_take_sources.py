@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from demoforge.cli import app
-from demoforge.lib.takes import iter_frames, open_take
+from demoforge.lib.takes import iter_frames, open_take, read_frame
 from demoforge.lib.takes.sources import sidecar_dir
 from demoforge.lib.takes.sources.writers import write_realsense, write_realsense_bag, write_record3d, write_rosbag2
 
@@ -104,6 +104,8 @@ def test_realsense_dropped_frames_and_the_sdks_align(base, tmp_path):
     assert "dropped by the camera" in take.frames[4].message
     ref, got = _frames(open_take(base["take"])), _frames(take)
     assert sorted(got) == [i for i in range(N_FRAMES) if i not in (4, 5)]
+    rgb, depth = read_frame(take, 10)  # one frame (the annotate page): the playback seeks to it
+    assert np.array_equal(rgb, got[10][0]) and np.array_equal(depth, got[10][1])
     d, r = got[0][1], ref[0][1]
     both = (d > 0) & (r > 0)
     assert d.shape == (480, 640) and both.mean() > 0.9 and np.median(np.abs(d - r)[both]) < 0.01
@@ -200,3 +202,14 @@ def test_a_recordings_cache_key_reads_it_once(base, tmp_path, monkeypatch):
     assert take_media_key(rec) == key[0] and content_fingerprint(rec) != key[1]
     shutil.rmtree(sidecar_dir(rec))
     assert take_media_key(rec) != key[0]
+
+
+def test_ingest_folder_finds_recordings_beside_take_folders(base, tmp_path):
+    from demoforge.flows.ingest_folder import find_take_folders
+
+    inbox = tmp_path / "inbox"
+    shutil.copytree(base["take"], inbox / "lab" / "folder_take")
+    write_record3d(base["take"], inbox / "phone.r3d")
+    write_rosbag2(base["take"], inbox / "lab" / "bag", storage="sqlite3")  # a bag folder holding its .db3
+    (inbox / "notes.txt").write_text("not a take")
+    assert find_take_folders(inbox) == [inbox / "lab" / "bag", inbox / "lab" / "folder_take", inbox / "phone.r3d"]

@@ -24,6 +24,7 @@ from demoforge.lib.takes.types import TakeError
 
 WAIT_MS = 200      # one wait for the next frameset; the end of the file is the playback's "stopped"
 STALL_S = 30.0     # no frame for this long while the playback says it is playing: give up
+SEEK_BACK_NS = 200_000_000  # decoding starts this long before the first frame wanted (the seek is not exact)
 
 
 def is_realsense_db3(path: Path) -> bool:
@@ -40,10 +41,11 @@ def is_realsense_db3(path: Path) -> bool:
 
 
 class RealSenseRecording(Recording):
-    version = "1"
+    version = "2"   # 2: the playback position of every frame (seeking)
 
-    def _start(self):
-        """A started pipeline playing the file as fast as it is read, and the aligner."""
+    def _start(self, seek_ns: int = 0):
+        """A started pipeline playing the file as fast as it is read from ``seek_ns`` (the playback's
+        position), and the aligner."""
         import pyrealsense2 as rs
 
         cfg = rs.config()
@@ -59,7 +61,7 @@ class RealSenseRecording(Recording):
         playback = profile.get_device().as_playback()
         playback.pause()
         playback.set_real_time(False)
-        playback.seek(timedelta(0))
+        playback.seek(timedelta(microseconds=max(0, int(seek_ns)) // 1000))
         playback.resume()
         return pipe, profile, rs.align(rs.stream.color)
 
@@ -96,13 +98,15 @@ class RealSenseRecording(Recording):
             registered = _registered(streams[rs.stream.depth].as_video_stream_profile(), colour)
             depth_sensor = profile.get_device().first_depth_sensor()
             scale = float(depth_sensor.get_depth_scale())
-            numbers, times, has_depth, domains = [], [], {}, set()
+            numbers, times, has_depth, domains, position = [], [], {}, set(), {}
+            playback = profile.get_device().as_playback()
             for fs in self._framesets(pipe, profile):
                 c = fs.get_color_frame()
                 if not c:
                     continue
                 n = int(c.get_frame_number())
                 numbers.append(n)
+                position.setdefault(n, int(playback.get_position()))
                 times.append(float(c.get_timestamp()) / 1000.0)
                 domains.add(str(c.get_frame_timestamp_domain()).rsplit(".", 1)[-1])
                 has_depth[n] = has_depth.get(n, False) or bool(fs.get_depth_frame())
@@ -115,6 +119,7 @@ class RealSenseRecording(Recording):
             raise TakeError(f"{self.path}: no colour frames could be read from the recording (truncated or empty)")
         index = self._index(numbers, times, has_depth, domains, intr, scale, colour.fps())
         index.info["registered"] = registered
+        index.info["position_ns"] = [None if n is None else position.get(n) for n in index.keys]
         if registered:
             index.notes[0] = index.notes[0].replace("depth aligned to colour by the SDK",
                                                     "depth recorded already registered to colour (used as is)")
@@ -157,8 +162,10 @@ class RealSenseRecording(Recording):
         last = max(wanted)
         done: set[int] = set()
         scale = np.float32(index.info["depth_scale"])
-        pipe, profile, align = self._start()
-        try:
+        positions = index.info.get("position_ns") or []
+        first = positions[wanted[0]] if wanted[0] < len(positions) and positions[wanted[0]] is not None else 0
+        pipe, profile, align = self._start(seek_ns=first - SEEK_BACK_NS)  # a frame shown on the annotate page:
+        try:                                                                # no replay from the start
             for fs in self._framesets(pipe, profile):
                 if len(done) == len(wanted):
                     break
