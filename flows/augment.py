@@ -12,6 +12,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import check_demonstration, ingest_take
 from demoforge.lib.ingest.options import IngestOptions
 from demoforge.lib.takes import open_take
+from demoforge.lib.takes.sources import take_root
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.augment import augment_take, segment_take
@@ -54,14 +55,14 @@ def augment_take_flow(
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
     if not allow_untrusted_hands:
         require_trusted_hands(ingested["hand_presence"])
-    common = dict(take_dir=Path(path).resolve(), task=task, warehouse=warehouse,
+    common = dict(take_dir=take_root(path), task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
                          seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}))
     # the robot executing the demonstration every episode is built from: when it fails, so will the
     # episodes, and the user hears it at once instead of after a whole-database robot check
-    demo_check = check_demonstration(Path(path).resolve(), warehouse, task, take_task_name(open_take(path), task),
+    demo_check = check_demonstration(take_root(path), warehouse, task, take_task_name(open_take(path), task),
                                      ingested)
     return {**ingested, "segments": segments, "episodes": episodes, "demo_check": demo_check}
 

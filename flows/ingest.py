@@ -38,6 +38,7 @@ def ingest_take(
     """
     from demoforge.lib.perception.detectors import available_detectors
     from demoforge.lib.takes import open_take
+    from demoforge.lib.takes.sources import take_root
 
     logger = get_run_logger()
     opts = options or IngestOptions()
@@ -47,7 +48,7 @@ def ingest_take(
     if variant is not None and variant != {"detector": detector}:
         raise ValueError(f"variant must be None or {{'detector': {detector!r}}}, got {variant!r}")
     var = {"variant": dict(variant)} if variant else {}  # absent, not None: the stages' keys stay as they were
-    take_dir = Path(path).resolve()
+    take_dir = take_root(path)  # a take folder's .mp4 given as a file: the folder
     take = open_take(take_dir)  # fails early, with a clear message, on a take that cannot be read
     bad = take.status_counts()
     if set(bad) - {"ok"}:
@@ -110,12 +111,13 @@ def ingest_side_by_side(
     from demoforge.runtime.runners import run_flow
     from demoforge.lib.errors import one_line
     from demoforge.lib.takes import open_take
+    from demoforge.lib.takes.sources import take_root
     from demoforge.lib.task_library import TASK_NAMES
     from demoforge.tasks.ingest import ingest_keypoint_metrics
     from demoforge.tasks.sim import demo_failure_row
 
     logger = get_run_logger()
-    take_dir = Path(path).resolve()
+    take_dir = take_root(path)
     name = take_task_name(open_take(take_dir), task)
     out: dict[str, dict] = {}
     for det in dict.fromkeys(detectors):  # each once, in the given order

@@ -114,6 +114,11 @@ def _file_digest(path: Path, remember: bool = False) -> str:
     return digest
 
 
+def forget_file_digests() -> None:
+    """Drop the digests this process remembers (as a new process starts): the on-disk records stay."""
+    _FILE_HASH_MEMO.clear()
+
+
 def _write_record(record: Path, obj: Any) -> None:
     try:  # atomic; a failure only costs hashing again next time
         record.parent.mkdir(parents=True, exist_ok=True)

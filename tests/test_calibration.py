@@ -138,7 +138,7 @@ def test_frame_on_plane_recovers_a_pose_from_its_plane_and_edge(height, pitch, y
     est = frame_on_plane(n, d, edge_c)
     assert np.allclose(est, T, atol=1e-9)
     plane_only = pose_errors(frame_on_plane(n, d), T)
-    assert plane_only["tilt_deg"] < 1e-6 and plane_only["height_m"] < 1e-9
+    assert plane_only["tilt_deg"] < 1e-4 and plane_only["height_m"] < 1e-9  # (arccos near 1: ~1e-6 deg of rounding)
     if (edge_c[:, 2] > 0.1).all():
         K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
         uv = edge_c[:, :2] / edge_c[:, 2:] * 500 + [320, 240]

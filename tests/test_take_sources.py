@@ -132,6 +132,22 @@ def test_rosbag_topics_found_chosen_and_remembered(base, tmp_path):
     assert "paired by header stamp within 16.7 ms" in r.stderr
     conv, orig = _frames(open_take(tmp_path / "conv")), _frames(open_take(rec))
     assert all(np.array_equal(conv[i][0], orig[i][0]) and np.array_equal(conv[i][1], orig[i][1]) for i in orig)
+    jpeg = write_rosbag2(base["take"], tmp_path / "jpeg_bag", storage="mcap", jpeg=True)  # CompressedImage colour
+    got, ref = _frames(open_take(jpeg)), _frames(open_take(base["take"]))
+    assert open_take(jpeg).decoder.info["rgb_topic"].endswith("/compressed") and sorted(got) == sorted(ref)
+    assert max(np.abs(got[i][0].astype(int) - ref[i][0]).mean() for i in ref) < 3  # JPEG at quality 95
+
+
+def test_frames_are_placed_on_the_time_axis_by_their_timestamps():
+    from demoforge.lib.takes.sources import place_on_time_axis
+
+    fps, stamps, keys, status, message = place_on_time_axis(
+        np.array([0.0, 1 / 30, 1 / 30 + 0.002, 4 / 30, 5 / 30]), ["a", "b", "b2", "e", "f"], 30.0, "rec")
+    assert keys == ["a", "b", None, None, "e", "f"]
+    assert status == ["ok", "repeated_frame", "dropped_frame", "dropped_frame", "ok", "ok"]
+    assert "delivered twice" in message[1] and "dropped by the camera" in message[2]
+    assert np.allclose(stamps, [0, 1 / 30, 2 / 30, 3 / 30, 4 / 30, 5 / 30])
+    assert place_on_time_axis(np.array([0.0, 0.1, 0.2]), [1, 2, 3], None, "rec")[0] == pytest.approx(10.0)
 
 
 def _one_line_error(r, *needles):
@@ -213,3 +229,9 @@ def test_ingest_folder_finds_recordings_beside_take_folders(base, tmp_path):
     write_rosbag2(base["take"], inbox / "lab" / "bag", storage="sqlite3")  # a bag folder holding its .db3
     (inbox / "notes.txt").write_text("not a take")
     assert find_take_folders(inbox) == [inbox / "lab" / "bag", inbox / "lab" / "folder_take", inbox / "phone.r3d"]
+    from demoforge.lib.takes.sources import take_root
+
+    video = inbox / "lab" / "folder_take" / "rgb.mp4"
+    video.write_bytes(b"")
+    assert take_root(video) == (inbox / "lab" / "folder_take").resolve()  # its content is the whole folder's
+    assert take_root(inbox / "phone.r3d") == (inbox / "phone.r3d").resolve()

@@ -59,7 +59,7 @@ def cases(quick: bool) -> list[BenchCase]:
         assert common.content_fingerprint(rec)["sha256"] == common.file_sha256(rec)
 
         def fast():  # a new process: the digest remembered with the file's identity
-            common._FILE_HASH_MEMO.clear()
+            common.forget_file_digests()
             return common.content_fingerprint(rec)["sha256"]
 
         def baseline():  # hash the recording's bytes again

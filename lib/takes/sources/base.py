@@ -78,6 +78,15 @@ def get_source(name: str) -> type[TakeSource]:
     return entry
 
 
+def take_root(path: str | Path) -> Path:
+    """The path whose content is the take (its cache key): a take folder's video given as a file stands
+    for the whole folder (depth/, camera.json), anything else for itself. Resolved."""
+    p = Path(path).resolve()
+    if p.is_file() and p.suffix.lower() == ".mp4" and (p.parent / "camera.json").is_file():
+        return p.parent
+    return p
+
+
 def find_takes(root: Path) -> list[Path]:
     """Every take under ``root`` (any depth), sorted: take folders (camera.json) and recordings. A
     claimed folder is not searched further (a bag folder's .db3 is the bag, not another take), and

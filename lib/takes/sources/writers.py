@@ -93,9 +93,11 @@ def write_record3d(take_dir: str | os.PathLike, out: str | os.PathLike, *, as_zi
 
 
 def write_rosbag2(take_dir: str | os.PathLike, out: str | os.PathLike, *, storage: str = "mcap",
-                  depth_encoding: str = "16UC1", depth: bool = True, namespace: str = "/camera") -> Path:
-    """A ROS 2 bag folder (``out``) with colour (rgb8 Image), depth aligned to it (``16UC1`` mm or
-    ``32FC1`` m) and CameraInfo, stamped at i / fps; ``depth=False`` leaves the depth topic out."""
+                  depth_encoding: str = "16UC1", depth: bool = True, namespace: str = "/camera",
+                  jpeg: bool = False) -> Path:
+    """A ROS 2 bag folder (``out``) with colour (rgb8 Image; ``jpeg``: a JPEG CompressedImage on
+    ``.../image_raw/compressed``), depth aligned to it (``16UC1`` mm or ``32FC1`` m) and CameraInfo,
+    stamped at i / fps; ``depth=False`` leaves the depth topic out."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -109,16 +111,25 @@ def write_rosbag2(take_dir: str | os.PathLike, out: str | os.PathLike, *, storag
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     t0 = 1_700_000_000 * 10**9
     with Writer(out, version=9, storage_plugin=plugin) as w:
-        c_rgb = w.add_connection(f"{namespace}/color/image_raw", Image.__msgtype__, typestore=ts)
+        Compressed = ts.types["sensor_msgs/msg/CompressedImage"]
+        c_rgb = (w.add_connection(f"{namespace}/color/image_raw/compressed", Compressed.__msgtype__, typestore=ts)
+                 if jpeg else w.add_connection(f"{namespace}/color/image_raw", Image.__msgtype__, typestore=ts))
         c_info = w.add_connection(f"{namespace}/color/camera_info", Info.__msgtype__, typestore=ts)
         c_dep = (w.add_connection(f"{namespace}/aligned_depth_to_color/image_raw", Image.__msgtype__, typestore=ts)
                  if depth else None)
         for i, rgb, d in _frames(take):
             t = t0 + int(round(i * 1e9 / cam.fps))
             hdr = Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id="camera_color_optical_frame")
-            img = Image(header=hdr, height=cam.height, width=cam.width, encoding="rgb8", is_bigendian=0,
-                        step=cam.width * 3, data=np.ascontiguousarray(rgb).reshape(-1))
-            w.write(c_rgb, t, ts.serialize_cdr(img, Image.__msgtype__))
+            if jpeg:
+                import cv2
+
+                buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])[1]
+                w.write(c_rgb, t, ts.serialize_cdr(Compressed(header=hdr, format="jpeg", data=buf.reshape(-1)),
+                                                   Compressed.__msgtype__))
+            else:
+                img = Image(header=hdr, height=cam.height, width=cam.width, encoding="rgb8", is_bigendian=0,
+                            step=cam.width * 3, data=np.ascontiguousarray(rgb).reshape(-1))
+                w.write(c_rgb, t, ts.serialize_cdr(img, Image.__msgtype__))
             if c_dep is not None:
                 if depth_encoding == "16UC1":
                     raw, step = np.clip(np.rint(d * 1000), 0, 65535).astype("<u2"), cam.width * 2
