@@ -81,7 +81,8 @@ def annotate(
 ) -> None:
     """Annotate a take in the browser: click the object keypoints, mark gripper open/close ranges, save.
 
-    Serves a page on 127.0.0.1 (printed) until Ctrl-C. It shows the frames (scrub with the slider or
+    Serves a page on 127.0.0.1 until Ctrl-C, at the printed URL: it carries this run's token, and the
+    server answers nothing without it (nor another web page's requests). It shows the frames (scrub with the slider or
     the arrow keys), asks for the task's keypoints one by one and shows each click's depth and world
     position, and plots the fingertip distance of an earlier `demoforge ingest` with the automatic
     method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited).
