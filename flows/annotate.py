@@ -91,10 +91,8 @@ class AnnotationSession:
     # --- ingest results ----------------------------------------------------------------------------
     def ingest_signals(self) -> dict | None:
         """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
-        import pyarrow.parquet as pq
-
         from demoforge.lib.takes.annotate import suggest_closed_ranges
-        from demoforge.schemas.core import table_files
+        from demoforge.schemas.core import read_parquet_file, table_files
         from demoforge.tasks.ingest import arrays
 
         if self.warehouse is None:
@@ -103,7 +101,7 @@ class AnnotationSession:
         if not files:
             return None
         newest = max(files, key=lambda f: f.stat().st_mtime_ns)
-        t = pq.read_table(newest, columns=["frame", "hand", "fingertip_distance"])
+        t = read_parquet_file(newest, "gripper_poses", ["frame", "hand", "fingertip_distance"])
         T, a = arrays(t, "fingertip_distance")
         d = a["fingertip_distance"].astype(float)
         return {"source": str(newest), "fingertip_distance": {s: [None if not np.isfinite(x) else round(float(x), 5)

@@ -327,6 +327,28 @@ def test_truncated_warehouse_file_is_named_and_repaired_by_a_rerun(base, wh):
     assert pq.read_table(f).num_rows == N_FRAMES
 
 
+@pytest.mark.parametrize("damage", ["truncated", "not_parquet"])
+def test_damaged_warehouse_file_is_one_line_on_every_read_path(base, wh, tmp_path, damage, prefect_api_env):
+    """`tables`, `sql` on a catalog built before the damage, a flow reading the table, an export and
+    `catalog`: each names the file and the fix in one line (exit 2), never a pyarrow traceback; in a
+    process of its own, nothing follows that line (DuckDB objects kept alive by the error's traceback
+    made nanobind print 40 lines of "leaked instance" at exit)."""
+    query("SELECT count(*) FROM episodes", wh)  # the catalog is current: its views meet the damage
+    f = next((wh / "episodes").glob("**/data.parquet"))
+    data = f.read_bytes()
+    f.write_bytes(data[: len(data) // 2] if damage == "truncated" else b"episode_id,task\n0,pouring\n")
+    for args in (["tables"], ["sql", "SELECT count(*) AS n FROM episodes"], ["train-policy", "--task", "pouring"],
+                 ["export", "lerobot", "--task", "pouring", "--out", str(tmp_path / "export")], ["catalog"]):
+        assert_one_line_error(cli(*args), str(f), "damaged warehouse file",
+                              "run the command that wrote table 'episodes' again"), args
+    if damage == "truncated":
+        p = subprocess.run([sys.executable, "-m", "demoforge.cli", "simulate", "--task", "pouring", "--episodes", "2"],
+                           cwd=PROJECT, env={**os.environ, **prefect_api_env}, capture_output=True, text=True,
+                           timeout=300)
+        assert p.returncode == 2 and p.stderr.splitlines() == [p.stderr.strip()], p.stderr[-3000:]
+        assert p.stderr.startswith(f"error: {f}: damaged warehouse file"), p.stderr
+
+
 def test_two_ingests_of_the_same_take_at_once(base, wh, tmp_path):
     """Two processes ingest the same take into the same warehouse concurrently: both finish, and the
     warehouse holds the take once (atomic writes, one file per table and take)."""

@@ -26,7 +26,7 @@ class _ErrorsAtTheBoundary(TyperGroup):
     --debug (exit code 1); with --debug both keep their full traceback."""
 
     def invoke(self, ctx: click.Context):
-        from demoforge.lib.errors import is_user_error, one_line
+        from demoforge.lib.errors import is_user_error, one_line, release_frames
 
         try:
             return super().invoke(ctx)
@@ -37,15 +37,17 @@ class _ErrorsAtTheBoundary(TyperGroup):
         except Exception as e:
             if State.debug:
                 raise
-            if is_user_error(e):
-                raise fail(one_line(e))
             import traceback
 
             where = traceback.extract_tb(e.__traceback__)[-1]
+            release_frames(e)
+            if is_user_error(e):
+                raise fail(one_line(e))
             typer.echo(f"error: demoforge crashed: {type(e).__name__}: {one_line(e, 300)} "
                        f"(at {where.filename}:{where.lineno}); this is a bug, not your input: rerun with "
                        f"--debug (demoforge --debug COMMAND ...) for the full traceback and report it", err=True)
             raise typer.Exit(1)
+
 
 
 app = typer.Typer(

@@ -27,6 +27,7 @@ import sys
 import threading
 from typing import Any
 
+from demoforge.lib.errors import release_frames
 from demoforge.lib.settings import read_settings
 
 ENV_RUNNER = "DEMOFORGE_TASK_RUNNER"
@@ -123,8 +124,12 @@ def run_flow(flow_obj, *args: Any, **kwargs: Any) -> Any:
     """Call a flow with the configured task runner; stop here if Ctrl-C was pressed."""
     check_interrupted()
     guard_temporary_api_server()
-    with flow_heartbeats_off_unless_set():
-        result = with_runner(flow_obj)(*args, **kwargs)
+    try:
+        with flow_heartbeats_off_unless_set():
+            result = with_runner(flow_obj)(*args, **kwargs)
+    except Exception as e:
+        release_frames(e)  # Prefect's run state keeps the error to the end of the process
+        raise
     check_interrupted()
     return result
 
