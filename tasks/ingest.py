@@ -169,7 +169,7 @@ class DepthError(UserError):
     """The take's depth cannot be trusted (one-line message: what is wrong and how to fix it)."""
 
 
-@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-1", key_ignore=("take_dir",),  # keyed on media_key
+@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-2", key_ignore=("take_dir",),  # keyed on media_key
             key_optional=("variant",))
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                     alignment: dict | None = None, tracker: dict | None = None,
