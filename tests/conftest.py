@@ -12,7 +12,6 @@ import pytest
 from hypothesis import settings
 
 import demoforge.lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
-import demoforge.tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
 SHARED_DATA = demoforge.lib.SHARED_DATA
 
