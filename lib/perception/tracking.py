@@ -20,11 +20,12 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
 4. **One hand, two labels**: a per-frame detector's handedness flips on one hand in bursts (often
    when it finds the hand again after losing it), and each burst could be born as a track of its
    own: a second "trusted" hand beside the real one. When the two labels' sustained detections (those
-   that would form tracks) never appear in the same frame, they are one hand, and its detections go
-   to the label that holds most of them (:func:`one_hand_relabel`), unless a change of label jumps to
-   another place: farther than ``one_hand_same_place_sizes + one_hand_sizes_per_frame * frames``
-   hand sizes within ``max_gap_frames`` (one hand, then the other; after a longer gap the place
-   says nothing). Two hands seen together in one frame keep both labels.
+   that would form tracks) never appear in the same frame, and every change of label happens at the
+   same place (within ``one_hand_same_place_sizes + one_hand_sizes_per_frame * frames apart`` hand
+   sizes of the last detection, the frames counted up to ``max_gap_frames``), they are one hand, and
+   its detections go to the label the detector gave most of them (:func:`one_hand_relabel`). Two
+   hands seen together in one frame keep both labels, and so do labels that change to another place
+   (a detector that sees the two hands of a take one at a time).
 5. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
    ``max_gap_frames`` and at jumps no hand can make (centroid moved more than
    ``max_jump_sizes + max_jump_sizes_per_frame * frames`` hand sizes). A segment becomes a track only
@@ -76,11 +77,12 @@ class TrackerConfig:
     #: Repair left/right swaps and handedness flips from 2D continuity.
     repair_identity: bool = True
     swap_margin_px: float = 10.0
-    #: Two labels never seen in one frame are one hand unless a label change jumps farther than
+    #: Two labels never seen in one frame are one hand when each label change stays within
     #: ``one_hand_same_place_sizes + one_hand_sizes_per_frame * frames apart`` hand sizes (module doc,
-    #: step 4; 0.1 size a frame: about 2 cm at 30 fps). 0 turns the rule off.
+    #: step 4; frames counted up to max_gap_frames: at most 1.25 sizes; 0.05 size a frame is about
+    #: 1 cm at 30 fps). 0 turns the rule off.
     one_hand_same_place_sizes: float = 0.5
-    one_hand_sizes_per_frame: float = 0.1
+    one_hand_sizes_per_frame: float = 0.05
     #: A hand is trusted when its trajectory covers this fraction of the take and this many frames.
     min_trusted_fraction: float = 0.25
     min_trusted_frames: int = 10
@@ -215,11 +217,10 @@ def one_hand_relabel(evidence: np.ndarray, cen: np.ndarray, size: np.ndarray, cf
     label = slot if source is None else source[t, slot]
     c, s = cen[t, slot], size[t, slot]
     change = np.flatnonzero(slot[1:] != slot[:-1])              # label changes between t[i] and t[i + 1]
-    apart = t[change + 1] - t[change]
+    apart = np.minimum(t[change + 1] - t[change], cfg.max_gap_frames)
     reach = (cfg.one_hand_same_place_sizes + cfg.one_hand_sizes_per_frame * apart) * np.fmax(s[change + 1], s[change])
-    near = np.linalg.norm(c[change + 1] - c[change], axis=-1) <= reach
     joined = np.zeros(t.size - 1, bool)
-    joined[change] = near | (apart - 1 > cfg.max_gap_frames)
+    joined[change] = np.linalg.norm(c[change + 1] - c[change], axis=-1) <= reach
     # a hand: a run of sustained detections whose label changes all stay at its place
     same = (slot[1:] == slot[:-1]) | joined
     hand = np.concatenate([[0], np.cumsum(~same)])
