@@ -34,6 +34,17 @@ class Reporting:
 
     cli_reports = False
     show_tracebacks = False
+    #: The ``warning: ...`` lines this command printed: a warning found by a stage and repeated by
+    #: the command's own summary is printed once.
+    warnings_shown: set[str] = set()
+
+    @classmethod
+    def first_time(cls, line: str) -> bool:
+        """True the first time ``line`` is about to be printed (and remember it)."""
+        if line in cls.warnings_shown:
+            return False
+        cls.warnings_shown.add(line)
+        return True
 
 
 class UserError(ValueError):

@@ -106,9 +106,16 @@ OBJECT_KEYPOINTS = table(
     partition_by=_PARTS,
 )
 
+_DEPTH_MISSING = Column("depth_missing_fraction", pa.float64(), "Share of this hand's used detections with no depth "
+                        "reading at its anchors (`no_depth` in `aligned_keypoints`; their depth is interpolated); NaN "
+                        "when the hand was never used.")
+_DEPTH_MISSING_FRAMES = Column("depth_missing_frame_fraction", pa.float64(), "Take-level: share of the frames with a used "
+                               "hand detection where depth is missing at a hand (the ingest warns above the threshold "
+                               "of docs/ingest.md); NaN without any.")
+
 INGEST_METRICS = table(
     "ingest_metrics",
-    version=1,
+    version=2,
     doc=("Accuracy of the ingest on synthetic takes, against their exact ground truth, per take, detector and "
          "hand. Rows with detector `simulated` measure the pipeline under the simulated detector's error model."),
     columns=[
@@ -131,13 +138,14 @@ INGEST_METRICS = table(
         Column("swap_frames_injected", pa.int32(), "Frames where the simulated detector swapped the labels (take-level; 0 for real detectors)."),
         Column("swap_frames_repaired", pa.int32(), "Frames where the ingest swapped the labels back (take-level)."),
         Column("swap_frames_repaired_correctly", pa.int32(), "Repaired frames that were really swapped (take-level)."),
+        _DEPTH_MISSING, _DEPTH_MISSING_FRAMES,
     ],
     partition_by=_PARTS,
 )
 
 HAND_PRESENCE = table(
     "hand_presence",
-    version=1,
+    version=2,
     doc=("Per take and hand: how much of the take the hand tracker (demoforge.lib.perception.tracking) could follow, and "
          "whether the hand's trajectory can be trusted. `demoforge augment` refuses to build episodes from an "
          "untrusted hand unless forced (`--allow-untrusted-hands`)."),
@@ -155,6 +163,7 @@ HAND_PRESENCE = table(
         Column("trusted", pa.bool_(), "The trajectory covers enough of the take to build episodes from."),
         Column("reason", pa.string(), "Why the hand is not trusted, in words (empty when trusted)."),
         Column("depth_problem", pa.string(), "The take's failed depth check the user accepted (empty when the depth passed)."),
+        _DEPTH_MISSING, _DEPTH_MISSING_FRAMES,
     ],
     partition_by=_PARTS,
 )

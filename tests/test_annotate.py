@@ -205,6 +205,8 @@ def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_
     assert "Traceback" not in r.stderr
     warn = f"warning: object_keypoints: {raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}"
     assert warn in r.stderr.splitlines()
+    # one line per warning: not also Prefect's "WARNING | Task run 'object_keypoints-...'" line
+    assert r.stderr.count("not annotated yet") == 1 and "| WARNING |" not in r.stderr, r.stderr
     assert "gripper_poses" in r.stdout and "object_keypoints" not in r.stdout
     n = query("SELECT count(*) AS n, count(*) FILTER (WHERE valid) AS ok FROM gripper_poses", wh).to_pylist()[0]
     assert n["n"] == 2 * N_FRAMES and n["ok"] > N_FRAMES

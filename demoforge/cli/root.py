@@ -66,6 +66,15 @@ app = typer.Typer(
 EXIT_USER_ERROR = 2
 
 
+def warn(message: str) -> None:
+    """Print ``warning: MESSAGE`` to stderr, unless a stage of this command already printed it."""
+    from demoforge.lib.errors import Reporting
+
+    line = f"warning: {message}"
+    if Reporting.first_time(line):
+        typer.echo(line, err=True)
+
+
 def fail(message: str) -> "typer.Exit":
     """Print a one-line error to stderr and return the exit to raise (code 2)."""
     typer.echo(f"error: {message}", err=True)
@@ -114,6 +123,7 @@ def _main(
     State.warehouse = warehouse
     State.debug = debug
     Reporting.cli_reports, Reporting.show_tracebacks = True, debug
+    Reporting.warnings_shown.clear()  # per command (tests run several in one process)
     if "demoforge.tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
         sys.modules["demoforge.tasks.common"].quiet_user_errors()
     runners.install_interrupt_handler()
