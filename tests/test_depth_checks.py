@@ -16,7 +16,7 @@ def _dexcap_mm() -> np.ndarray:
 
     p = DEXCAP / "depth_image.png"
     if not p.exists():
-        pytest.skip("shared/data/rgbd/dexcap_frame_0 not available")
+        pytest.skip(f"{p} absent: the real RGB-D frame comes with the shared data folder (../shared/data)")
     return cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64)
 
 
