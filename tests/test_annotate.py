@@ -467,6 +467,42 @@ def test_every_route_of_the_annotation_server_passes_the_request_gate(pouring_ta
     assert json.loads((take / "annotations.json").read_text())["gripper_closed_ranges"]["left"] == [[1, 2]]
 
 
+def test_annotate_command_serves_its_take_and_task_until_ctrl_c(raw_take, tmp_path):
+    """`demoforge annotate` on its main path: the printed URL (with the token) serves the take with the
+    task of --task/--keypoints, a save writes annotations.json, Ctrl-C ends it cleanly."""
+    import signal
+    import urllib.request
+
+    names = [f"jug:j{i}" for i in range(5)] + [f"glass:g{i}" for i in range(6)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(tmp_path / "wh")}
+    proc = subprocess.Popen([sys.executable, "-m", "demoforge.cli", "annotate", str(raw_take), "--task",
+                             "custom:serve_drink", "--keypoints", ",".join(names), "--port", "0"], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = proc.stdout.readline().strip()
+        if not url:  # it ended instead of serving: say why
+            pytest.fail(f"annotate exited ({proc.wait(60)}): {proc.stderr.read()[-2000:]}")
+        assert url.startswith("http://127.0.0.1:") and "/?token=" in url, url
+        base, token = url.split("?token=")
+        st = json.load(urllib.request.urlopen(f"{base}api/state?token={token}", timeout=30))
+        assert st["path"] == str(raw_take) and st["n_frames"] == N_FRAMES and not st["exists"]
+        assert st["task"]["name"] == "serve_drink" and [o["name"] for o in st["task"]["objects"]] == ["jug", "glass"]
+        task = st["task"]
+        task["objects"][0]["arm"], task["objects"][1]["arm"] = "right", "left"
+        body = json.dumps({"frame": 3, "points": {"j0": [10.0, 20.0]}, "ranges": {"left": [[2, 9]]}, "task": task})
+        req = urllib.request.Request(f"{base}api/save", data=body.encode(), method="POST",
+                                     headers={"Content-Type": "application/json", "X-Demoforge-Token": token})
+        saved = json.load(urllib.request.urlopen(req, timeout=30))
+        assert saved["status"]["detail"].startswith("1 of 11 object keypoints placed")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    written = json.loads((raw_take / "annotations.json").read_text())
+    assert written["task"]["name"] == "serve_drink" and written["object_keypoints_2d"]["frame"] == 3
+    assert written["gripper_closed_ranges"] == {"left": [[2, 9]], "right": []}
+
+
 # ------------------------------------------------------------------------------------------------ browser
 
 def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
