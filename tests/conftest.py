@@ -352,3 +352,51 @@ def ingested_warehouse(_ingested_trash, monkeypatch):
     shutil.copytree(pristine, live)
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(live))
     return live
+
+
+@pytest.fixture(scope="session")
+def llama_server(tmp_path_factory):
+    """llama-cpp-python's OpenAI-compatible server (`python -m llama_cpp.server`) serving the embedded
+    Gemma 3 270M GGUF on a free loopback port, once per session: (base URL, model id). The files that
+    use it run in the embedded-LLM unit (EMBEDDED_LLM), on that unit's core."""
+    import json
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from demoforge.lib.llm.local_backend import _threads, ensure_gguf
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    log = tmp_path_factory.mktemp("llama_server") / "server.log"
+    threads = str(_threads())
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "llama_cpp.server", "--model", str(ensure_gguf()), "--host", "127.0.0.1",
+             "--port", str(port), "--n_ctx", "4096", "--n_threads", threads, "--n_threads_batch", threads],
+            stdout=out, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}/v1"
+    try:
+        deadline = time.monotonic() + 90
+        while True:  # ready when /v1/models answers
+            if proc.poll() is not None:
+                pytest.fail(f"llama_cpp.server exited with {proc.returncode}: {log.read_text()[-2000:]}")
+            try:
+                with urllib.request.urlopen(base + "/models", timeout=2) as r:
+                    model_id = json.loads(r.read())["data"][0]["id"]
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    pytest.fail(f"llama_cpp.server did not answer on {base} within 90 s")
+                time.sleep(0.2)
+        yield base, model_id
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
