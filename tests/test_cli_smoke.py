@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from demoforge.cli import app
@@ -89,9 +90,14 @@ def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
     from demoforge.bench.run import CASE_FACTORIES
 
     r = _run("bench", "--stage", "warehouse", "--quick")
-    rows = query("SELECT stage, case_name FROM benchmarks", warehouse).to_pylist()
+    rows = query("SELECT stage, case_name, seconds, baseline_seconds, ratio FROM benchmarks", warehouse).to_pylist()
     n = len(CASE_FACTORIES["warehouse"](True))
     assert len(rows) == n >= 1 and all(row["stage"] == "warehouse" and row["case_name"][:30] in r.output for row in rows)
+    # each row as the command printed it: its seconds, the baseline's and their ratio
+    for row in rows:
+        line = next(ln for ln in r.stdout.splitlines() if ln.startswith("warehouse") and row["case_name"][:30] in ln).split()
+        assert [float(x) for x in line[-3:-1]] == [round(row["seconds"], 4), round(row["baseline_seconds"], 4)]
+        assert row["ratio"] == pytest.approx(row["baseline_seconds"] / row["seconds"])
 
     r = _run("catalog")
     assert (warehouse / "catalog.duckdb").is_file() and "catalog rebuilt" in r.output
