@@ -172,12 +172,20 @@ def test_annotation_status_needs_every_keypoint_of_the_task(raw_take):
 # ------------------------------------------------------------------------------------------------ CLI
 
 def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path, prefect_api_env):
+    """The first in a process of its own (a fresh interpreter's stderr is that one line, nothing else);
+    the others, which all fail before any flow starts, in this process (typer's CliRunner)."""
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+
     wh = tmp_path / "wh"
 
-    def cli(*args):  # the session's Prefect API: a command that fails inside a flow starts no server of its own
-        return _cli(*args, warehouse=wh, api=prefect_api_env)
+    def cli(*args):
+        r = CliRunner().invoke(app, list(args), env={"DEMOFORGE_WAREHOUSE": str(wh)})
+        return subprocess.CompletedProcess(list(args), r.exit_code, r.stdout, r.stderr)
 
-    _one_line_error(cli("ingest", str(tmp_path / "nowhere")), "no such take folder")
+    # the session's Prefect API: a command that failed inside a flow would start no server of its own
+    _one_line_error(_cli("ingest", str(tmp_path / "nowhere"), warehouse=wh, api=prefect_api_env), "no such take folder")
     _one_line_error(cli("augment", str(tmp_path / "nowhere")), "no such take folder")
     _one_line_error(cli("annotate", str(tmp_path / "nowhere")), "no such take folder")
     _one_line_error(cli("ingest-folder", str(tmp_path / "nowhere")), "no such folder")
