@@ -3,7 +3,9 @@ object_keypoints and the per-take accuracy table `ingest_metrics` (synthetic tak
 
 import pyarrow as pa
 
-from demoforge.schemas.core import Column, keypoints2d, keypoints3d, pose8, table, vec3
+from demoforge.schemas.core import (
+    Column, added_columns_migration, keypoints2d, keypoints3d, pose8, register_migration, table, vec3,
+)
 
 _TAKE = Column("take", pa.string(), "Take identifier (the take folder's name).")
 _TASK = Column("task", pa.string(), "Task name, or `unknown` for a recorded take ingested without `--task`.")
@@ -167,6 +169,11 @@ HAND_PRESENCE = table(
     ],
     partition_by=_PARTS,
 )
+
+# Files written before the depth coverage was measured (v1): the columns exist, NaN (not measured).
+for _table in (INGEST_METRICS, HAND_PRESENCE):
+    register_migration(_table.name, added_columns_migration(
+        _table.name, 1, {_DEPTH_MISSING.name: float("nan"), _DEPTH_MISSING_FRAMES.name: float("nan")}))
 
 FOLDER_INGESTS = table(
     "folder_ingests",
