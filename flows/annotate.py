@@ -1,9 +1,11 @@
 """`demoforge annotate`: a local web page to click a take's object keypoints and mark open/close ranges.
 
 A standard-library HTTP server on loopback serves one static page (lib/takes/annotate/page.html) and a
-small JSON API over the take:
+small JSON API over the take. Every request first passes the session's RequestGate
+(demoforge.lib.takes.annotate.request_gate: the per-session token of the printed URL, Host, Origin,
+content type, body size), whatever its route:
 
-    GET  /                     the page
+    GET  /?token=T             the page
     GET  /api/state            take, camera, task (keypoints per object, arms), the current
                                annotations (annotations.json when there is one), fingertip distances
                                and the automatic method's closed ranges from an earlier ingest
@@ -21,16 +23,20 @@ The pure logic (format, validation, back-projection, suggestion) is demoforge.li
 from __future__ import annotations
 
 import json
+import re
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
+from urllib.parse import urlsplit
 
 import numpy as np
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.takes.annotate.request_gate import MAX_BODY_BYTES, SAFE_METHODS, TOKEN_PARAM, RequestGate
 
 PAGE = Path(demoforge.lib.__file__).resolve().parent / "takes" / "annotate" / "page.html"
 
@@ -127,10 +133,8 @@ class AnnotationSession(CalibrationMixin):
     # --- ingest results ----------------------------------------------------------------------------
     def ingest_signals(self) -> dict | None:
         """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
-        import pyarrow.parquet as pq
-
         from demoforge.lib.takes.annotate import suggest_closed_ranges
-        from demoforge.schemas.core import table_files
+        from demoforge.schemas.core import read_parquet_file, table_files
         from demoforge.tasks.ingest import arrays
 
         if self.warehouse is None:
@@ -139,7 +143,7 @@ class AnnotationSession(CalibrationMixin):
         if not files:
             return None
         newest = max(files, key=lambda f: f.stat().st_mtime_ns)
-        t = pq.read_table(newest, columns=["frame", "hand", "fingertip_distance"])
+        t = read_parquet_file(newest, "gripper_poses", ["frame", "hand", "fingertip_distance"])
         T, a = arrays(t, "fingertip_distance")
         d = a["fingertip_distance"].astype(float)
         return {"source": str(newest), "fingertip_distance": {s: [None if not np.isfinite(x) else round(float(x), 5)
@@ -204,8 +208,50 @@ class AnnotationSession(CalibrationMixin):
         return {"saved": str(self.path), "annotations": obj, "status": status.__dict__}
 
 
-def make_handler(session: AnnotationSession):
-    page = PAGE.read_bytes()
+@dataclass(frozen=True)
+class Route:
+    """One answer of the server: ``method`` and a ``pattern`` matched against the whole path;
+    ``example`` is a path it matches (tests request every route). ``answer(session, match, body)``
+    returns (status, body bytes, content type)."""
+
+    method: str
+    pattern: str
+    example: str
+    answer: Callable[[AnnotationSession, re.Match, Any], tuple[int, bytes, str]]
+
+    def match(self, method: str, path: str) -> re.Match | None:
+        return re.fullmatch(self.pattern, path) if method == self.method else None
+
+
+def _json_reply(obj: Any, code: int = 200) -> tuple[int, bytes, str]:
+    return code, json.dumps(obj).encode(), "application/json"
+
+
+PAGE_ROUTE = Route("GET", r"/(index\.html)?", "/", lambda s, m, b: (200, PAGE.read_bytes(), "text/html; charset=utf-8"))
+#: Every route the server answers. A request reaches one only after the RequestGate let it through.
+ROUTES: tuple[Route, ...] = (
+    PAGE_ROUTE,
+    Route("GET", r"/api/state", "/api/state", lambda s, m, b: _json_reply(s.state())),
+    Route("GET", r"/api/frame/(\d+)\.jpg", "/api/frame/0.jpg",
+          lambda s, m, b: (200, s.frame_jpeg(int(m.group(1))), "image/jpeg")),
+    Route("POST", r"/api/points", "/api/points",
+          lambda s, m, b: _json_reply({"points": s.points(int(b.get("frame", 0)), b.get("uv", []))})),
+    Route("POST", r"/api/save", "/api/save", lambda s, m, b: _json_reply(s.save(b))),
+    Route("POST", r"/api/calibrate", "/api/calibrate", lambda s, m, b: _json_reply(s.calibrate(b))),
+)
+#: The most of a refused request's body the server reads (and drops) before it answers.
+DISCARD_LIMIT = 16 * MAX_BODY_BYTES
+#: Headers of every answer: no caching, no sniffing, never framed by another page, no Referer (the
+#: page's URL carries the session token).
+SECURITY_HEADERS = (("Cache-Control", "no-store"), ("X-Content-Type-Options", "nosniff"),
+                    ("X-Frame-Options", "DENY"), ("Content-Security-Policy", "frame-ancestors 'none'"),
+                    ("Referrer-Policy", "no-referrer"))
+
+
+def make_handler(session: AnnotationSession, gate: RequestGate, routes: tuple[Route, ...] = ROUTES):
+    """The request handler: every request, whatever its method and path, passes ``gate`` first."""
+    from demoforge.lib.errors import UserError
+    from demoforge.lib.takes import TakeError
 
     class Handler(BaseHTTPRequestHandler):
         server_version = "demoforge-annotate"
@@ -217,62 +263,71 @@ def make_handler(session: AnnotationSession):
             self.send_response(code)
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
+            for name, value in SECURITY_HEADERS:
+                self.send_header(name, value)
             self.end_headers()
-            self.wfile.write(body)
+            if self.command != "HEAD":
+                self.wfile.write(body)
 
-        def _json(self, obj: Any, code: int = 200) -> None:
-            self._send(code, json.dumps(obj).encode(), "application/json")
+        def _refuse(self, code: int, reason: str, body_unread: bool = True) -> None:
+            if body_unread:
+                self._discard_body()
+            self.close_connection = True  # a body left unread must not be taken for the next request
+            self._send(*_json_reply({"error": reason}, code))
 
-        def _error(self, e: Exception, code: int = 400) -> None:
-            self._json({"error": str(e)}, code)
+        def _discard_body(self) -> None:
+            """Read a refused request's body (up to DISCARD_LIMIT), so the client gets to read the answer
+            instead of a broken pipe."""
+            length = self.headers.get("Content-Length", "")
+            left = min(int(length), DISCARD_LIMIT) if length.strip().isdigit() else 0
+            while left > 0 and (chunk := self.rfile.read(min(left, 1 << 16))):
+                left -= len(chunk)
 
-        def do_GET(self) -> None:  # noqa: N802
+        def _handle(self) -> None:
+            refusal = gate.check(self.command, self.path, self.headers)
+            if refusal is not None:
+                self._refuse(refusal.status, refusal.reason)
+                return
+            path = urlsplit(self.path).path
+            found = next(((r, m) for r in routes if (m := r.match("GET" if self.command == "HEAD" else self.command,
+                                                                    path)) is not None), None)
+            if found is None:
+                self._refuse(HTTPStatus.NOT_FOUND, f"no such page {self.command} {path}")
+                return
+            route, match = found
+            body = None
+            if self.command not in SAFE_METHODS:
+                body = self.rfile.read(int(self.headers["Content-Length"]))  # the gate checked it
             try:
-                if self.path in ("/", "/index.html"):
-                    self._send(200, page, "text/html; charset=utf-8")
-                elif self.path == "/api/state":
-                    self._json(session.state())
-                elif self.path.startswith("/api/frame/") and self.path.endswith(".jpg"):
-                    idx = int(self.path[len("/api/frame/"):-4])
-                    self._send(200, session.frame_jpeg(idx), "image/jpeg")
-                else:
-                    self._json({"error": f"no such page {self.path}"}, HTTPStatus.NOT_FOUND)
-            except (ValueError, IndexError) as e:
-                self._error(e)
+                self._send(*route.answer(session, match, None if body is None else json.loads(body or b"{}")))
+            except (TakeError, UserError, ValueError, IndexError, KeyError, TypeError, AttributeError) as e:
+                self._refuse(HTTPStatus.BAD_REQUEST, str(e), body_unread=False)  # JSONDecodeError is a ValueError
             except Exception as e:  # noqa: BLE001  (the page shows it; the server keeps running)
-                self._error(e, 500)
+                self._refuse(HTTPStatus.INTERNAL_SERVER_ERROR, str(e), body_unread=False)
 
-        def do_POST(self) -> None:  # noqa: N802
-            from demoforge.lib.errors import UserError
-            from demoforge.lib.takes import TakeError
-
-            try:
-                n = int(self.headers.get("Content-Length") or 0)
-                body = json.loads(self.rfile.read(n) or b"{}")
-                if self.path == "/api/points":
-                    self._json({"points": session.points(int(body.get("frame", 0)), body.get("uv", []))})
-                elif self.path == "/api/save":
-                    self._json(session.save(body))
-                elif self.path == "/api/calibrate":
-                    self._json(session.calibrate(body))
-                else:
-                    self._json({"error": f"no such endpoint {self.path}"}, HTTPStatus.NOT_FOUND)
-            except (TakeError, UserError, ValueError, KeyError, TypeError, json.JSONDecodeError) as e:
-                self._error(e)
-            except Exception as e:  # noqa: BLE001
-                self._error(e, 500)
+        do_GET = do_HEAD = do_POST = do_PUT = do_PATCH = do_DELETE = do_OPTIONS = _handle  # noqa: N815
 
     return Handler
 
 
-def start_server(session: AnnotationSession, port: int = 0, host: str = "127.0.0.1") -> ThreadingHTTPServer:
-    """A loopback HTTP server for the session (port 0: any free port); call serve_forever() on it."""
-    server = ThreadingHTTPServer((host, port), make_handler(session))
-    server.daemon_threads = True
+class AnnotationServer(ThreadingHTTPServer):
+    """The loopback server with its session's :class:`RequestGate` (``.gate.token`` is in :func:`server_url`)."""
+
+    daemon_threads = True
+    gate: RequestGate
+
+
+def start_server(session: AnnotationSession, port: int = 0, host: str = "127.0.0.1",
+                 token: str | None = None) -> AnnotationServer:
+    """A loopback HTTP server for the session (port 0: any free port), with a new random token unless
+    ``token`` is given; call serve_forever() on it."""
+    server = AnnotationServer((host, port), BaseHTTPRequestHandler, bind_and_activate=True)
+    server.gate = RequestGate(port=server.server_address[1], **({"token": token} if token else {}))
+    server.RequestHandlerClass = make_handler(session, server.gate)
     return server
 
 
-def server_url(server: ThreadingHTTPServer) -> str:
+def server_url(server: AnnotationServer) -> str:
+    """The page's URL with the session token (what the user opens)."""
     host, port = server.server_address[:2]
-    return f"http://{host}:{port}/"
+    return f"http://{host}:{port}/?{TOKEN_PARAM}={server.gate.token}"

@@ -6,7 +6,7 @@
 
 Start a server, serve, trigger:
 
-    prefect server start --host 127.0.0.1 --port 4200 &
+    prefect server start --host 127.0.0.1 --port 4200 --analytics-off &
     export PREFECT_API_URL=http://127.0.0.1:4200/api
     demoforge serve --inbox takes/inbox &
     prefect deployment run 'ingest-folder/scheduled' --param folder=takes/other --watch

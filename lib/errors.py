@@ -34,6 +34,17 @@ class Reporting:
 
     cli_reports = False
     show_tracebacks = False
+    #: The ``warning: ...`` lines this command printed: a warning found by a stage and repeated by
+    #: the command's own summary is printed once.
+    warnings_shown: set[str] = set()
+
+    @classmethod
+    def first_time(cls, line: str) -> bool:
+        """True the first time ``line`` is about to be printed (and remember it)."""
+        if line in cls.warnings_shown:
+            return False
+        cls.warnings_shown.add(line)
+        return True
 
 
 class UserError(ValueError):
@@ -71,3 +82,27 @@ def one_line(exc: BaseException, limit: int = 600) -> str:
     """The exception's message on one line (long messages cut)."""
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def release_frames(error: BaseException | None) -> None:
+    """Let go of what a reported error holds: the local variables of the finished frames it passed
+    through, and the errors it came from (``__cause__``/``__context__``, already shown or suppressed).
+
+    Prefect keeps a failed run's error in its state until the process ends, and with it everything
+    those hold; a DuckDB error (or connection) still alive when the interpreter tears its modules down
+    makes nanobind print dozens of "leaked instance" lines after the one-line error. The error's own
+    traceback (files and lines) stays; with ``--debug`` (``Reporting.show_tracebacks``) nothing is
+    released, so the full chain is printed."""
+    import traceback
+
+    if Reporting.show_tracebacks or error is None:
+        return
+    chain: list[BaseException] = []
+    while error is not None and all(error is not seen for seen in chain):
+        chain.append(error)
+        error = error.__cause__ or error.__context__
+    for i, err in enumerate(chain):
+        traceback.clear_frames(err.__traceback__)
+        if i:
+            err.__traceback__ = None
+        err.__cause__ = err.__context__ = None

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, MutableMapping
 
-__all__ = ["PREFIX", "VARIABLES", "RENAMED", "Settings", "read_settings", "adopt_old_names"]
+__all__ = ["PREFIX", "VARIABLES", "RENAMED", "LIBRARY_DEFAULTS", "Settings", "read_settings", "adopt_old_names",
+           "apply_library_defaults"]
 
 PREFIX = "DEMOFORGE_"
 
@@ -62,6 +63,20 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_POLICY_TRIALS": "scenes per kind the learned policy is judged on",
 }
 
+#: Other libraries' variables demoforge sets when the user has not: Prefect reads its settings when it
+#: is imported, so ``demoforge/__init__.py`` applies them before any module can import it.
+LIBRARY_DEFAULTS: dict[str, str] = {
+    # a local tool on an offline machine sends nothing: the temporary (and any local) Prefect server
+    # without its telemetry service (whose SQLite writes also failed with "database is locked" when
+    # several commands shared ~/.prefect), and Prefect's client without usage events
+    "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+    "DO_NOT_TRACK": "1",
+    # on a loaded 2-core machine the temporary API server can take well over the default 20 s
+    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "180",
+    # demoforge prints its own progress and warnings (one line each); Prefect's INFO lines are noise
+    "PREFECT_LOGGING_LEVEL": "WARNING",
+}
+
 #: the names of the previous release, read for one more release
 RENAMED: dict[str, str] = {
     old: PREFIX + old for old in (
@@ -91,6 +106,13 @@ def adopt_old_names(environ: MutableMapping[str, str] | None = None,
             env[new] = env[old]
             warn(f"warning: {old} is deprecated and will stop working in the next release; set {new} instead")
     return found
+
+
+def apply_library_defaults(environ: MutableMapping[str, str] | None = None) -> None:
+    """Set each of :data:`LIBRARY_DEFAULTS` the environment does not set already (the user's value wins)."""
+    env = os.environ if environ is None else environ
+    for name, value in LIBRARY_DEFAULTS.items():
+        env.setdefault(name, value)
 
 
 def _path(env: Mapping[str, str], name: str) -> Path | None:

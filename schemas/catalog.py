@@ -22,7 +22,9 @@ import pyarrow as pa
 
 from demoforge.lib.errors import UserError
 
-from demoforge.schemas.core import DATA_FILE, TableSchema, migrate_warehouse, registry
+from demoforge.schemas.core import (  # noqa: F401  (WarehouseDamaged: its old home)
+    DATA_FILE, TableSchema, WarehouseDamaged, migrate_warehouse, parquet_metadata, registry,
+)
 from demoforge.lib.settings import read_settings
 from demoforge.schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
@@ -138,22 +140,10 @@ def build_catalog(root: str | os.PathLike | None = None) -> Path:
     return target
 
 
-class WarehouseDamaged(UserError):
-    """A table file in the warehouse cannot be read (truncated or overwritten on disk)."""
-
-
 def _raise_if_damaged(root: Path, table: str, error: BaseException) -> None:
     """Name the first unreadable Parquet file of ``table`` and the fix, if one is the cause of ``error``."""
-    import pyarrow.parquet as pq
-
     for f in sorted((root / table).glob("**/" + DATA_FILE)):
-        try:
-            pq.ParquetFile(f).metadata  # footer and schema: what the view needs
-        except Exception as e:  # noqa: BLE001 (pyarrow raises several types for a damaged file)
-            raise WarehouseDamaged(
-                f"{f}: damaged warehouse file ({_one_line(e)[:160]}); run the command that wrote table "
-                f"{table!r} again (a cached stage whose output file changed or is gone is recomputed), "
-                "or delete the file to drop its rows") from None
+        parquet_metadata(f, table)  # footer and schema: what the view needs
 
 
 def catalog_is_current(root: Path) -> bool:
@@ -208,9 +198,19 @@ def query(sql: str, root: str | os.PathLike | None = None, params: Sequence[Any]
     except duckdb.PermissionException as e:
         raise QueryRefused(f"refused: queries read only the warehouse's tables ({_one_line(e)})") from None
     except duckdb.Error as e:
+        _raise_if_damaged_file(root, e)
         raise QueryRefused(_one_line(e)) from None
     finally:
         con.close()
+
+
+def _raise_if_damaged_file(root: Path, error: BaseException) -> None:
+    """A query failed on a current catalog: if a table file was damaged since the catalog was built, say
+    which and how to fix it (the tables the error names, else every table: only on this error path)."""
+    text = str(error)
+    named = [name for name in registry() if str(root / name) + os.sep in text]
+    for name in named or sorted(registry()):
+        _raise_if_damaged(root, name, error)
 
 
 def placeholders(n: int) -> str:

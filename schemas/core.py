@@ -21,12 +21,48 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from demoforge.lib.errors import UserError
+
 DATA_FILE = "data.parquet"
 _SAFE_PART = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
 class SchemaError(ValueError):
     """Data does not match a table's contract; the message names the table and the column."""
+
+
+class WarehouseDamaged(UserError):
+    """A table file in the warehouse cannot be read (truncated or overwritten on disk)."""
+
+
+def damaged_file_error(path: str | os.PathLike, table: str, error: BaseException) -> WarehouseDamaged:
+    """The one-line error for an unreadable table file: which file, why, and how to get it back."""
+    why = " ".join(str(error).split())[:160] or type(error).__name__
+    return WarehouseDamaged(
+        f"{path}: damaged warehouse file ({why}); run the command that wrote table {table!r} again (a "
+        "cached stage whose output file changed or is gone is recomputed), or delete the file to drop its rows")
+
+
+# What pyarrow raises for a file that is not (or no longer) Parquet: ArrowInvalid for bad magic bytes
+# or a footer cut short, OSError for what cannot be read at all.
+_UNREADABLE = (pa.ArrowException, OSError)
+
+
+def read_parquet_file(path: str | os.PathLike, table: str, columns: Sequence[str] | None = None) -> pa.Table:
+    """``pq.read_table`` of one file of warehouse table ``table``; a damaged file is a
+    :class:`WarehouseDamaged` naming it and the fix, never a pyarrow traceback."""
+    try:
+        return pq.read_table(path, columns=list(columns) if columns is not None else None)
+    except _UNREADABLE as e:
+        raise damaged_file_error(path, table, e) from None
+
+
+def parquet_metadata(path: str | os.PathLike, table: str) -> pq.FileMetaData:
+    """The footer of one file of warehouse table ``table`` (row count, schema); damaged: as :func:`read_parquet_file`."""
+    try:
+        return pq.ParquetFile(path).metadata
+    except _UNREADABLE as e:
+        raise damaged_file_error(path, table, e) from None
 
 
 @dataclass(frozen=True)
@@ -113,6 +149,27 @@ def register_migration(table_name: str, migrate: Callable[[Path], int]) -> None:
     """Register ``migrate(root) -> files changed``, which brings a table's files written under an older
     contract to the current one. It must be idempotent and cheap when there is nothing to do."""
     _MIGRATIONS.append((table_name, migrate))
+
+
+def added_columns_migration(name: str, old_version: int, values: Mapping[str, Any]) -> Callable[[Path], int]:
+    """The migration of a table whose contract gained columns since ``old_version``: each file of that
+    version gets them, filled with ``values[column]`` (NaN: not measured then), in the current contract
+    (rewritten atomically, where it is). A stage whose cached output it changed runs again when asked."""
+    def migrate(root: Path) -> int:
+        schema = get_schema(name)
+        changed = 0
+        for f in sorted((Path(root) / name).glob("**/" + DATA_FILE)):
+            meta = parquet_metadata(f, name).metadata or {}
+            if meta.get(b"demoforge.schema_version") != str(old_version).encode():
+                continue
+            t = read_parquet_file(f, name)
+            for column, value in values.items():
+                t = t.append_column(column, pa.array([value] * t.num_rows, schema.column(column).type))
+            atomic_write_parquet(validate(schema, t), f)
+            changed += 1
+        return changed
+
+    return migrate
 
 
 def migrate_warehouse(root: str | os.PathLike) -> dict[str, int]:
@@ -515,7 +572,7 @@ def read_table(
         return target_schema.empty_table()
     parts = []
     for f in files:
-        t = pq.read_table(f, columns=cols)
+        t = read_parquet_file(f, name, cols)
         version = (t.schema.metadata or {}).get(b"demoforge.schema_version", b"?").decode()
         if version != str(schema.version):
             raise SchemaError(

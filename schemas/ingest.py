@@ -3,7 +3,9 @@ object_keypoints and the per-take accuracy table `ingest_metrics` (synthetic tak
 
 import pyarrow as pa
 
-from demoforge.schemas.core import Column, keypoints2d, keypoints3d, pose8, table, vec3
+from demoforge.schemas.core import (
+    Column, added_columns_migration, keypoints2d, keypoints3d, pose8, register_migration, table, vec3,
+)
 
 _TAKE = Column("take", pa.string(), "Take identifier (the take folder's name).")
 _TASK = Column("task", pa.string(), "Task name, or `unknown` for a recorded take ingested without `--task`.")
@@ -106,9 +108,16 @@ OBJECT_KEYPOINTS = table(
     partition_by=_PARTS,
 )
 
+_DEPTH_MISSING = Column("depth_missing_fraction", pa.float64(), "Share of this hand's used detections with no depth "
+                        "reading at its anchors (`no_depth` in `aligned_keypoints`; their depth is interpolated); NaN "
+                        "when the hand was never used.")
+_DEPTH_MISSING_FRAMES = Column("depth_missing_frame_fraction", pa.float64(), "Take-level: share of the frames with a used "
+                               "hand detection where depth is missing at a hand (the ingest warns above the threshold "
+                               "of docs/ingest.md); NaN without any.")
+
 INGEST_METRICS = table(
     "ingest_metrics",
-    version=1,
+    version=2,
     doc=("Accuracy of the ingest on synthetic takes, against their exact ground truth, per take, detector and "
          "hand. Rows with detector `simulated` measure the pipeline under the simulated detector's error model."),
     columns=[
@@ -131,13 +140,14 @@ INGEST_METRICS = table(
         Column("swap_frames_injected", pa.int32(), "Frames where the simulated detector swapped the labels (take-level; 0 for real detectors)."),
         Column("swap_frames_repaired", pa.int32(), "Frames where the ingest swapped the labels back (take-level)."),
         Column("swap_frames_repaired_correctly", pa.int32(), "Repaired frames that were really swapped (take-level)."),
+        _DEPTH_MISSING, _DEPTH_MISSING_FRAMES,
     ],
     partition_by=_PARTS,
 )
 
 HAND_PRESENCE = table(
     "hand_presence",
-    version=1,
+    version=2,
     doc=("Per take and hand: how much of the take the hand tracker (demoforge.lib.perception.tracking) could follow, and "
          "whether the hand's trajectory can be trusted. `demoforge augment` refuses to build episodes from an "
          "untrusted hand unless forced (`--allow-untrusted-hands`)."),
@@ -155,9 +165,15 @@ HAND_PRESENCE = table(
         Column("trusted", pa.bool_(), "The trajectory covers enough of the take to build episodes from."),
         Column("reason", pa.string(), "Why the hand is not trusted, in words (empty when trusted)."),
         Column("depth_problem", pa.string(), "The take's failed depth check the user accepted (empty when the depth passed)."),
+        _DEPTH_MISSING, _DEPTH_MISSING_FRAMES,
     ],
     partition_by=_PARTS,
 )
+
+# Files written before the depth coverage was measured (v1): the columns exist, NaN (not measured).
+for _table in (INGEST_METRICS, HAND_PRESENCE):
+    register_migration(_table.name, added_columns_migration(
+        _table.name, 1, {_DEPTH_MISSING.name: float("nan"), _DEPTH_MISSING_FRAMES.name: float("nan")}))
 
 FOLDER_INGESTS = table(
     "folder_ingests",

@@ -14,9 +14,8 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
-from demoforge.schemas.core import DATA_FILE, Column, register_migration, table, write_table
+from demoforge.schemas.core import DATA_FILE, Column, read_parquet_file, register_migration, table, write_table
 
 SIM_RESULTS = table(
     "sim_results",
@@ -83,7 +82,7 @@ def migrate_v1(root: str | os.PathLike) -> int:
     base = Path(root) / SIM_RESULTS.name
     moved = 0
     for old in sorted(base.glob(f"task=*/take=*/chunk=*/{DATA_FILE}")):
-        t = pq.read_table(old)
+        t = read_parquet_file(old, SIM_RESULTS.name)
         if (t.schema.metadata or {}).get(b"demoforge.schema_version") != b"1":
             continue
         t = t.append_column("selection", pa.array([LEGACY_SELECTION] * t.num_rows, pa.string()))
@@ -93,7 +92,7 @@ def migrate_v1(root: str | os.PathLike) -> int:
         if new.exists():
             # a crash after the copy, or an old process that kept writing v1 files after a migration:
             # keep every row, the v1 file's where both hold an episode (it was written later)
-            existing = pq.read_table(new).cast(SIM_RESULTS.arrow)
+            existing = read_parquet_file(new, SIM_RESULTS.name).cast(SIM_RESULTS.arrow)
             keep = pc.invert(pc.is_in(existing.column("episode_id"), t.column("episode_id")))
             t = pa.concat_tables([existing.filter(keep), t]).sort_by("episode_id")
         write_table(SIM_RESULTS, t, root)  # validated, atomic, to exactly `new`

@@ -19,6 +19,7 @@ import hashlib
 import json
 import logging
 import os
+import sys
 import time
 from dataclasses import asdict, dataclass, is_dataclass
 from pathlib import Path
@@ -353,9 +354,28 @@ class DropUserErrorLines(logging.Filter):
         return Reporting.show_tracebacks or not getattr(record, USER_ERROR_MARK, False)
 
 
+class WarningsAsOneLine(logging.Filter):
+    """For the console while the CLI runs: a stage's or flow's warning is the command's own
+    ``warning: [stage: ]message`` line, printed once (the command's summary may repeat it: see
+    ``demoforge.cli.root.warn``), instead of Prefect's timestamped ``WARNING | Task run ...`` line
+    beside it. The record still reaches Prefect's API log."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno != logging.WARNING or not record.name.startswith(_RUN_LOGGERS):
+            return True
+        stage = getattr(record, "task_name", None)
+        line = f"warning: {stage + ': ' if stage else ''}{one_line(record.getMessage(), 2000)}"
+        if Reporting.first_time(line):
+            from tqdm import tqdm
+
+            tqdm.write(line, file=sys.stderr)  # above a progress bar, if one is drawn
+        return False
+
+
 def quiet_user_errors() -> None:
     """Install :class:`UserErrorLogFilter` on Prefect's run loggers (idempotent); when the CLI reports
-    user errors itself (``demoforge.lib.errors.Reporting.cli_reports``), also keep those lines off the console."""
+    user errors itself (``demoforge.lib.errors.Reporting.cli_reports``), also keep those lines off the
+    console, and print warnings as one line each (:class:`WarningsAsOneLine`)."""
     for name in _RUN_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(f, UserErrorLogFilter) for f in logger.filters):
@@ -364,9 +384,11 @@ def quiet_user_errors() -> None:
         from prefect.logging.handlers import PrefectConsoleHandler
 
         for handler in logging.getLogger().handlers + logging.getLogger("prefect").handlers:
-            if isinstance(handler, PrefectConsoleHandler) and not any(
-                    isinstance(f, DropUserErrorLines) for f in handler.filters):
-                handler.addFilter(DropUserErrorLines())
+            if not isinstance(handler, PrefectConsoleHandler):
+                continue
+            for kind in (DropUserErrorLines, WarningsAsOneLine):
+                if not any(isinstance(f, kind) for f in handler.filters):
+                    handler.addFilter(kind())
 
 
 quiet_user_errors()

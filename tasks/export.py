@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 import demoforge.lib  # noqa: F401
 from demoforge.lib.exports import ExportError, task_instruction
@@ -71,12 +70,12 @@ def _read_steps(warehouse: str, task: str, take: str) -> tuple[np.ndarray, np.nd
     Read whole and selected in numpy: pyarrow 26.0.1 returns wrong values when it filters a nested
     fixed-size-list column whose chunk is a slice (as parquet reads give), in `filters=` and `.filter`.
     """
-    from demoforge.schemas.core import column_numpy, table_files
+    from demoforge.schemas.core import column_numpy, read_parquet_file, table_files
 
     files = table_files("episode_steps", warehouse, task=task, take=take)
     if not files:
         return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 2, 8), np.float32)
-    t = pa.concat_tables([pq.read_table(f, columns=["episode_id", "step", "action"]) for f in files])
+    t = pa.concat_tables([read_parquet_file(f, "episode_steps", ["episode_id", "step", "action"]) for f in files])
     return t.column("episode_id").to_numpy(), t.column("step").to_numpy(), column_numpy(t, "action")
 
 

@@ -179,7 +179,7 @@ class DepthError(UserError):
     """The take's depth cannot be trusted (one-line message: what is wrong and how to fix it)."""
 
 
-@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-1", key_ignore=("take_dir",),  # keyed on media_key
+@stage_task(name="align_keypoints", version=f"{INGEST_VERSION}/tracker-2", key_ignore=("take_dir",),  # keyed on media_key
             key_optional=("variant",))
 def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                     alignment: dict | None = None, tracker: dict | None = None,
@@ -250,17 +250,25 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
     return Manifest.from_written("aligned_keypoints", written)
 
 
-@stage_task(name="hand_presence", version=INGEST_VERSION, key_optional=("variant",))
+@stage_task(name="hand_presence", version=f"{INGEST_VERSION}/depth-coverage-1", key_optional=("variant",))
 def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Manifest,
                   tracker: dict | None = None, variant: dict | None = None) -> Manifest:
-    """Per hand: frames detected / accepted / rejected / filled / tracked and the trust verdict."""
+    """Per hand: frames detected / accepted / rejected / filled / tracked, the trust verdict and the
+    share without depth at the hand (warned about above DepthCheckConfig.warn_missing_fraction)."""
+    from demoforge.lib.ingest.depth_checks import coverage_warning, depth_coverage
     from demoforge.lib.takes import open_take
     from demoforge.lib.perception.tracking import TrackerConfig, hand_trust
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
     al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
-    T, a = arrays(al, "present", "detected", "filled_missing", "track_id", "rejected")
+    T, a = arrays(al, "present", "detected", "filled_missing", "track_id", "rejected", "no_depth")
+    coverage = depth_coverage(a["detected"], a["no_depth"])
+    warning = coverage_warning(take.take_id, coverage)
+    if warning:
+        from prefect import get_run_logger
+
+        get_run_logger().warning(warning)
     detector = al.column("detector")[0].as_py()
     problem = al.column("depth_problem")[0].as_py()
     rej = a["rejected"].astype(str)
@@ -275,6 +283,7 @@ def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Man
         "frames_filled": int(a["filled_missing"][:, h].sum()), "frames_tracked": int(a["present"][:, h].sum()),
         "tracks": int(a["track_id"][:, h].max() + 1) if T else 0,
         "trusted": bool(trusted[h]), "reason": reasons[h], "depth_problem": problem,
+        "depth_missing_fraction": float(coverage.hand_missing[h]), "depth_missing_frame_fraction": coverage.frame_missing,
     } for h, hand in enumerate(HANDS)]
     written = write_table("hand_presence", pa.Table.from_pylist(out), warehouse, variant)
     return Manifest.from_written("hand_presence", written)
@@ -386,11 +395,13 @@ def alignment_options(config: Any) -> dict:
 
 # --- 6. accuracy against ground truth (synthetic takes) ------------------------------------------
 
-@stage_task(name="ingest_metrics", version=INGEST_VERSION, key_optional=("variant",))
+@stage_task(name="ingest_metrics", version=f"{INGEST_VERSION}/depth-coverage-1", key_optional=("variant",))
 def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoints: Manifest,
                    aligned: Manifest, grippers: Manifest, variant: dict | None = None) -> Manifest | None:
-    """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps."""
+    """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps, the
+    share without depth at the hand."""
     from demoforge.lib.evaluation import metrics as M
+    from demoforge.lib.ingest.depth_checks import depth_coverage
     from demoforge.lib.takes import open_take
     from demoforge.schemas.core import read_table_file
 
@@ -401,7 +412,8 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
     part = dict(task=name, take=take.take_id, variant=variant)
     _, raw = arrays(read_table("hand_keypoints", warehouse, **part), "joints_cam", "joints_px", "present")
     al_t = read_table("aligned_keypoints", warehouse, **part)
-    _, al = arrays(al_t, "joints_cam", "detected", "swap_repaired")
+    _, al = arrays(al_t, "joints_cam", "detected", "swap_repaired", "no_depth")
+    coverage = depth_coverage(al["detected"], al["no_depth"])
     _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "g_threshold", "g_auto", "g_manual")
     gt_dir = take.ground_truth_dir
     _, gt = arrays(read_table_file("gt_hand_joints", gt_dir / "gt_hand_joints.parquet"),
@@ -439,6 +451,8 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
                                       else M.open_close_accuracy(g_man.astype(float), g_true[:, h], in_view)),
             "swap_frames_injected": int(injected.sum()), "swap_frames_repaired": int(repaired.sum()),
             "swap_frames_repaired_correctly": int((repaired & injected).sum()),
+            "depth_missing_fraction": float(coverage.hand_missing[h]),
+            "depth_missing_frame_fraction": coverage.frame_missing,
         })
     written = write_table("ingest_metrics", pa.Table.from_pylist(out), warehouse, variant)
     return Manifest.from_written("ingest_metrics", written)

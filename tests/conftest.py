@@ -12,7 +12,6 @@ import pytest
 from hypothesis import settings
 
 import demoforge.lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
-import demoforge.tasks  # noqa: F401,E402  (Prefect environment defaults before prefect)
 
 SHARED_DATA = demoforge.lib.SHARED_DATA
 
@@ -28,10 +27,11 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE")
 # not in the user's cache folder; the suite's subprocesses inherit this.
 os.environ.setdefault("DEMOFORGE_DIGEST_CACHE", os.path.join(tempfile.gettempdir(), "demoforge-test-digests"))
 
-# A skip is only for what is truly absent. Where ../shared/data is present (a machine set up like
-# CI's), $DEMOFORGE_FAIL_ON_SKIP=1 (set by .ci/run) makes any skip fail the run: a skip there means
-# something the suite needs went missing, or a test hides an error behind a skip.
-FAIL_ON_SKIP = os.environ.get("DEMOFORGE_FAIL_ON_SKIP", "") not in ("", "0") and SHARED_DATA.is_dir()
+# A skip is only for what is truly absent, and says what (a test that needs ../shared/data says so:
+# CI has it). $DEMOFORGE_FAIL_ON_SKIP=1 (set by .ci/run) makes any skip fail the run, whether or not
+# ../shared/data is here: a skip in CI means something the suite needs went missing, or a test hides
+# an error behind a skip.
+FAIL_ON_SKIP = os.environ.get("DEMOFORGE_FAIL_ON_SKIP", "") not in ("", "0")
 
 # Free space the suite needs in the temporary directory (synthetic takes, warehouses, videos, model
 # weights the tests build): measured peak 1-2 GB (docs/development.md), plus a margin. A CI run that
@@ -63,8 +63,8 @@ def pytest_terminal_summary(terminalreporter):
     skipped = terminalreporter.stats.get("skipped", [])
     if FAIL_ON_SKIP and skipped:
         terminalreporter.write_line(
-            f"DEMOFORGE_FAIL_ON_SKIP: {len(skipped)} test(s) skipped although {SHARED_DATA} is present "
-            f"(reasons in the short test summary): the run fails", red=True, bold=True)
+            f"DEMOFORGE_FAIL_ON_SKIP: {len(skipped)} test(s) skipped (reasons in the short test summary; "
+            f"{SHARED_DATA} is {'present' if SHARED_DATA.is_dir() else 'absent'}): the run fails", red=True, bold=True)
 
 
 # Scheduling under `make test` (pytest-xdist, `--dist loadfile`: whole files per worker). xdist alone
@@ -352,3 +352,51 @@ def ingested_warehouse(_ingested_trash, monkeypatch):
     shutil.copytree(pristine, live)
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(live))
     return live
+
+
+@pytest.fixture(scope="session")
+def llama_server(tmp_path_factory):
+    """llama-cpp-python's OpenAI-compatible server (`python -m llama_cpp.server`) serving the embedded
+    Gemma 3 270M GGUF on a free loopback port, once per session: (base URL, model id). The files that
+    use it run in the embedded-LLM unit (EMBEDDED_LLM), on that unit's core."""
+    import json
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from demoforge.lib.llm.local_backend import _threads, ensure_gguf
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    log = tmp_path_factory.mktemp("llama_server") / "server.log"
+    threads = str(_threads())
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "llama_cpp.server", "--model", str(ensure_gguf()), "--host", "127.0.0.1",
+             "--port", str(port), "--n_ctx", "4096", "--n_threads", threads, "--n_threads_batch", threads],
+            stdout=out, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}/v1"
+    try:
+        deadline = time.monotonic() + 90
+        while True:  # ready when /v1/models answers
+            if proc.poll() is not None:
+                pytest.fail(f"llama_cpp.server exited with {proc.returncode}: {log.read_text()[-2000:]}")
+            try:
+                with urllib.request.urlopen(base + "/models", timeout=2) as r:
+                    model_id = json.loads(r.read())["data"][0]["id"]
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    pytest.fail(f"llama_cpp.server did not answer on {base} within 90 s")
+                time.sleep(0.2)
+        yield base, model_id
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

@@ -172,12 +172,20 @@ def test_annotation_status_needs_every_keypoint_of_the_task(raw_take):
 # ------------------------------------------------------------------------------------------------ CLI
 
 def test_cli_user_errors_are_one_line_without_traceback(raw_take, tmp_path, prefect_api_env):
+    """The first in a process of its own (a fresh interpreter's stderr is that one line, nothing else);
+    the others, which all fail before any flow starts, in this process (typer's CliRunner)."""
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+
     wh = tmp_path / "wh"
 
-    def cli(*args):  # the session's Prefect API: a command that fails inside a flow starts no server of its own
-        return _cli(*args, warehouse=wh, api=prefect_api_env)
+    def cli(*args):
+        r = CliRunner().invoke(app, list(args), env={"DEMOFORGE_WAREHOUSE": str(wh)})
+        return subprocess.CompletedProcess(list(args), r.exit_code, r.stdout, r.stderr)
 
-    _one_line_error(cli("ingest", str(tmp_path / "nowhere")), "no such take folder")
+    # the session's Prefect API: a command that failed inside a flow would start no server of its own
+    _one_line_error(_cli("ingest", str(tmp_path / "nowhere"), warehouse=wh, api=prefect_api_env), "no such take folder")
     _one_line_error(cli("augment", str(tmp_path / "nowhere")), "no such take folder")
     _one_line_error(cli("annotate", str(tmp_path / "nowhere")), "no such take folder")
     _one_line_error(cli("ingest-folder", str(tmp_path / "nowhere")), "no such folder")
@@ -205,6 +213,8 @@ def test_ingest_without_annotations_completes_and_augment_refuses(raw_take, tmp_
     assert "Traceback" not in r.stderr
     warn = f"warning: object_keypoints: {raw_take}: not annotated yet (no annotations.json): run demoforge annotate {raw_take}"
     assert warn in r.stderr.splitlines()
+    # one line per warning: not also Prefect's "WARNING | Task run 'object_keypoints-...'" line
+    assert r.stderr.count("not annotated yet") == 1 and "| WARNING |" not in r.stderr, r.stderr
     assert "gripper_poses" in r.stdout and "object_keypoints" not in r.stdout
     n = query("SELECT count(*) AS n, count(*) FILTER (WHERE valid) AS ok FROM gripper_poses", wh).to_pylist()[0]
     assert n["n"] == 2 * N_FRAMES and n["ok"] > N_FRAMES
@@ -340,24 +350,25 @@ def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouri
     session = AnnotationSession(take)  # task from take.json (pouring)
     server = start_server(session, port=0)
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    url = server_url(server)
+    url, token = _base_url(server), server.gate.token
+    assert server_url(server) == f"{url}?token={token}"
 
     def post(path: str, body: dict):
         req = urllib.request.Request(url + path, data=json.dumps(body).encode(), method="POST",
-                                     headers={"Content-Type": "application/json"})
+                                     headers={"Content-Type": "application/json", "X-Demoforge-Token": token})
         return json.load(urllib.request.urlopen(req, timeout=30))
 
     try:
-        st = json.load(urllib.request.urlopen(url + "api/state", timeout=30))
+        st = json.load(urllib.request.urlopen(url + f"api/state?token={token}", timeout=30))
         assert st["exists"] and st["current"]["ranges_from"] == "annotations.json" and st["ingest"] is None
         okp = original["object_keypoints_2d"]
         assert st["current"]["points"] == {n: list(map(float, uv)) for n, uv in zip(okp["names"], okp["uv"])}
         assert st["current"]["ranges"] == original["gripper_closed_ranges"]
-        jpg = urllib.request.urlopen(url + "api/frame/7.jpg", timeout=30).read()
+        jpg = urllib.request.urlopen(url + f"api/frame/7.jpg?token={token}", timeout=30).read()
         img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
         assert img.shape == (480, 640, 3)
         with pytest.raises(urllib.error.HTTPError) as e:
-            urllib.request.urlopen(url + f"api/frame/{N_FRAMES}.jpg", timeout=30)
+            urllib.request.urlopen(url + f"api/frame/{N_FRAMES}.jpg?token={token}", timeout=30)
         assert e.value.code == 400 and "out of range" in json.load(e.value)["error"]
         with pytest.raises(urllib.error.HTTPError) as e:
             post("api/save", {"frame": 0, "points": st["current"]["points"], "task": st["task"],
@@ -374,6 +385,130 @@ def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouri
     assert saved["object_keypoints_2d"]["uv"][okp["names"].index("cup_base")] == [300.0, 210.0]
     assert saved["gripper_closed_ranges"] == {"left": [[5, 9]], "right": []}
     assert sorted(p.name for p in take.iterdir() if p.name.startswith(".")) == []  # no temp file left
+
+
+def _base_url(server) -> str:
+    host, port = server.server_address[:2]
+    return f"http://{host}:{port}/"
+
+
+def _request(server, method: str, path: str, headers: dict, body: bytes | None = None) -> tuple[int, str]:
+    """One request with exactly these headers (Host included when given): (status, error text)."""
+    import http.client
+
+    conn = http.client.HTTPConnection(*server.server_address[:2], timeout=30)
+    try:
+        conn.putrequest(method, path, skip_host="Host" in headers, skip_accept_encoding=True)
+        for name, value in headers.items():
+            conn.putheader(name, value)
+        if body is not None:
+            conn.putheader("Content-Length", str(len(body)))
+        conn.endheaders(body)
+        answer = conn.getresponse()
+        data = answer.read()
+        return answer.status, (json.loads(data).get("error", "") if answer.status >= 400 else "")
+    finally:
+        conn.close()
+
+
+def _take_files(take: Path) -> dict:
+    return {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in take.iterdir() if p.is_file()}
+
+
+def test_every_route_of_the_annotation_server_passes_the_request_gate(pouring_take, tmp_path):
+    """A web page in another tab, DNS rebinding, a missing or wrong token, a body that is not JSON or is
+    too large: refused (403 / 415 / 413) on every route the server has, and nothing is written."""
+    from demoforge.flows.annotate import PAGE_ROUTE, ROUTES, AnnotationSession, start_server
+    from demoforge.lib.takes.annotate.request_gate import MAX_BODY_BYTES
+
+    take = tmp_path / "take"
+    shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))
+    server = start_server(AnnotationSession(take), port=0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    port, token = server.server_address[1], server.gate.token
+    own = {"Host": f"127.0.0.1:{port}", "Origin": f"http://127.0.0.1:{port}"}
+    ann = json.loads((take / "annotations.json").read_text())
+    okp = ann["object_keypoints_2d"]
+    save = {"frame": 0, "points": dict(zip(okp["names"], okp["uv"])), "ranges": {"left": [[1, 2]]}}
+    before = _take_files(take)
+    assert PAGE_ROUTE in ROUTES and {(r.method, r.example) for r in ROUTES} >= {
+        ("GET", "/"), ("GET", "/api/state"), ("GET", "/api/frame/0.jpg"), ("POST", "/api/points"), ("POST", "/api/save")}
+    try:
+        for route in ROUTES:
+            body = json.dumps(save).encode() if route.method == "POST" else None
+            json_ct = {"Content-Type": "application/json"} if body is not None else {}
+            with_token = f"{route.example}?token={token}"
+            refused = [
+                ("no token", route.example, {**own, **json_ct}, 403, "session token"),
+                ("wrong token", f"{route.example}?token=x{token[1:]}", {**own, **json_ct}, 403, "session token"),
+                ("wrong token header", route.example, {**own, **json_ct, "X-Demoforge-Token": token[:-1]}, 403,
+                 "session token"),
+                ("DNS rebinding", with_token, {**own, **json_ct, "Host": f"evil.example:{port}"}, 403, "Host"),
+                ("foreign port", with_token, {**own, **json_ct, "Host": f"127.0.0.1:{port + 1}"}, 403, "Host"),
+            ]
+            if body is not None:
+                refused += [
+                    ("cross-origin POST", with_token, {**own, **json_ct, "Origin": "http://evil.example"}, 403,
+                     "may not change"),
+                    ("text/plain body", with_token, {**own, "Content-Type": "text/plain"}, 415, "application/json"),
+                    ("no content type", with_token, own, 415, "application/json"),
+                ]
+            for case, path, headers, status, needle in refused:
+                got, error = _request(server, route.method, path, headers, body)
+                assert (got, needle in error) == (status, True), (route.example, case, got, error)
+            if body is not None:
+                big = b'{"frame": 0, "pad": "' + b"x" * MAX_BODY_BYTES + b'"}'
+                got, error = _request(server, route.method, with_token, {**own, **json_ct}, big)
+                assert got == 413 and "over the limit" in error, (route.example, got, error)
+            assert _take_files(take) == before, route.example          # nothing written, nothing touched
+        # the gate comes before the routes: an unknown path is refused, not answered, without the token
+        assert _request(server, "GET", "/nowhere", own)[0] == 403
+        assert _request(server, "GET", f"/nowhere?token={token}", own)[0] == 404
+        # the page's own requests pass (localhost is the same loopback page)
+        assert _request(server, "GET", "/api/state", {"Host": f"localhost:{port}", "X-Demoforge-Token": token})[0] == 200
+        got, _ = _request(server, "POST", "/api/save", {**own, "Content-Type": "application/json; charset=utf-8",
+                                                        "X-Demoforge-Token": token}, json.dumps(save).encode())
+        assert got == 200
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert json.loads((take / "annotations.json").read_text())["gripper_closed_ranges"]["left"] == [[1, 2]]
+
+
+def test_annotate_command_serves_its_take_and_task_until_ctrl_c(raw_take, tmp_path):
+    """`demoforge annotate` on its main path: the printed URL (with the token) serves the take with the
+    task of --task/--keypoints, a save writes annotations.json, Ctrl-C ends it cleanly."""
+    import signal
+    import urllib.request
+
+    names = [f"jug:j{i}" for i in range(5)] + [f"glass:g{i}" for i in range(6)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DEMOFORGE_WAREHOUSE": str(tmp_path / "wh")}
+    proc = subprocess.Popen([sys.executable, "-m", "demoforge.cli", "annotate", str(raw_take), "--task",
+                             "custom:serve_drink", "--keypoints", ",".join(names), "--port", "0"], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = proc.stdout.readline().strip()
+        if not url:  # it ended instead of serving: say why
+            pytest.fail(f"annotate exited ({proc.wait(60)}): {proc.stderr.read()[-2000:]}")
+        assert url.startswith("http://127.0.0.1:") and "/?token=" in url, url
+        base, token = url.split("?token=")
+        st = json.load(urllib.request.urlopen(f"{base}api/state?token={token}", timeout=30))
+        assert st["path"] == str(raw_take) and st["n_frames"] == N_FRAMES and not st["exists"]
+        assert st["task"]["name"] == "serve_drink" and [o["name"] for o in st["task"]["objects"]] == ["jug", "glass"]
+        task = st["task"]
+        task["objects"][0]["arm"], task["objects"][1]["arm"] = "right", "left"
+        body = json.dumps({"frame": 3, "points": {"j0": [10.0, 20.0]}, "ranges": {"left": [[2, 9]]}, "task": task})
+        req = urllib.request.Request(f"{base}api/save", data=body.encode(), method="POST",
+                                     headers={"Content-Type": "application/json", "X-Demoforge-Token": token})
+        saved = json.load(urllib.request.urlopen(req, timeout=30))
+        assert saved["status"]["detail"].startswith("1 of 11 object keypoints placed")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    written = json.loads((raw_take / "annotations.json").read_text())
+    assert written["task"]["name"] == "serve_drink" and written["object_keypoints_2d"]["frame"] == 3
+    assert written["gripper_closed_ranges"] == {"left": [[2, 9]], "right": []}
 
 
 # ------------------------------------------------------------------------------------------------ browser

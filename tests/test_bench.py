@@ -77,16 +77,12 @@ def test_scaled_baseline_on_fewer_items(clock):
     assert sizes == [100_000, 10_000, 10_000] and checked == [(sum(range(10_000)), sum(range(10_000)))]
 
 
-def test_bench_flow_writes_rows_queryable_in_sql(prefect_api, warehouse):
-    rows = run_benchmarks(str(warehouse), stages=["warehouse"], quick=True)
-    assert len(rows) == len(CASE_FACTORIES["warehouse"](True)) >= 1
-    t = query("SELECT stage, case_name, seconds, baseline_seconds, ratio FROM benchmarks ORDER BY case_name")
-    assert t.to_pylist() == sorted(({k: r[k] for k in ("stage", "case_name", "seconds", "baseline_seconds", "ratio")}
-                                    for r in rows), key=lambda r: r["case_name"])
-    assert all(r["stage"] == "warehouse" and r["ratio"] == pytest.approx(r["baseline_seconds"] / r["seconds"])
-               for r in t.to_pylist())
+def test_bench_flow_refuses_an_unknown_stage(prefect_api, warehouse):
+    """(The warehouse stage's rows, written and queried through `demoforge bench`, are
+    tests/test_cli_smoke.py::test_tables_catalog_sql_and_bench's.)"""
     with pytest.raises(ValueError, match="unknown benchmark stage"):
         run_benchmarks(str(warehouse), stages=["nope"], quick=True)
+    assert not (warehouse / "benchmarks").exists()
 
 
 def test_the_cases_scratch_files_are_removed_when_the_process_ends(tmp_path):

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.schemas.catalog import query
+from tests.conftest import require_mediapipe_model
 
 
 def _run(*args: str):
@@ -38,6 +40,13 @@ def test_synth_then_ingest_folder(prefect_api, warehouse, tmp_path):
     assert rows == [{"take": "synth_pouring_s0000", "status": "ingested", "gripper_rows": 12}]
     assert _count("gripper_poses", warehouse, "take = 'synth_pouring_s0000'") == 12
 
+    # evaluate-detection on the synthesized take: MediaPipe (the real detector) in image mode
+    require_mediapipe_model()
+    r = _run("evaluate-detection", "--mode", "image", "--take", "synth_pouring_s0000")
+    got = query("SELECT take, running_mode, subset, frames FROM detection_metrics ORDER BY subset", warehouse).to_pylist()
+    assert [(g["take"], g["running_mode"], g["frames"]) for g in got] == [("synth_pouring_s0000", "image", 6)] * len(got)
+    assert {g["subset"] for g in got} >= {"all"} and "pouring" in r.output  # the per-task table, printed
+
 
 def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_take, tmp_path):
     """augment -> llm-eval (the LLM-free strategies) -> variations (default strategies, the spatial kind)
@@ -61,6 +70,17 @@ def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_
     assert [(x["variation"], x["strategy"]) for x in v] == [("spatial", "replay_top1"), ("spatial", "transform_demo")]
     assert all(x["detail"] for x in v) and "transform_demo" in r.output  # report_table4 printed
 
+    # retrieve: a scene whose keypoints are one episode's comes back with that episode first, at MSE 0
+    ep = query("SELECT episode_id, object_keypoints FROM episodes WHERE valid AND kind = 'mirrored' ORDER BY episode_id "
+               "LIMIT 1", wh).to_pylist()[0]
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps({"object_keypoints": ep["object_keypoints"]}))
+    r = _run("retrieve", "--task", "trash_in_bin", "--scene", str(scene), "-k", "2", "--format", "json")
+    got = [json.loads(line) for line in r.output.splitlines()]
+    assert len(got) == 2 and got[0]["episode_id"] == ep["episode_id"] and got[0]["mse"] == 0.0 < got[1]["mse"], got
+    r = _run("retrieve", "--task", "trash_in_bin", "--scene", str(scene), "--strategy", "single", "-f", "json")
+    assert [json.loads(line)["episode_id"] for line in r.output.splitlines()] == [0]  # the original demonstration
+
     out = tmp_path / "ep0.mp4"
     r = _run("render-episode", "--task", "trash_in_bin", "--episode", "0", "--out", str(out))
     assert out.stat().st_size > 10_000 and str(out) in r.output
@@ -70,9 +90,14 @@ def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
     from demoforge.bench.run import CASE_FACTORIES
 
     r = _run("bench", "--stage", "warehouse", "--quick")
-    rows = query("SELECT stage, case_name FROM benchmarks", warehouse).to_pylist()
+    rows = query("SELECT stage, case_name, seconds, baseline_seconds, ratio FROM benchmarks", warehouse).to_pylist()
     n = len(CASE_FACTORIES["warehouse"](True))
     assert len(rows) == n >= 1 and all(row["stage"] == "warehouse" and row["case_name"][:30] in r.output for row in rows)
+    # each row as the command printed it: its seconds, the baseline's and their ratio
+    for row in rows:
+        line = next(ln for ln in r.stdout.splitlines() if ln.startswith("warehouse") and row["case_name"][:30] in ln).split()
+        assert [float(x) for x in line[-3:-1]] == [round(row["seconds"], 4), round(row["baseline_seconds"], 4)]
+        assert row["ratio"] == pytest.approx(row["baseline_seconds"] / row["seconds"])
 
     r = _run("catalog")
     assert (warehouse / "catalog.duckdb").is_file() and "catalog rebuilt" in r.output

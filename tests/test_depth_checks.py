@@ -16,7 +16,7 @@ def _dexcap_mm() -> np.ndarray:
 
     p = DEXCAP / "depth_image.png"
     if not p.exists():
-        pytest.skip("shared/data/rgbd/dexcap_frame_0 not available")
+        pytest.skip(f"{p} absent: the real RGB-D frame comes with the shared data folder (../shared/data)")
     return cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64)
 
 
@@ -72,3 +72,23 @@ def test_hands_depth_against_their_size():
     some = ok_ratio.copy()
     some[:10, 0] = 3.0
     assert check_depth(stats, det, det, some).ok
+
+
+def test_depth_coverage_counts_the_frames_and_detections_without_depth_at_the_hands():
+    from demoforge.lib.ingest.depth_checks import DepthCheckConfig, coverage_warning, depth_coverage
+
+    detected = np.zeros((20, 2), bool)
+    detected[:, 0] = True                     # the left hand in every frame
+    detected[10:, 1] = True                   # the right hand in the second half
+    no_depth = np.zeros((20, 2), bool)
+    no_depth[:4, 0] = True                    # 4 of the left hand's 20 detections
+    no_depth[15:, 1] = True                   # 5 of the right hand's 10
+    no_depth[5, 1] = True                     # not detected there: does not count
+    c = depth_coverage(detected, no_depth)
+    np.testing.assert_allclose(c.hand_missing, [0.2, 0.5])
+    assert c.frame_missing == 9 / 20 and c.frames_with_hands == 20
+    assert coverage_warning("t", c).startswith("take t: depth is missing at the hands in 45 % of the frames "
+                                               "with a hand (left 20 %, right 50 % of each hand's detections)")
+    assert coverage_warning("t", c, DepthCheckConfig(warn_missing_fraction=0.45)) == ""  # at the threshold: fine
+    none = depth_coverage(np.zeros((5, 2), bool), np.ones((5, 2), bool))
+    assert np.isnan(none.hand_missing).all() and np.isnan(none.frame_missing) and coverage_warning("t", none) == ""

@@ -149,3 +149,39 @@ def test_millimetres_read_as_metres_are_detected(prefect_api, warehouse, bad_dep
     assert r.exit_code == 2 and "Traceback" not in r.output
     last = r.stderr.strip().splitlines()[-1]
     assert "millimetres read as metres" in last and "depth_scale" in last
+
+
+@pytest.fixture(scope="module")
+def one_hand_take(tmp_path_factory):
+    """The first 50 frames of a pouring take with only the right hand drawn (skin look, which MediaPipe
+    finds): a one-hand recording with exact ground truth."""
+    from demoforge.lib.synth.take import generate_take
+
+    out = tmp_path_factory.mktemp("one_hand") / "synth_pouring_right_only"
+    generate_take("pouring", 0, False, out, video=False, max_frames=50, hand_style="skin", hands=("right",))
+    return out
+
+
+def test_mediapipe_on_a_one_hand_take_gives_one_hand(prefect_api, warehouse, one_hand_take):
+    """Issue 38: MediaPipe calls the one right hand 'left' in bursts (frames 15-19 and 24-32 here). Before,
+    the tracker made them a second trusted hand (on the first 60 frames: a 35-frame trajectory); now they
+    are the right hand's."""
+    from tests.conftest import require_mediapipe_model
+
+    require_mediapipe_model()
+    gt = _gt(one_hand_take)
+    assert not gt["present"][:, 0].any() and gt["present"][:, 1].all()   # the renderer drew one hand
+    r = CliRunner().invoke(app, ["ingest", str(one_hand_take), "--detector", "mediapipe"])
+    assert r.exit_code == 0, r.output
+    labels = query("SELECT frame, hand FROM hand_keypoints WHERE present ORDER BY frame, hand", warehouse).to_pylist()
+    flipped = [x["frame"] for x in labels if x["hand"] == "left"]
+    assert len(flipped) >= 5, labels                   # the premise: the detector's handedness flips
+    hp = {x["hand"]: x for x in query("SELECT * FROM hand_presence", warehouse).to_pylist()}
+    assert hp["left"]["frames_detected"] == hp["left"]["frames_tracked"] == 0 and not hp["left"]["trusted"]
+    assert hp["right"]["trusted"] and hp["right"]["frames_accepted"] == len(labels)
+    al = query("SELECT frame FROM aligned_keypoints WHERE hand = 'right' AND swap_repaired ORDER BY frame",
+               warehouse).column("frame").to_pylist()
+    assert al == flipped                              # each flipped detection went back to the right hand
+    n = query("SELECT count(*) FILTER (WHERE valid) AS valid FROM gripper_poses WHERE hand = 'left'", warehouse)
+    assert n.column("valid")[0].as_py() == 0           # no trajectory for a hand that was never there
+    assert "left hand: detected in 0 of 50 frames" in r.stderr and "NOT TRUSTED: never detected" in r.stderr

@@ -15,10 +15,13 @@ from tests.conftest import SHARED_DATA, require_mediapipe_model
 def test_arctic_flow_writes_the_thesis_tables(prefect_api, warehouse, tmp_path):
     root = tmp_path / "arctic"
     build_arctic_tree(root, subject="s01", seqs=("box_grab_01", "phone_use_01"), T=40)
-    out = evaluate_keypoints(str(warehouse), dataset="arctic", arctic_root=str(root),
-                             takes=["box_grab_01", "phone_use_01"])
-    assert [m.rows for m in out] == [2, 2]
+    # the command's main path: its options (takes, subject, stride) reach the flow
+    r = CliRunner().invoke(app, ["evaluate-keypoints", "--dataset", "arctic", "--arctic-root", str(root), "--take",
+                                 "box_grab_01", "--take", "phone_use_01", "--subject", "s01", "--stride", "2"])
+    assert r.exit_code == 0, r.output
     rows = query("SELECT * FROM keypoint_metrics ORDER BY take, hand", warehouse).to_pylist()
+    assert [(x["take"], x["n_frames"]) for x in rows] == [("box_grab_01", 10)] * 2 + [("phone_use_01", 10)] * 2
+    assert "mpjpe" in r.stdout                      # report_table1, printed
     assert {r["size_group"] for r in rows} == {"big", "small"}
     assert all(r["anchor_depth_source"] == "ground_truth" and r["detector"] == "simulated" for r in rows)
     for r in rows:

@@ -1,6 +1,7 @@
 """The openai backend against a real OpenAI-compatible server: llama-cpp-python's own
-(`python -m llama_cpp.server`) serving the embedded Gemma 3 270M GGUF on a loopback port, and the
-error paths (dead port, timeout, HTTP 500) through the llm-eval trial code.
+(`python -m llama_cpp.server`, the session's ``llama_server`` fixture of tests/conftest.py) serving the
+embedded Gemma 3 270M GGUF on a loopback port, `demoforge llm-eval --backend openai` end to end against
+it, and the error paths (dead port, timeout, HTTP 500) through the llm-eval trial code.
 
 Apples to apples with the local backend: the server has no chat template for this base GGUF (it
 falls back to llama-2's), so the comparison uses the completions endpoint on ``prompt.text`` — the
@@ -14,13 +15,9 @@ from __future__ import annotations
 
 import http.server
 import importlib.util
-import json
 import socket
-import subprocess
-import sys
 import threading
 import time
-import urllib.request
 
 import numpy as np
 import pytest
@@ -42,42 +39,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-@pytest.fixture(scope="module")
-def llama_server(tmp_path_factory):
-    from demoforge.lib.llm.local_backend import _threads, ensure_gguf
-
-    port = free_port()
-    log = tmp_path_factory.mktemp("llama_server") / "server.log"
-    threads = str(_threads())
-    with open(log, "wb") as out:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "llama_cpp.server", "--model", str(ensure_gguf()), "--host", "127.0.0.1",
-             "--port", str(port), "--n_ctx", "4096", "--n_threads", threads, "--n_threads_batch", threads],
-            stdout=out, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}/v1"
-    try:
-        deadline = time.monotonic() + 90
-        while True:  # ready when /v1/models answers
-            if proc.poll() is not None:
-                pytest.fail(f"llama_cpp.server exited with {proc.returncode}: {log.read_text()[-2000:]}")
-            try:
-                with urllib.request.urlopen(base + "/models", timeout=2) as r:
-                    model_id = json.loads(r.read())["data"][0]["id"]
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    pytest.fail(f"llama_cpp.server did not answer on {base} within 90 s")
-                time.sleep(0.2)
-        yield base, model_id
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def server_backend(base_url, model, **kw) -> OpenAIBackend:
@@ -178,3 +139,34 @@ def test_server_failures_are_failed_trials(case, stub_server):
     actions, fields = _trial(b)
     assert actions is None and fields["parse_status"] == "llm_error"
     assert fields["parse_detail"].startswith(type(e.value).__name__)
+
+
+def test_llm_eval_command_with_the_openai_backend_against_the_real_server(llama_server, prefect_api, warehouse):
+    """`demoforge llm-eval --backend openai` on its main path, against llama-cpp-python's server rather
+    than a Python stub: its options reach the backend (URL, model, completions mode, 2 waypoints in the
+    compact number format; free text: the grammar through this server is
+    test_structured_answer_through_the_server_parses's), and the trial row records what the server said."""
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+    from demoforge.schemas.catalog import query
+    from tests.test_policy_flow import TAKE, _tiny_database
+
+    base, model = llama_server
+    _tiny_database(warehouse, n=12)              # a pouring database from the scripted demonstration
+    r = CliRunner().invoke(app, ["llm-eval", "--task", "pouring", "--strategy", "single", "--trials", "1",
+                                 "--backend", "openai", "--base-url", base, "--model", model, "--api-mode", "completions",
+                                 "--free", "--number-format", "compact", "--waypoints", "2"],
+                           env={"OPENAI_API_KEY": ""})
+    assert r.exit_code == 0, r.output
+    rows = query("SELECT * FROM llm_trials", warehouse).to_pylist()
+    assert len(rows) == 1, rows
+    t = rows[0]
+    assert (t["task"], t["take"], t["strategy"], t["backend"], t["model"]) == ("pouring", TAKE, "single", "openai", model)
+    assert t["retrieved_episode_ids"] == [0] and t["n_waypoints"] == 2 and not t["cached"]
+    # the server's own token counts and its answer in the compact format, parsed
+    assert t["prompt_tokens"] > 100 and t["answer_tokens"] > 0 and t["latency_s"] > 0
+    assert t["parse_status"] == "ok", (t["parse_detail"], t["raw_answer"])
+    assert "." not in t["raw_answer"]                 # compact: integers (mm, quaternions x 100)
+    assert t["success"] or t["failure_reason"], t    # judged in MuJoCo
+    assert t["sim_detail"] and "single" in r.output  # report_table3, printed

@@ -29,7 +29,12 @@ def _tiny_database(warehouse: Path, n: int = 48) -> None:
 
 
 def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
-    from demoforge.flows.policy import evaluate_policy, train_policy
+    import json
+
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
+    from demoforge.flows.policy import train_policy
     from demoforge.tasks.policy import load_policy_data
 
     _tiny_database(warehouse)
@@ -38,11 +43,20 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     assert len(data) == int(np.sum(ep.column("valid").to_numpy(zero_copy_only=False)))
     assert data.waypoints.shape == (len(data), 20, 2, 8)
 
-    kw = dict(task="pouring", seed=3, epochs=2, d_model=16, layers=1, batch_size=16)
-    m = train_policy(wh, **kw)
+    # the commands' main paths: train-policy's options reach the flow (and the checkpoint's record)
+    r = CliRunner().invoke(app, ["train-policy", "--task", "pouring", "--seed", "3", "--epochs", "2", "--d-model", "16",
+                                 "--layers", "1", "--batch-size", "16"])
+    assert r.exit_code == 0, r.output
     row = query("SELECT * FROM policy_checkpoints", warehouse).to_pylist()
-    assert len(row) == 1 and row[0]["epochs_run"] == 2 and row[0]["threads"] == 1
+    assert len(row) == 1 and row[0]["epochs_run"] == 2 and row[0]["threads"] == 1 and row[0]["seed"] == 3
     ck = row[0]
+    config = json.loads(ck["config"])
+    assert (config["policy"]["d_model"], config["policy"]["enc_layers"], config["train"]["batch_size"]) == (16, 1, 16)
+    assert ck["checkpoint_id"] in r.stdout                   # the record it prints
+    kw = dict(task="pouring", seed=3, epochs=2, d_model=16, layers=1, batch_size=16)
+    stamp = (Path(ck["path"]) / "model.pt").stat().st_mtime_ns
+    m = train_policy(wh, **kw)                               # the same options as a flow call: the command's cache entry
+    assert (Path(ck["path"]) / "model.pt").stat().st_mtime_ns == stamp
     assert ck["n_train"] + ck["n_val"] == len(data) and ck["n_val"] > 0
     assert len(ck["val_loss_history"]) == 2 and np.isfinite(ck["val_loss"]) and ck["val_pos_err_mm"] > 0
     pt = Path(ck["path"]) / "model.pt"
@@ -56,8 +70,10 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     assert pt.is_file() and m2.path == m.path  # the path names the checkpoint id: the same weights again
     assert query("SELECT checkpoint_id FROM policy_checkpoints", warehouse).column(0).to_pylist() == [ck["checkpoint_id"]]
 
-    evaluate_policy(wh, task="pouring", trials=1, seed=0)
+    r = CliRunner().invoke(app, ["eval-policy", "--task", "pouring", "--trials", "1", "--seed", "0"])
+    assert r.exit_code == 0, r.output
     trials = query("SELECT * FROM policy_trials ORDER BY scene_kind", warehouse).to_pylist()
+    assert all(kind in r.stdout for kind in ("held_out", "in_distribution", "mirrored", "out_of_distribution"))
     assert [t["scene_kind"] for t in trials] == ["held_out", "in_distribution", "mirrored", "out_of_distribution"]
     for t in trials:
         assert t["checkpoint_id"] == ck["checkpoint_id"] and t["latency_ms"] > 0
@@ -74,8 +90,6 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     assert all(t["success"] or t["failure_reason"] in FAILURES for t in trials)
     assert ood["in_augmented_region"] is False and ood["max_offset_m"] > 0
     assert held["in_augmented_region"] is True  # a database placement the policy did not train on
-    import json
-
     trained = json.loads((Path(ck["path"]) / "config.json").read_text())["train_episode_ids"]
     db = query("SELECT episode_id, object_keypoints FROM episodes WHERE valid AND episode_id <> 0", warehouse).to_pylist()
     match = [r["episode_id"] for r in db if np.allclose(r["object_keypoints"], held["query_keypoints"])]

@@ -89,6 +89,7 @@ def _finish(env: dict, cwd: Path, log: Path) -> str:
                        timeout=1800)
     log.open("a").write(r.stdout + r.stderr)
     assert r.returncode == 0, f"evaluate failed:\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}"
+    assert "Traceback" not in r.stdout + r.stderr, r.stderr[-3000:]   # nor from Prefect's own services
     return r.stdout
 
 
@@ -187,6 +188,10 @@ def test_evaluate_writes_the_report_resumes_after_sigint_and_sigkill_and_equals_
     proc.wait(60)
     # its temporary server was not in the killed process group, and gets SIGTERM when its parent dies
     assert psutil.wait_procs(servers, timeout=30)[1] == [], "the killed run left its temporary API server"
+    # the temporary servers' own output (their services' errors, cut off at Ctrl-C or SIGKILL) went to
+    # their log file, not to the command's terminal
+    assert (tmp_path / "prefect_home" / "demoforge-temporary-server.log").is_file()
+    assert "prefect.server" not in log.read_text() and "docket" not in log.read_text()
 
     # 3) run again to the end
     assert "nothing changed" not in _finish(env, tmp_path / "b", log)

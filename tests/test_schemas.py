@@ -173,3 +173,25 @@ def test_partitioned_write_of_a_sliced_nested_list_table_keeps_the_right_rows(tm
     got = np.asarray(back.column("action").to_pylist(), np.float32)
     assert back.column("episode_id").to_pylist() == list(range(3, n))
     np.testing.assert_array_equal(got, action[3:])
+
+
+def test_a_warehouse_of_the_previous_ingest_contracts_gains_the_depth_coverage_columns(tmp_path):
+    """hand_presence and ingest_metrics v1 files (before the depth coverage columns): the catalog's
+    migration gives them the columns, NaN (not measured then), instead of every query failing to bind."""
+    import demoforge.schemas.ingest  # noqa: F401  (registers the tables and their migrations)
+    from demoforge.schemas.catalog import query
+    from demoforge.schemas.core import get_schema, read_table
+
+    schema = get_schema("hand_presence")
+    new = ("depth_missing_fraction", "depth_missing_frame_fraction")
+    old = pa.schema([f for f in schema.arrow if f.name not in new],
+                    metadata={**schema.arrow.metadata, b"demoforge.schema_version": b"1"})
+    row = {f.name: {pa.string(): "x", pa.int32(): 3, pa.bool_(): True}[f.type] for f in old}
+    f = tmp_path / "hand_presence" / "task=pouring" / "take=old" / "data.parquet"
+    f.parent.mkdir(parents=True)
+    pq.write_table(pa.Table.from_pylist([{**row, "hand": "left"}], schema=old), f)
+    got = query("SELECT hand, frames, depth_missing_fraction AS d, depth_missing_frame_fraction AS fd "
+                "FROM hand_presence", tmp_path).to_pylist()
+    assert len(got) == 1 and got[0]["hand"] == "left" and got[0]["frames"] == 3
+    assert np.isnan(got[0]["d"]) and np.isnan(got[0]["fd"])
+    assert read_table("hand_presence", tmp_path).num_rows == 1      # now in the current contract

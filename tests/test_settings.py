@@ -7,7 +7,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from demoforge.lib.settings import RENAMED, VARIABLES, adopt_old_names, read_settings
+from demoforge.lib.settings import RENAMED, VARIABLES, adopt_old_names, apply_library_defaults, read_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,3 +67,28 @@ def test_the_new_name_sets_the_option(tmp_path):
                            env={"DEMOFORGE_MIRROR": "upside"})
     assert r.exit_code == 2 and "got 'upside'" in r.output
     assert "deprecated" not in r.output
+
+
+def test_prefect_gets_the_library_defaults_whichever_module_imports_it_first():
+    """`demoforge bench` imported prefect before demoforge.tasks set its defaults: the temporary server
+    ran its telemetry service (a 'database is locked' traceback from send_telemetry_heartbeat) and INFO
+    lines. Now the package sets them first; a user's own value wins. In a fresh process: the first import
+    decides what Prefect reads."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = ("import demoforge.bench.run, json, os\n"
+            "from prefect.settings import get_current_settings\n"
+            "from prefect._internal.analytics import is_telemetry_enabled\n"
+            "s = get_current_settings()\n"
+            "print(json.dumps({'server_analytics': s.server.analytics_enabled, 'client_analytics': is_telemetry_enabled(),"
+            " 'server_env': os.environ.get('PREFECT_SERVER_ANALYTICS_ENABLED'), 'level': s.logging.level}))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_") and k not in ("DO_NOT_TRACK", "CI")}
+    got = json.loads(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                    check=True, timeout=120).stdout)
+    assert got == {"server_analytics": False, "client_analytics": False, "server_env": "false", "level": "WARNING"}
+    mine = {"PREFECT_LOGGING_LEVEL": "INFO"}
+    apply_library_defaults(mine)
+    assert mine["PREFECT_LOGGING_LEVEL"] == "INFO" and mine["PREFECT_SERVER_ANALYTICS_ENABLED"] == "false"

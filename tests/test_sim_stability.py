@@ -86,11 +86,15 @@ def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simul
     import demoforge.lib.sim as rs
     from demoforge.schemas.catalog import query
 
+    from demoforge.schemas.core import read_table_file, table_files
+
     augment_take_flow(str(trash_take), str(warehouse), augment=AugmentOptions(n=40, n_mirrored=20, seed=2), show_progress=False)
     simulate_episodes(str(warehouse), task="trash_in_bin", episodes=3, chunk_size=3, show_progress=False)
-    out = check_stability(str(warehouse), task="trash_in_bin", episodes=3, repeats=2, jitter_m=1e-4, chunk_size=2,
-                          show_progress=False)
-    assert [m.rows for m in out] == [4, 2]
+    # the command's main path: its options reach the flow (episodes, repeats, jitter, chunk size)
+    out = CliRunner().invoke(app, ["stability", "--task", "trash_in_bin", "--episodes", "3", "--repeats", "2",
+                                   "--jitter", "0.0001", "--chunk-size", "2"])
+    assert out.exit_code == 0, out.output
+    assert sorted(read_table_file("sim_stability", f).num_rows for f in table_files("sim_stability", warehouse)) == [2, 4]
     rows = query("SELECT * FROM sim_stability ORDER BY episode_id, repeat", warehouse).to_pylist()
     assert {r["run"] for r in rows} == {"sample-3-seed0-r2-j0.0001-s0"}
     assert [r["repeat"] for r in rows] == [0, 1] * 3
@@ -105,6 +109,7 @@ def test_stability_flow_repeats_each_episode_and_its_unshifted_run_matches_simul
             assert (r["success"], r["failure"], r["detail"]) == (s["success"], s["failure"], s["detail"])
     summary = query("SELECT * FROM report_sim_stability", warehouse).to_pylist()
     assert len(summary) == 1 and summary[0]["episodes"] == 3 and summary[0]["repeats"] == 2
+    assert "1 rows" in out.stdout  # the command prints that summary (report_sim_stability of the task)
     expected = stability_summary(np.array([r["success"] for r in rows]).reshape(3, 2))  # rows: by episode, repeat
     assert summary[0]["always_succeed"] == expected["always"]
     assert summary[0]["never_succeed"] == expected["never"]

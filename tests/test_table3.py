@@ -94,13 +94,24 @@ def test_knn_blend_of_one_neighbour_carries_it_exactly(pouring_db):
 def test_table3_grid_end_to_end(prefect_api, warehouse, trash_take):
     """One take, two thesis scenes, the LLM-free strategies and a scripted LLM answer: rows for every
     cell, the report views in the thesis's layout, and the nearest episode replayed succeeds."""
+    from typer.testing import CliRunner
+
+    from demoforge.cli import app
     from demoforge.flows.table3 import table3
     from demoforge.schemas.catalog import query
 
+    # the command's main path, for the LLM-free strategies: its options reach the flow
+    r = CliRunner().invoke(app, ["table3", "--task", "trash_in_bin", "--take-dir", str(trash_take), "--scenes", "2",
+                                 "--episodes", "200", "--strategy", "replay_original", "--strategy", "replay_top1",
+                                 "--strategy", "knn_blend", "--strategy", "transform_demo"])
+    assert r.exit_code == 0, r.output
+    assert "Table 3" in r.stdout and "Take1" in r.stdout and "Wilson 95 % intervals" in r.stdout
+    db = query("SELECT take, count(*) AS n FROM episodes GROUP BY take", warehouse).to_pylist()
+    assert db == [{"take": trash_take.name, "n": 201}]       # the take's database, of --episodes episodes
+    # the LLM cells (a scripted answer) beside them: the database comes from the cache
     table3(str(warehouse), task="trash_in_bin", protocols=["thesis"], takes=1, scenes=2, llm_scenes=1,
-           strategies=["single", "retrieval", "replay_original", "replay_top1", "knn_blend", "transform_demo"],
-           backend="fake", backend_options={"responses": ["no trajectory here"]}, episodes=200,
-           take_dirs=[str(trash_take)], show_progress=False)
+           strategies=["single", "retrieval"], backend="fake", backend_options={"responses": ["no trajectory here"]},
+           episodes=200, take_dirs=[str(trash_take)], show_progress=False)
     rows = query("SELECT * FROM table3_trials ORDER BY strategy, scene", warehouse).to_pylist()
     by = {}
     for r in rows:

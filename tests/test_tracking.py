@@ -3,6 +3,8 @@ swaps, drop-outs, spurious single-frame detections, duplicates and detections of
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from demoforge.lib.geometry import backproject
 from demoforge.lib.perception.tracking import (
@@ -98,6 +100,87 @@ def test_spurious_single_frame_detections_never_make_a_hand():
     assert (r.reason()[spurious & ~flip, 0] != "").all()
     trusted, reasons = hand_trust(bounded_fill_mask(r.accepted, 15), r.detected, r.accepted)
     assert list(trusted) == [False, True] and "isolated" in reasons[0]
+
+
+def _one_hand(T=300, speed=1.0, seed=0):
+    """One real hand moving fast across the image (up to ``speed`` * 10 px a frame), in both slots: the
+    caller chooses which label the detector gives it per frame."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)
+    centre = np.stack([320 + 150 * np.sin(speed * t / 15), 250 + 60 * np.cos(speed * t / 20)], -1)
+    wrist = backproject(centre, np.full(T, 0.6), K)
+    cam = wrist[:, None, :] + TEMPLATE[None]
+    cam += rng.normal(0, 0.002, cam.shape)
+    px = cam[..., :2] / cam[..., 2:3] * K[[0, 1], [0, 1]] + K[:2, 2]
+    return np.stack([px, px], 1), np.stack([cam, cam], 1), np.full((T, 2, 7), 0.6)
+
+
+def _label(T, bursts, gaps=()):
+    """present (T, 2): the right label, except in ``bursts`` (the left label) and ``gaps`` (no detection)."""
+    present = np.zeros((T, 2), bool)
+    present[:, 1] = True
+    for a, b in bursts:
+        present[a:b] = [True, False]
+    for a, b in gaps:
+        present[a:b] = False
+    return present
+
+
+def test_one_hand_whose_label_flips_in_bursts_stays_one_hand():
+    """MediaPipe's handedness flips on one real hand in bursts, often as it finds the hand again after
+    losing it (the last position is then forgotten, and the hand moved meanwhile): every burst is long
+    enough to be born as a track. Never seen beside the other, at the same place: one hand."""
+    px, cam, depth = _one_hand()
+    bursts, gaps = [(40, 70), (120, 136), (200, 262)], [(100, 120), (180, 200)]
+    present = _label(300, bursts, gaps)
+    r = _track(px, cam, depth, present)
+    seen = present.any(axis=1)
+    assert not r.accepted[:, 0].any() and (r.track_id[:, 0] == -1).all()
+    np.testing.assert_array_equal(r.accepted[:, 1], seen)            # every detection is the one hand's
+    for a, b in bursts:
+        assert r.swapped[a:b].all() and (r.source_slot[a:b, 1] == 0).all()
+    trusted, reasons = hand_trust(bounded_fill_mask(r.accepted, 15), r.detected, r.accepted)
+    assert list(trusted) == [False, True] and reasons[0] == "never detected"
+    # the label that holds most of the detections names the hand
+    flipped = _track(px, cam, depth, _label(300, [(0, 200)], gaps))
+    assert flipped.accepted[:, 0].sum() == seen.sum() and not flipped.accepted[:, 1].any()
+    # switched off, the bursts are hands of their own: the failure this rule repairs
+    off = _track(px, cam, depth, present, one_hand_same_place_sizes=0.0)
+    assert off.accepted[:, 0].sum() >= 60 and off.accepted[:, 1].any()
+
+
+def test_two_hands_one_after_the_other_at_different_places_keep_both_labels():
+    """Never in the same frame, but the label changes to another place: the left hand works, then the
+    right one, 1.4 hand sizes to its right. Both stay."""
+    px, cam, depth = _sequence(T=240)
+    px[:, 1, :, 0] += 100                            # 300 px from the left hand
+    present = np.zeros((240, 2), bool)
+    present[:110, 0] = True
+    present[115:, 1] = True
+    r = _track(px, cam, depth, present)
+    np.testing.assert_array_equal(r.accepted, present)
+    assert not r.swapped.any()
+    # ... and a one-hand flip happens at the same place, however long the burst
+    px1, cam1, depth1 = _one_hand(T=240)
+    r = _track(px1, cam1, depth1, _label(240, [(0, 130)]))
+    assert r.accepted[:, 0].all() and not r.accepted[:, 1].any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 239), st.integers(3, 60)), min_size=1, max_size=6),
+       st.lists(st.tuples(st.integers(0, 239), st.integers(1, 15)), max_size=4), st.floats(0.3, 1.0),
+       st.integers(0, 3))
+def test_one_hand_never_yields_two_tracks_whatever_its_label_bursts(bursts, gaps, speed, seed):
+    """Whatever the bursts, while the hand is lost for at most max_gap_frames (15) at up to 10 px (0.05
+    hand sizes) a frame: it comes back within reach of where it was."""
+    px, cam, depth = _one_hand(T=240, speed=speed, seed=seed)
+    present = _label(240, [(a, a + n) for a, n in bursts], [(a, a + n) for a, n in gaps])
+    lost = np.diff(np.flatnonzero(np.diff(np.concatenate([[1], present.any(axis=1), [1]]).astype(int))))
+    assume(lost[0::2].max(initial=0) <= 15)   # the runs without a detection (every other run, from the first)
+    r = _track(px, cam, depth, present)
+    assert not (r.accepted[:, 0].any() and r.accepted[:, 1].any())
+    # no detection is lost to the merge: whatever the labels, one track holds the sustained ones
+    assert r.accepted.sum() >= _track(px, cam, depth, present, one_hand_same_place_sizes=0.0).accepted.sum() - 4
 
 
 def test_a_burst_needs_sustained_evidence_to_be_born():

@@ -335,10 +335,18 @@ def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: b
     run_id = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + secrets.token_hex(3)
     machine, commit = machine_info(), git_commit(str(Path(__file__).resolve().parents[1]))
     results: list[BenchResult] = []
+    from tqdm.auto import tqdm
+
     for stage in wanted:
-        for case in CASE_FACTORIES[stage](quick):
-            logger.info("bench %s / %s (%d %s)", case.stage, case.name, case.size, case.unit)
-            results.append(run_case(case))
+        cases = CASE_FACTORIES[stage](quick)
+        # the progress of a run that takes minutes (Prefect's INFO log, where the cases used to be
+        # named, is off by default): one bar per stage, the case being measured beside it
+        with tqdm(total=len(cases), desc=f"bench {stage}", unit="case", leave=False) as bar:
+            for case in cases:
+                bar.set_postfix_str(f"{case.name} ({case.size} {case.unit})"[:60])
+                logger.info("bench %s / %s (%d %s)", case.stage, case.name, case.size, case.unit)
+                results.append(run_case(case))
+                bar.update()
     now = datetime.now(timezone.utc)
     rows = [
         {

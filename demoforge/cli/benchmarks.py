@@ -23,9 +23,10 @@ def bench(
 ) -> None:
     """Benchmark every stage against a straightforward baseline; rows go to the `benchmarks` table."""
     from demoforge.bench.run import run_benchmarks
+    from demoforge.runtime.runners import run_flow
 
     try:
-        rows = run_benchmarks(str(current_warehouse()), stages=stage, quick=quick)
+        rows = run_flow(run_benchmarks, str(current_warehouse()), stages=stage, quick=quick)
     except ValueError as e:
         raise fail(str(e))
     header = f"{'stage':<12} {'case':<52} {'size':>9} {'unit':<9} {'seconds':>9} {'baseline s':>10} {'ratio':>8}"

@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from demoforge.cli.root import current_warehouse, fail
+from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
 
@@ -76,11 +77,11 @@ def export_cmd(
     try:
         preflight_export(wh, task, str(out), fmt.value, take, with_images)  # user errors before a Prefect run starts
         if fmt is ExportFormat.lerobot:
-            m = export_lerobot_flow(wh, task=task, out=str(out), take=take, include_invalid=include_invalid,
-                                    limit=limit, with_images=with_images, image_size=size)
+            m = run_flow(export_lerobot_flow, wh, task=task, out=str(out), take=take,
+                         include_invalid=include_invalid, limit=limit, with_images=with_images, image_size=size)
         else:
-            m = export_robomimic_flow(wh, task=task, out=str(out), take=take, include_invalid=include_invalid,
-                                      limit=limit, valid_fraction=valid_fraction, seed=seed)
+            m = run_flow(export_robomimic_flow, wh, task=task, out=str(out), take=take,
+                         include_invalid=include_invalid, limit=limit, valid_fraction=valid_fraction, seed=seed)
     except ExportError as e:
         raise fail(str(e))
     typer.echo(f"{m.path}: {m.rows:,} frames of task {task} as {fmt.value} ({len(m.files)} files)")
@@ -122,8 +123,9 @@ def view_cmd(
         raise fail(f"{rrd} already exists; choose another --rrd or pass --overwrite")
     try:
         preflight_view(str(current_warehouse()), target, take)
-        r = view_flow(str(current_warehouse()), target=target, out=str(rrd), take=take, point_stride=point_stride,
-                      frame_step=frame_step, images=images, depth_images=depth_images, overwrite=overwrite)
+        r = run_flow(view_flow, str(current_warehouse()), target=target, out=str(rrd), take=take,
+                     point_stride=point_stride, frame_step=frame_step, images=images, depth_images=depth_images,
+                     overwrite=overwrite)
     except (ExportError, TakeError) as e:
         raise fail(str(e))
     what = f"take {r['take_id']}" if r["kind"] == "take" else f"episode {r['task']}/{r['episode_id']} ({r['take']})"

@@ -13,7 +13,7 @@ from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
-from demoforge.cli.root import current_warehouse, fail, number_format_option, structured_option
+from demoforge.cli.root import current_warehouse, fail, number_format_option, structured_option, warn
 
 app = typer.Typer()
 
@@ -159,9 +159,9 @@ def _say_demo_check(check, path: Path) -> None:
     if r["success"]:
         typer.echo(f"robot check of the ingested demonstration: {r['detail']}")  # "success: ..."
     else:
-        typer.echo(f"warning: the robot fails the ingested demonstration itself: {r['failure']} ({r['detail']}); "
-                   f"every episode of this database is built from it. Check the hand detections "
-                   f"(demoforge view {path} --rrd take.rrd) or ingest with another detector", err=True)
+        warn(f"the robot fails the ingested demonstration itself: {r['failure']} ({r['detail']}); "
+             f"every episode of this database is built from it. Check the hand detections "
+             f"(demoforge view {path} --rrd take.rrd) or ingest with another detector")
 
 
 @app.command()
@@ -289,7 +289,7 @@ def serve(
     from demoforge.flows.deployments import serve_deployments
 
     if not os.environ.get("PREFECT_API_URL"):
-        raise fail("PREFECT_API_URL is not set: start a server (`prefect server start --host 127.0.0.1 --port 4200`) "
+        raise fail("PREFECT_API_URL is not set: start a server (`prefect server start --host 127.0.0.1 --port 4200 --analytics-off`) "
                    "and export PREFECT_API_URL=http://127.0.0.1:4200/api, so the deployments outlive this process")
     try:
         serve_deployments(str(current_warehouse()), str(inbox), str(reports), interval_minutes=every,

@@ -26,7 +26,7 @@ class _ErrorsAtTheBoundary(TyperGroup):
     --debug (exit code 1); with --debug both keep their full traceback."""
 
     def invoke(self, ctx: click.Context):
-        from demoforge.lib.errors import is_user_error, one_line
+        from demoforge.lib.errors import is_user_error, one_line, release_frames
 
         try:
             return super().invoke(ctx)
@@ -37,15 +37,17 @@ class _ErrorsAtTheBoundary(TyperGroup):
         except Exception as e:
             if State.debug:
                 raise
-            if is_user_error(e):
-                raise fail(one_line(e))
             import traceback
 
             where = traceback.extract_tb(e.__traceback__)[-1]
+            release_frames(e)
+            if is_user_error(e):
+                raise fail(one_line(e))
             typer.echo(f"error: demoforge crashed: {type(e).__name__}: {one_line(e, 300)} "
                        f"(at {where.filename}:{where.lineno}); this is a bug, not your input: rerun with "
                        f"--debug (demoforge --debug COMMAND ...) for the full traceback and report it", err=True)
             raise typer.Exit(1)
+
 
 
 app = typer.Typer(
@@ -62,6 +64,15 @@ app = typer.Typer(
 )
 
 EXIT_USER_ERROR = 2
+
+
+def warn(message: str) -> None:
+    """Print ``warning: MESSAGE`` to stderr, unless a stage of this command already printed it."""
+    from demoforge.lib.errors import Reporting
+
+    line = f"warning: {message}"
+    if Reporting.first_time(line):
+        typer.echo(line, err=True)
 
 
 def fail(message: str) -> "typer.Exit":
@@ -112,6 +123,7 @@ def _main(
     State.warehouse = warehouse
     State.debug = debug
     Reporting.cli_reports, Reporting.show_tracebacks = True, debug
+    Reporting.warnings_shown.clear()  # per command (tests run several in one process)
     if "demoforge.tasks.common" in sys.modules:  # else its import installs the filters (Prefect only when needed)
         sys.modules["demoforge.tasks.common"].quiet_user_errors()
     runners.install_interrupt_handler()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import List, Optional
 
 import typer
@@ -18,6 +19,7 @@ def table3_cmd(
     task: str = typer.Option("pouring", "--task", "-t", help="Task of the grid (the thesis: pouring)."),
     protocol: Optional[List[str]] = typer.Option(None, "--protocol", "-p", help="thesis (default: query scenes from each take's own augmentation sampler, held-out seeds) or novel (the task library's independent placements with yaw, against a database built to cover them). Repeatable."),
     takes: int = typer.Option(5, min=1, help="Synthetic takes (seeds seed, seed+1, ...), each with its own database."),
+    take_dir: Optional[List[Path]] = typer.Option(None, "--take-dir", exists=True, file_okay=False, help="Take folders to build the databases from instead of synthetic takes (your own recordings, annotated; repeatable; --takes is then their count)."),
     scenes: int = typer.Option(10, min=1, help="Query scenes per take (the thesis: 10)."),
     llm_scenes: Optional[int] = typer.Option(None, min=0, help="Scenes of the three LLM strategies (default: all `scenes`; a trial of the local model takes 14-50 s on 2 cores, by CPU, examples and number format)."),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval (the LLM prompts), replay_original, replay_top1, knn_blend, transform_demo (LLM-free), policy (repeatable; default all)."),
@@ -53,7 +55,8 @@ def table3_cmd(
     if llm_scenes is not None and llm_scenes > scenes:
         raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
     try:
-        run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, takes=takes, scenes=scenes,
+        run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, scenes=scenes,
+                 takes=len(take_dir) if take_dir else takes, take_dirs=[str(p) for p in take_dir] if take_dir else None,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=llm_backend_options(backend, model, base_url, api_mode), seed=seed, episodes=episodes,
                  policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured,

@@ -9,7 +9,7 @@ import typer
 
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import current_warehouse, fail, warn
 
 app = typer.Typer()
 
@@ -101,7 +101,8 @@ def annotate(
 ) -> None:
     """Annotate a take in the browser: click the object keypoints, mark gripper open/close ranges, save.
 
-    Serves a page on 127.0.0.1 (printed) until Ctrl-C. It shows the frames (scrub with the slider or
+    Serves a page on 127.0.0.1 until Ctrl-C, at the printed URL: it carries this run's token, and the
+    server answers nothing without it (nor another web page's requests). It shows the frames (scrub with the slider or
     the arrow keys), asks for the task's keypoints one by one and shows each click's depth and world
     position, and plots the fingertip distance of an earlier `demoforge ingest` with the automatic
     method's closed ranges pre-filled. Save writes TAKE/annotations.json (an existing one is edited; a
@@ -204,14 +205,20 @@ def ingest(
     if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
         from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
 
-        typer.echo(f"warning: object_keypoints: {not_annotated_message(path, annotation_status(take).detail)}", err=True)
+        # the stage's own words (it names the resolved take folder): printed once, also when it was cached
+        warn(f"object_keypoints: {not_annotated_message(path.resolve(), annotation_status(take).detail)}")
 
 
 def _echo_hand_presence(presence) -> None:
-    """The take's per-hand tracking summary (the `hand_presence` table), untrusted hands on stderr."""
+    """The take's per-hand tracking summary (the `hand_presence` table), untrusted hands and depth missing
+    at the hands on stderr."""
+    import numpy as np
+
+    from demoforge.lib.ingest.depth_checks import DepthCoverage, coverage_warning
     from demoforge.schemas.core import read_table_file
 
-    for r in [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]:
+    found = [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]
+    for r in found:
         line = (f"{r['hand']} hand: detected in {r['frames_detected']} of {r['frames']} frames, "
                 f"{r['frames_accepted']} in {r['tracks']} track(s), {r['frames_filled']} filled, "
                 f"trajectory on {r['frames_tracked']} frames")
@@ -220,7 +227,13 @@ def _echo_hand_presence(presence) -> None:
         if r["trusted"]:
             typer.echo(line + " -- trusted")
         else:
-            typer.echo(f"warning: {line} -- NOT TRUSTED: {r['reason']}", err=True)
+            warn(f"{line} -- NOT TRUSTED: {r['reason']}")
+    if found:  # the stage's warning, also when the stage came from the cache
+        coverage = DepthCoverage(np.array([r["depth_missing_fraction"] for r in found]),
+                                 found[0]["depth_missing_frame_fraction"], 0)
+        text = coverage_warning(found[0]["take"], coverage)
+        if text:
+            warn(f"hand_presence: {text}")
 
 
 @app.command("ingest-folder")

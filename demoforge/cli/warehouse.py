@@ -127,9 +127,11 @@ def tables(
             raise fail(str(e.args[0]))
         typer.echo(schema.describe())
         return
-    import pyarrow.parquet as pq
+    from demoforge.schemas.core import parquet_metadata
 
+    lines = []  # all read before any is printed: a damaged file is the one line of output
     for tname, schema in sorted(registry().items()):
         files = table_files(tname, root, ALL_VARIANTS)  # a second detector's rows too (demoforge.schemas.core.variant_parts)
-        rows = sum(pq.ParquetFile(f).metadata.num_rows for f in files)
-        typer.echo(f"{tname:<24} v{schema.version}  {rows:>10} rows  {len(files):>5} files  {schema.doc.splitlines()[0][:70]}")
+        rows = sum(parquet_metadata(f, tname).num_rows for f in files)
+        lines.append(f"{tname:<24} v{schema.version}  {rows:>10} rows  {len(files):>5} files  {schema.doc.splitlines()[0][:70]}")
+    typer.echo("\n".join(lines))

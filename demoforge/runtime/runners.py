@@ -27,6 +27,7 @@ import sys
 import threading
 from typing import Any
 
+from demoforge.lib.errors import release_frames
 from demoforge.lib.settings import read_settings
 
 ENV_RUNNER = "DEMOFORGE_TASK_RUNNER"
@@ -123,8 +124,12 @@ def run_flow(flow_obj, *args: Any, **kwargs: Any) -> Any:
     """Call a flow with the configured task runner; stop here if Ctrl-C was pressed."""
     check_interrupted()
     guard_temporary_api_server()
-    with flow_heartbeats_off_unless_set():
-        result = with_runner(flow_obj)(*args, **kwargs)
+    try:
+        with flow_heartbeats_off_unless_set():
+            result = with_runner(flow_obj)(*args, **kwargs)
+    except Exception as e:
+        release_frames(e)  # Prefect's run state keeps the error to the end of the process
+        raise
     check_interrupted()
     return result
 
@@ -188,15 +193,28 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def temporary_server_log() -> "Path":
+    """Where the temporary API server's own output goes: ``$PREFECT_HOME/demoforge-temporary-server.log``."""
+    from pathlib import Path
+
+    from prefect.settings import get_current_settings
+
+    return Path(get_current_settings().home) / "demoforge-temporary-server.log"
+
+
 def guard_temporary_api_server() -> None:
-    """Make Prefect's temporary API server (used when PREFECT_API_URL is unset) survive Ctrl-C and die
-    with its parent.
+    """Make Prefect's temporary API server (used when PREFECT_API_URL is unset) survive Ctrl-C, die
+    with its parent, and write its own log to a file instead of the terminal.
 
     Prefect starts it as a plain child process, so Ctrl-C in a terminal (SIGINT to the whole
     foreground process group) kills it at the same moment as the flow, which then spends minutes
     retrying to record the interruption against a dead server instead of exiting. Here it runs in a
     session of its own (no terminal signals) and receives SIGTERM when its parent dies (even by
-    SIGKILL), so no orphan server is left behind either. The command line is Prefect 3.8.8's own.
+    SIGKILL), so no orphan server is left behind either. Its background services log their errors
+    with tracebacks (the task-run recorder cancelled while it flushes at shutdown, SQLite "database is
+    locked" when several commands share ~/.prefect/prefect.db); those are the server's business, not
+    the command's: they go to :func:`temporary_server_log` (appended). The command line is Prefect
+    3.8.8's own.
     """
     if os.environ.get("PREFECT_API_URL") or not sys.platform.startswith("linux"):
         return
@@ -215,14 +233,18 @@ def guard_temporary_api_server() -> None:
         from prefect.settings import get_current_settings
 
         server_env = {"PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
-        return subprocess.Popen(
-            args=[sys.executable, "-m", "uvicorn", "--app-dir", str(prefect.__module_path__.parent), "--factory",
-                  "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(self.port),
-                  "--log-level", "error", "--lifespan", "on"],
-            env={**os.environ, **server_env, **get_current_settings().to_environment_variables(exclude_unset=True)},
-            start_new_session=True,
-            preexec_fn=_die_with_parent,
-        )
+        log_path = temporary_server_log()
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(log_path, "ab") as log:  # the child keeps its own descriptor
+            return subprocess.Popen(
+                args=[sys.executable, "-m", "uvicorn", "--app-dir", str(prefect.__module_path__.parent), "--factory",
+                      "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(self.port),
+                      "--log-level", "error", "--lifespan", "on"],
+                env={**os.environ, **server_env, **get_current_settings().to_environment_variables(exclude_unset=True)},
+                start_new_session=True,
+                preexec_fn=_die_with_parent,
+                stdout=log, stderr=subprocess.STDOUT,
+            )
 
     cls._run_uvicorn_command = _run_uvicorn_command
     cls._demoforge_guarded = True

@@ -17,6 +17,12 @@ and names the first problem it finds, with how to fix it:
    or too few consistent hands means the depth does not lie under the hands (misaligned streams or
    wrong intrinsics).
 
+Depth that passes these checks can still be missing at the hands in part of the take (a hand near
+the sensor, reflections, frames dropped by the depth stream). Those frames keep the hand's detected
+2D position with a root depth interpolated from neighbouring frames, which is good for short gaps
+only: :func:`depth_coverage` measures the share of frames and of each hand's used detections without
+depth at the hand, and :func:`coverage_warning` says so above ``DepthCheckConfig.warn_missing_fraction``.
+
 Depth is in metres, 0 or NaN invalid (docs/architecture.md, Conventions); frames are camera frames (OpenCV).
 """
 
@@ -28,8 +34,8 @@ import numpy as np
 
 from demoforge.lib.geometry import backproject
 
-__all__ = ["DepthCheckConfig", "DepthFrameStats", "DepthReport", "frame_depth_stats", "check_depth",
-           "DEPTH_PROBLEMS"]
+__all__ = ["DepthCheckConfig", "DepthFrameStats", "DepthReport", "DepthCoverage", "frame_depth_stats",
+           "check_depth", "depth_coverage", "coverage_warning", "DEPTH_PROBLEMS"]
 
 #: Codes of :attr:`DepthReport.problem` ('' = depth looks right).
 DEPTH_PROBLEMS = ("", "empty_depth", "unit_m_read_as_mm", "unit_mm_read_as_m", "mostly_invalid_depth",
@@ -37,6 +43,10 @@ DEPTH_PROBLEMS = ("", "empty_depth", "unit_m_read_as_mm", "unit_mm_read_as_m", "
 
 _FIX_UNIT = ("camera.json's \"depth_unit\"/\"depth_scale\" (float .npy depth is metres; integer .npy or "
              "16-bit PNG is depth_scale metres per unit, default 0.001)")
+
+
+#: The default of ``DepthCheckConfig.warn_missing_fraction`` (measured: docs/results/issue-38-reliability.md).
+WARN_MISSING_FRACTION = 0.15
 
 
 @dataclass(frozen=True)
@@ -61,6 +71,9 @@ class DepthCheckConfig:
     min_hands: int = 5
     #: Subsampling step (pixels) of :func:`frame_depth_stats`.
     step: int = 8
+    #: Warn when depth is missing at the hands in more than this share of the frames with a hand
+    #: (docs/ingest.md: where the gripper error starts to grow).
+    warn_missing_fraction: float = WARN_MISSING_FRACTION
 
 
 @dataclass
@@ -187,3 +200,40 @@ def check_depth(stats: DepthFrameStats, hand_detected: np.ndarray | None = None,
             f"{100 * cons:.0f} % of hands consistent): align the depth to the RGB camera and check K in "
             f"camera.json and the depth unit{fix}"), **rep)
     return DepthReport("", "", **rep)
+
+
+@dataclass(frozen=True)
+class DepthCoverage:
+    """How much of a take has depth at its hands: ``hand_missing`` (2,) the share of each hand's used
+    detections without a depth reading at its anchors (NaN: no detection); ``frame_missing`` the share
+    of frames with a used detection where some detected hand has none (NaN: no such frame)."""
+
+    hand_missing: np.ndarray
+    frame_missing: float
+    frames_with_hands: int
+
+
+def depth_coverage(detected: np.ndarray, no_depth: np.ndarray) -> DepthCoverage:
+    """detected (T, 2): the hand's detection is used in the frame; no_depth (T, 2): it had no depth
+    reading at its anchors (aligned_keypoints' ``detected`` and ``no_depth``)."""
+    det = np.asarray(detected, bool)
+    missing = np.asarray(no_depth, bool) & det
+    n_det = det.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hand = np.where(n_det > 0, missing.sum(axis=0) / n_det, np.nan)
+    frames = det.any(axis=1)
+    n = int(frames.sum())
+    return DepthCoverage(hand, float(missing.any(axis=1).sum() / n) if n else float("nan"), n)
+
+
+def coverage_warning(take: str, coverage: DepthCoverage, config: DepthCheckConfig | None = None) -> str:
+    """One line when depth is missing at the hands in more frames than the configured share, else ''."""
+    cfg = config or DepthCheckConfig()
+    if not coverage.frame_missing > cfg.warn_missing_fraction:
+        return ""
+    hands = ", ".join(f"{side} {100 * f:.0f} %" for side, f in zip(("left", "right"), coverage.hand_missing)
+                      if np.isfinite(f))
+    return (f"take {take}: depth is missing at the hands in {100 * coverage.frame_missing:.0f} % of the frames "
+            f"with a hand ({hands} of each hand's detections), over the {100 * cfg.warn_missing_fraction:.0f} % "
+            "beyond which the gripper error grows (docs/ingest.md): those frames get a depth interpolated from "
+            "their neighbours. Check the depth stream (range, reflective surfaces, dropped frames)")

@@ -17,13 +17,22 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
    (:func:`demoforge.lib.ingest.track_repair.repair_swaps`: each detection goes to the physical hand whose last
    position is closer; positions older than ``max_gap_frames`` are forgotten, so sparse
    detections are not re-labelled against where a hand was seconds ago).
-4. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
+4. **One hand, two labels**: a per-frame detector's handedness flips on one hand in bursts (often
+   when it finds the hand again after losing it), and each burst could be born as a track of its
+   own: a second "trusted" hand beside the real one. When the two labels' sustained detections (those
+   that would form tracks) never appear in the same frame, and every change of label happens at the
+   same place (within ``one_hand_same_place_sizes + one_hand_sizes_per_frame * frames apart`` hand
+   sizes of the last detection, the frames counted up to ``max_gap_frames``), they are one hand, and
+   its detections go to the label the detector gave most of them (:func:`one_hand_relabel`). Two
+   hands seen together in one frame keep both labels, and so do labels that change to another place
+   (a detector that sees the two hands of a take one at a time).
+5. **Births**: per hand, the accepted detections are cut into segments at gaps longer than
    ``max_gap_frames`` and at jumps no hand can make (centroid moved more than
    ``max_jump_sizes + max_jump_sizes_per_frame * frames`` hand sizes). A segment becomes a track only
    if it holds ``birth_k`` detections within ``birth_window`` consecutive frames (sustained evidence)
    and at least ``min_track_detections`` in all; detections in other segments are rejected as
    isolated. A hand that is absent from the take therefore stays absent.
-5. **Trust**: :func:`hand_trust` says whether a hand's trajectory covers enough of the take to
+6. **Trust**: :func:`hand_trust` says whether a hand's trajectory covers enough of the take to
    build episodes from (``min_trusted_fraction`` of the frames and ``min_trusted_frames``).
 
 Gap filling itself stays in demoforge.lib.ingest.alignment (bounded by ``max_gap_frames`` through
@@ -39,7 +48,7 @@ import numpy as np
 
 
 __all__ = ["TrackerConfig", "TrackResult", "REJECT_REASONS", "depth_size_ratio", "hand_size_px",
-           "track_hands", "bounded_fill_mask", "hand_trust"]
+           "track_hands", "one_hand_relabel", "bounded_fill_mask", "hand_trust"]
 
 #: Codes of ``TrackResult.rejected``: why a detection was not used.
 REJECT_REASONS = ("", "depth_inconsistent", "duplicate", "isolated")
@@ -68,6 +77,12 @@ class TrackerConfig:
     #: Repair left/right swaps and handedness flips from 2D continuity.
     repair_identity: bool = True
     swap_margin_px: float = 10.0
+    #: Two labels never seen in one frame are one hand when each label change stays within
+    #: ``one_hand_same_place_sizes + one_hand_sizes_per_frame * frames apart`` hand sizes (module doc,
+    #: step 4; frames counted up to max_gap_frames: at most 1.25 sizes; 0.05 size a frame is about
+    #: 1 cm at 30 fps). 0 turns the rule off.
+    one_hand_same_place_sizes: float = 0.5
+    one_hand_sizes_per_frame: float = 0.05
     #: A hand is trusted when its trajectory covers this fraction of the take and this many frames.
     min_trusted_fraction: float = 0.25
     min_trusted_frames: int = 10
@@ -81,6 +96,8 @@ class TrackerConfig:
             raise ValueError(f"max_gap_frames must be >= 0, got {self.max_gap_frames}")
         if not self.depth_ratio_tol > 1:
             raise ValueError(f"depth_ratio_tol must be > 1, got {self.depth_ratio_tol}")
+        if not self.one_hand_same_place_sizes >= 0:
+            raise ValueError(f"one_hand_same_place_sizes must be >= 0, got {self.one_hand_same_place_sizes}")
 
 
 @dataclass
@@ -182,6 +199,40 @@ def _confirm(evidence: np.ndarray, cen: np.ndarray, size: np.ndarray, cfg: Track
     return accepted, track_id
 
 
+def one_hand_relabel(evidence: np.ndarray, cen: np.ndarray, size: np.ndarray, cfg: TrackerConfig,
+                     source: np.ndarray | None = None) -> np.ndarray:
+    """(T,) frames whose detection is moved to the other label: one hand seen under two labels
+    (module doc, step 4). ``evidence`` (T, 2) detections after identity repair; ``cen`` (T, 2, 2) their
+    2D centroids, ``size`` (T, 2) their sizes (px); ``source`` (T, 2) the detector's label of each
+    (default: the slot itself), whose majority names the hand."""
+    T = evidence.shape[0]
+    move = np.zeros(T, bool)
+    if cfg.one_hand_same_place_sizes <= 0:
+        return move
+    sustained, _ = _confirm(evidence, cen, size, cfg)
+    if (sustained.all(axis=1)).any() or not sustained.any(axis=0).all():
+        return move  # seen together once (two hands), or one label only (nothing to merge)
+    t = np.flatnonzero(sustained.any(axis=1))                    # frames with one sustained detection
+    slot = sustained[t, 1].astype(np.int64)
+    label = slot if source is None else source[t, slot]
+    c, s = cen[t, slot], size[t, slot]
+    change = np.flatnonzero(slot[1:] != slot[:-1])              # label changes between t[i] and t[i + 1]
+    apart = np.minimum(t[change + 1] - t[change], cfg.max_gap_frames)
+    reach = (cfg.one_hand_same_place_sizes + cfg.one_hand_sizes_per_frame * apart) * np.fmax(s[change + 1], s[change])
+    joined = np.zeros(t.size - 1, bool)
+    joined[change] = np.linalg.norm(c[change + 1] - c[change], axis=-1) <= reach
+    # a hand: a run of sustained detections whose label changes all stay at its place
+    same = (slot[1:] == slot[:-1]) | joined
+    hand = np.concatenate([[0], np.cumsum(~same)])
+    for h in np.unique(hand):
+        members = hand == h
+        if np.unique(slot[members]).size < 2:
+            continue
+        named = int(np.argmax(np.bincount(label[members], minlength=2)))  # on a tie: left
+        move[t[members & (slot != named)]] = True
+    return move
+
+
 def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarray | None = None, *,
                 joints_cam: np.ndarray | None = None, anchor_depth: np.ndarray | None = None,
                 K: np.ndarray | None = None, config: TrackerConfig | None = None,
@@ -228,6 +279,12 @@ def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarr
     src = np.where(swapped[:, None], np.array([1, 0]), np.array([0, 1]))
     tt = np.arange(T)[:, None]
     det, cen, size, rejected, ratio = det[tt, src], cen[tt, src], size[tt, src], rejected[tt, src], ratio[tt, src]
+    move = one_hand_relabel(det, cen, size, cfg, source=src)
+    if move.any():
+        swapped = swapped ^ move
+        flip = np.where(move[:, None], np.array([1, 0]), np.array([0, 1]))
+        src = src[tt, flip]
+        det, cen, size, rejected, ratio = det[tt, flip], cen[tt, flip], size[tt, flip], rejected[tt, flip], ratio[tt, flip]
 
     accepted, track_id = _confirm(det, cen, size, cfg)
     rejected = np.where(det & ~accepted, np.int8(REJECT_REASONS.index("isolated")), rejected)

@@ -153,6 +153,7 @@ def write_take(
     extra_meta: dict | None = None,
     write_queue: int = 4,
     hand_style: str = DEFAULT_HAND_STYLE,
+    hands: Sequence[str] = SIDES,
 ) -> TakeSummary:
     """Render ``demo`` in ``scene_xml`` and write the take layout (see the module docstring).
 
@@ -163,6 +164,8 @@ def write_take(
     ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
     (0: each frame is written before the next renders, the serial baseline of ``make bench``).
     ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (demoforge.lib.synth.render.HAND_STYLES).
+    ``hands``: the hands in the picture; a hand left out is not drawn (its held object moves on its
+    own) and its ground truth is ``present = false`` in every frame (a one-hand recording).
     """
     import cv2
 
@@ -171,6 +174,9 @@ def write_take(
     for sub in ("rgb", "depth", "ground_truth"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     styles = tuple(styles) if styles is not None else hand_styles_for(seed)
+    drawn = tuple(side in hands for side in SIDES)
+    if not any(drawn) or set(hands) - set(SIDES):
+        raise ValueError(f"hands must name one or both of {', '.join(SIDES)}, got {list(hands)}")
     tid = take_id(task_name, seed, mirror)
     fps = float(demo.fps)
     pinch = np.asarray(demo.pinch_poses, float)
@@ -236,9 +242,10 @@ def write_take(
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="take-writer")
     try:
         for t in range(n):
-            renderer.set_state(obj_poses[t], joints[t])
+            renderer.set_state(obj_poses[t], joints[t], hand_present=drawn)
             fr = renderer.render()
             vis, p, c = joint_visibility(joints[t], fr.depth, K, T_wc, renderer.joint_radii)
+            vis &= np.asarray(drawn)[:, None]
             visible[t], px[t], cam[t] = vis, p, c
             pending.append(pool.submit(write_frame, t, fr))
             while pending and (len(pending) > write_queue or pending[0].done()):
@@ -254,7 +261,7 @@ def write_take(
     # --- ground truth tables ------------------------------------------------------------------
     gt = out / "ground_truth"
     inside = np.isfinite(px).all(-1) & (cam[..., 2] > 0) & (px[..., 0] >= -0.5) & (px[..., 0] < WIDTH - 0.5) \
-        & (px[..., 1] >= -0.5) & (px[..., 1] < HEIGHT - 0.5)
+        & (px[..., 1] >= -0.5) & (px[..., 1] < HEIGHT - 0.5) & np.asarray(drawn)[None, :, None]
     rows = n * 2
     rep = lambda v: np.repeat(v, 2)  # noqa: E731  (frame-major, hand-minor rows)
     hands = np.tile(np.array(SIDES), n)
@@ -317,6 +324,7 @@ def write_take(
         "detector_provenance": PROVENANCE, "depth_noise": bool(depth_noise),
         "object_names": list(object_names), "keypoint_names": list(keypoint_names),
         "hand_styles": {SIDES[h]: styles[h] for h in range(2)}, "hand_style": hand_style,
+        "hands": [side for side, on in zip(SIDES, drawn) if on],
         "camera": {"pos": T_wc[:3, 3], "T_world_camera": T_wc},
         "generation_seconds": seconds, **(extra_meta or {}),
     })
@@ -334,14 +342,14 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
                   depth_noise: bool = True, video: bool = True,
                   progress: Callable[[int, int], None] | None = None,
                   max_frames: int | None = None, write_queue: int = 4,
-                  hand_style: str = DEFAULT_HAND_STYLE, board: Any = None,
+                  hand_style: str = DEFAULT_HAND_STYLE, hands: Sequence[str] = SIDES, board: Any = None,
                   board_origin: Sequence[float] = (0.0, 0.0)) -> TakeSummary:
     """Script ``task_name``'s demo for ``seed`` (mirrored: hands' roles swapped), render and write it.
 
-    ``max_frames`` keeps only the first frames (tests, previews). ``board``: a ChArUco board
-    (demoforge.lib.calibration.board.BoardSpec) printed on the table, centred at ``board_origin``
-    (recorded in take.json as ``calibration_board``), to measure ``demoforge calibrate`` against the
-    known pose. See :func:`write_take`.
+    ``max_frames`` keeps only the first frames (tests, previews); ``hands`` the hands drawn (one for a
+    one-hand take). ``board``: a ChArUco board (demoforge.lib.calibration.board.BoardSpec) printed on
+    the table, centred at ``board_origin`` (recorded in take.json as ``calibration_board``), to measure
+    ``demoforge calibrate`` against the known pose. See :func:`write_take`.
     """
     if board is not None:
         import tempfile
@@ -356,13 +364,13 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
             extra = board_xml(board, png, board_origin)
             meta = {"calibration_board": {**board.to_json(), "origin_xy": [float(x) for x in board_origin]}}
             return _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames,
-                             write_queue, hand_style, extra, meta)
+                             write_queue, hand_style, hands, extra, meta)
     return _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames, write_queue,
-                     hand_style, ("", ""), {})
+                     hand_style, hands, ("", ""), {})
 
 
 def _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames, write_queue, hand_style,
-              extra_xml: tuple[str, str], extra_meta: dict) -> TakeSummary:
+              hands: Sequence[str], extra_xml: tuple[str, str], extra_meta: dict) -> TakeSummary:
     from demoforge.lib.task_library import get_task
 
     task = get_task(task_name)
@@ -377,6 +385,7 @@ def _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, ma
         object_names=list(task.object_names), keypoint_names=list(task.keypoint_names), demo=demo,
         styles=styles, depth_noise=depth_noise, video=video, progress=progress,
         extra_meta={"placement": demo.placement, **extra_meta}, write_queue=write_queue, hand_style=hand_style,
+        hands=hands,
     )
 
 
