@@ -166,8 +166,10 @@ def test_a_recording_without_a_pose_is_calibrated_on_the_annotate_page(takes, tm
 
         edge = project_points(transform_points(transform_inverse(truth), np.array([[-0.3, -0.15, 0], [0.3, -0.15, 0]])),
                               session.take.K).tolist()
-        req = urllib.request.Request(server_url(server) + "api/calibrate", json.dumps({"edge": edge}).encode(),
-                                     {"Content-Type": "application/json"})
+        assert server_url(server).endswith(f"?token={server.gate.token}")
+        req = urllib.request.Request(f"http://127.0.0.1:{server.server_address[1]}/api/calibrate",
+                                     json.dumps({"edge": edge}).encode(),
+                                     {"Content-Type": "application/json", "X-Demoforge-Token": server.gate.token})
         got = json.loads(urllib.request.urlopen(req, timeout=60).read())
     finally:
         server.shutdown()
