@@ -17,5 +17,5 @@ for top in MAPPED:
 setup(
     packages=packages,
     package_dir={"demoforge": "demoforge", **{f"demoforge.{top}": top for top in MAPPED}},
-    package_data={"demoforge.lib.takes.annotate": ["page.html"]},
+    package_data={"demoforge.lib.annotate": ["page.html"]},
 )

@@ -1,8 +1,8 @@
 """`demoforge annotate`: a local web page to click a take's object keypoints and mark open/close ranges.
 
-A standard-library HTTP server on loopback serves one static page (lib/takes/annotate/page.html) and a
+A standard-library HTTP server on loopback serves one static page (lib/annotate/page.html) and a
 small JSON API over the take. Every request first passes the session's RequestGate
-(demoforge.lib.takes.annotate.request_gate: the per-session token of the printed URL, Host, Origin,
+(demoforge.lib.annotate.request_gate: the per-session token of the printed URL, Host, Origin,
 content type, body size), whatever its route:
 
     GET  /?token=T             the page
@@ -17,7 +17,7 @@ content type, body size), whatever its route:
                                 robot-side edge, left end then right end)} -> the camera pose found
                                 (demoforge.lib.calibration) and written where the take keeps it
 
-The pure logic (format, validation, back-projection, suggestion) is demoforge.lib.takes.annotate; this module is glue.
+The pure logic (format, validation, back-projection, suggestion) is demoforge.lib.annotate; this module is glue.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from urllib.parse import urlsplit
 import numpy as np
 
 import demoforge.lib  # noqa: F401
-from demoforge.lib.takes.annotate.request_gate import MAX_BODY_BYTES, SAFE_METHODS, TOKEN_PARAM, RequestGate
+from demoforge.lib.annotate.request_gate import MAX_BODY_BYTES, SAFE_METHODS, TOKEN_PARAM, RequestGate
 
-PAGE = Path(demoforge.lib.__file__).resolve().parent / "takes" / "annotate" / "page.html"
+PAGE = Path(demoforge.lib.__file__).resolve().parent / "annotate" / "page.html"
 
 
 class CalibrationMixin:
@@ -80,7 +80,7 @@ class AnnotationSession(CalibrationMixin):
 
     def __init__(self, take_dir: str | Path, warehouse: str | Path | None = None, task: str | None = None,
                  keypoints: str | None = None, task_file: str | Path | None = None):
-        from demoforge.lib.takes.annotate import task_for_take
+        from demoforge.lib.annotate import task_for_take
         from demoforge.lib.takes import open_take
 
         self.take = open_take(Path(take_dir).resolve(), require_pose=False)  # the page can calibrate it
@@ -119,7 +119,7 @@ class AnnotationSession(CalibrationMixin):
         return buf.tobytes()
 
     def points(self, frame: int, uv: Any) -> list[dict]:
-        from demoforge.lib.takes.annotate import point_info
+        from demoforge.lib.annotate import point_info
 
         _, depth = self.frame(int(frame))
         pose = self.take.camera.T_world_camera
@@ -133,7 +133,7 @@ class AnnotationSession(CalibrationMixin):
     # --- ingest results ----------------------------------------------------------------------------
     def ingest_signals(self) -> dict | None:
         """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
-        from demoforge.lib.takes.annotate import suggest_closed_ranges
+        from demoforge.lib.annotate import suggest_closed_ranges
         from demoforge.schemas.core import read_parquet_file, table_files
         from demoforge.tasks.ingest import arrays
 
@@ -153,7 +153,7 @@ class AnnotationSession(CalibrationMixin):
 
     # --- state and saving --------------------------------------------------------------------------
     def state(self) -> dict:
-        from demoforge.lib.takes.annotate import annotation_status
+        from demoforge.lib.annotate import annotation_status
 
         ann = self.take.annotations
         cam = self.take.camera
@@ -187,7 +187,7 @@ class AnnotationSession(CalibrationMixin):
         }
 
     def save(self, payload: dict) -> dict:
-        from demoforge.lib.takes.annotate import build_annotations, parse_task_section, write_annotations
+        from demoforge.lib.annotate import build_annotations, parse_task_section, write_annotations
         from demoforge.lib.takes import open_take
 
         if not isinstance(payload, dict):
@@ -202,7 +202,7 @@ class AnnotationSession(CalibrationMixin):
         write_annotations(self.path, obj)
         self.take = open_take(self.take.path, require_pose=False)  # re-read: what ingest will see
         self.task = task
-        from demoforge.lib.takes.annotate import annotation_status
+        from demoforge.lib.annotate import annotation_status
 
         status = annotation_status(self.take)
         return {"saved": str(self.path), "annotations": obj, "status": status.__dict__}

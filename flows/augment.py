@@ -49,7 +49,7 @@ def augment_take_flow(
     aug = augment or AugmentOptions()
     ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
-        from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+        from demoforge.lib.annotate import annotation_status, not_annotated_message
         from demoforge.lib.takes import TakeError
 
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))

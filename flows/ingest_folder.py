@@ -42,7 +42,7 @@ def ingest_folder(
     ingest: how each take is ingested (IngestOptions; default: the simulated detector). With `augment`
     (AugmentOptions), each annotated take also gets its episode database.
     """
-    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import open_take
     import pyarrow as pa
 

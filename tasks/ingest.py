@@ -340,7 +340,7 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
     back-projected with depth. None (nothing written) for a take not annotated yet: the stages
     before this one stand, and `demoforge annotate` is what is missing."""
-    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import open_take, read_frame
     from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
     from demoforge.schemas.core import read_table_file, unsliced_table
@@ -468,7 +468,7 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
     None for a take without ground truth."""
     from demoforge.lib.ingest.alignment import AlignmentConfig, read_depth_robust
     from demoforge.lib.takes import iter_depth, open_take
-    from demoforge.lib.evaluation.keypoints import _load_synth_gt, evaluate_take
+    from demoforge.lib.evaluation.keypoints import load_synth_ground_truth, evaluate_take
     from demoforge.schemas.core import get_schema
 
     take = open_take(take_dir)
@@ -478,7 +478,7 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
     hk = read_table("hand_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(hk, "joints_cam", "joints_px", "present")
     present = a["present"].astype(bool)
-    gt, gpx, valid = _load_synth_gt(Path(take.path), T)
+    gt, gpx, valid = load_synth_ground_truth(Path(take.path), T)
     cfg = AlignmentConfig()  # measured depth sees the skin: the default surface offset
     uv = np.where(present[..., None, None], a["joints_px"], np.nan)[:, :, np.asarray(cfg.anchors), :]
     anchor_depth = np.full(uv.shape[:-1], np.nan)

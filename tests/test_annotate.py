@@ -1,4 +1,4 @@
-"""Annotating a recorded take: demoforge.lib.takes.annotate, the page in a real headless Chromium, ingest and augment
+"""Annotating a recorded take: demoforge.lib.annotate, the page in a real headless Chromium, ingest and augment
 of takes without annotations, custom tasks, and one-line user errors of the CLI."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from demoforge.lib.takes.annotate import (
+from demoforge.lib.annotate import (
     annotation_status, build_annotations, custom_task, library_task, load_task_file, mask_to_ranges,
     not_annotated_message, parse_task_section, point_info, suggest_closed_ranges, write_annotations,
 )
@@ -419,7 +419,7 @@ def test_every_route_of_the_annotation_server_passes_the_request_gate(pouring_ta
     """A web page in another tab, DNS rebinding, a missing or wrong token, a body that is not JSON or is
     too large: refused (403 / 415 / 413) on every route the server has, and nothing is written."""
     from demoforge.flows.annotate import PAGE_ROUTE, ROUTES, AnnotationSession, start_server
-    from demoforge.lib.takes.annotate.request_gate import MAX_BODY_BYTES
+    from demoforge.lib.annotate.request_gate import MAX_BODY_BYTES
 
     take = tmp_path / "take"
     shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))

@@ -18,7 +18,7 @@ print(json.dumps({
     "lib": demoforge.lib.__file__,
     "top_level": {n: importlib.util.find_spec(n) is not None for n in ("tasks", "flows", "schemas")},
     "lib_geometry": importlib.util.find_spec("lib.geometry") is not None,
-    "page": importlib.resources.files("demoforge.lib.takes.annotate").joinpath("page.html").is_file(),
+    "page": importlib.resources.files("demoforge.lib.annotate").joinpath("page.html").is_file(),
 }))
 """
 

@@ -116,7 +116,7 @@ def augment(
 
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
-    from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+    from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
 
     status = annotation_status(_open_take_or_fail(path))

@@ -203,7 +203,7 @@ def ingest(
             typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
     _echo_hand_presence(result["hand_presence"])
     if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
-        from demoforge.lib.takes.annotate import annotation_status, not_annotated_message
+        from demoforge.lib.annotate import annotation_status, not_annotated_message
 
         # the stage's own words (it names the resolved take folder): printed once, also when it was cached
         warn(f"object_keypoints: {not_annotated_message(path.resolve(), annotation_status(take).detail)}")

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 import numpy as np
 
+from demoforge.lib.takes.task_definition import parse_task_section
 from demoforge.lib.takes.types import Annotations, CameraInfo, DEFAULT_DEPTH_SCALE, DEFAULT_FPS, TakeError
 
 
@@ -191,10 +192,6 @@ def parse_annotations(obj: Any, path: str | os.PathLike = "annotations.json",
                                 f"but the take has {n_frames} frames")
     task = None
     if obj.get("task") is not None:
-        from demoforge.lib.takes.annotate.model import (  # lazy: demoforge.lib.takes.annotate builds on this module
-            parse_task_section,
-        )
-
         task = parse_task_section(obj["task"], str(path))
         unknown = [n for n in names if n not in task.keypoint_names]
         if unknown:

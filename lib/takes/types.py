@@ -85,7 +85,7 @@ class Annotations:
     object_keypoints_uv: np.ndarray          # (k, 2) px; (0, 2) when absent
     gripper_closed_ranges: dict[str, list[tuple[int, int]]]  # {"left": [(start, end)], "right": ...}
     raw: dict = field(repr=False, default_factory=dict)
-    #: the optional "task" section (demoforge.lib.takes.annotate.TaskDefinition): task, keypoints per object, arms
+    #: the optional "task" section (demoforge.lib.takes.task_definition.TaskDefinition): task, keypoints per object, arms
     task: Any = None
 
     def closed_mask(self, n_frames: int) -> np.ndarray:

@@ -4,7 +4,7 @@ shown on the timeline, and the rule for when a take counts as annotated. Pure lo
 page that uses it is served by :mod:`demoforge.flows.annotate` (the page itself is ``page.html`` here).
 """
 
-from demoforge.lib.takes.annotate.model import (  # noqa: F401
+from demoforge.lib.annotate.model import (  # noqa: F401
     NOT_ANNOTATED, SIDES, AnnotationStatus, TaskDefinition, annotation_status, build_annotations,
     custom_task, library_task, load_task_file, mask_to_ranges, not_annotated_message, parse_task_section,
     point_info, suggest_closed_ranges, task_for_take, write_annotations,
