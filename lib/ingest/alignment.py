@@ -62,7 +62,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from demoforge.lib.geometry import backproject, project_points
-from demoforge.lib.ingest.track_repair import fill_gaps, freeze_outliers, repair_swaps
+from demoforge.lib.perception.robust import nan_median
+from demoforge.lib.perception.tracking import bounded_fill_mask
+from demoforge.lib.perception.track_repair import fill_gaps, freeze_outliers, repair_swaps
 
 __all__ = [
     "AlignmentConfig",
@@ -231,21 +233,6 @@ def nan_quantile(x: np.ndarray, q: float, axis: int = -1) -> tuple[np.ndarray, n
     b = np.take_along_axis(s, hi[..., None], -1)[..., 0]
     val = a + (pos - lo) * (b - a)
     return np.where(n > 0, val, np.nan), n
-
-
-def nan_median(x: np.ndarray, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
-    """Median ignoring NaN along ``axis`` via one sort -> (median (NaN if none valid), count)."""
-    x = np.moveaxis(np.asarray(x, dtype=np.float64), axis, -1)
-    n = np.sum(~np.isnan(x), axis=-1)
-    s = np.sort(x, axis=-1)  # NaN sort to the end
-    lo = np.clip((n - 1) // 2, 0, None)
-    hi = np.clip(n // 2, 0, None)
-    if x.shape[-1] == 0:
-        return np.full(x.shape[:-1], np.nan), n
-    a = np.take_along_axis(s, lo[..., None], -1)[..., 0]
-    b = np.take_along_axis(s, np.minimum(hi, x.shape[-1] - 1)[..., None], -1)[..., 0]
-    med = np.where(n > 0, 0.5 * (a + b), np.nan)
-    return med, n
 
 
 # --------------------------------------------------------------------------- robust depth read
@@ -455,8 +442,6 @@ def align_to_depth(joints_cam: np.ndarray, depth: np.ndarray | None, K: np.ndarr
     else:
         out = fill_gaps(Xa, good, "interpolate")
     if cfg.max_gap_frames is not None:
-        from demoforge.lib.perception.tracking import bounded_fill_mask
-
         # bounded on missing detections only: frozen frames were detected and keep their held values
         out = np.where(bounded_fill_mask(detected, cfg.max_gap_frames)[..., None, None], out, np.nan)
     present_out = np.isfinite(out).all(axis=(2, 3))

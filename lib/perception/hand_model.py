@@ -165,7 +165,7 @@ def _finger_frames(style: HandStyle):
     return f, n
 
 
-def _thumb_frame():
+def thumb_frame():
     f = _unit(_THUMB_DIR)
     n = _orth(_THUMB_FLEXDIR, f)
     return f, n
@@ -179,7 +179,7 @@ def _local_joints_right(flexion: np.ndarray, style: HandStyle) -> np.ndarray:
     out = np.zeros(batch + (N_JOINTS, 3))
     cmc = _THUMB_CMC * s
     out[..., 1, :] = cmc
-    tf, tn = _thumb_frame()
+    tf, tn = thumb_frame()
     ft = flexion[..., 0]
     tang = _THUMB_REST + ft[..., None] * _THUMB_FLEX
     out[..., 2:5, :] = _chain(np.broadcast_to(cmc, batch + (3,)), np.broadcast_to(tf, batch + (3,)),
@@ -254,7 +254,7 @@ def _thumb_ik(target, style: HandStyle, n_iter: int = 48):
     s = style.scale
     L = _LENGTHS[0] * s
     cmc = _THUMB_CMC * s
-    f0, n = _thumb_frame()
+    f0, n = thumb_frame()
     l = np.cross(n, f0)
     d = target - cmc
     psi = np.arctan2(d @ l, d @ f0)

@@ -14,7 +14,7 @@ slot (0 = left, 1 = right; docs/architecture.md, Conventions), which detections 
 2. **Duplicates**: both labels on the same physical hand (mean 2D joint distance under
    ``duplicate_sizes`` hand sizes): the less confident one is dropped.
 3. **Identity**: left/right swaps and handedness flips are repaired from 2D continuity
-   (:func:`demoforge.lib.ingest.track_repair.repair_swaps`: each detection goes to the physical hand whose last
+   (:func:`demoforge.lib.perception.track_repair.repair_swaps`: each detection goes to the physical hand whose last
    position is closer; positions older than ``max_gap_frames`` are forgotten, so sparse
    detections are not re-labelled against where a hand was seconds ago).
 4. **One hand, two labels**: a per-frame detector's handedness flips on one hand in bursts (often
@@ -45,6 +45,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from demoforge.lib.perception.robust import nan_median
+from demoforge.lib.perception.track_repair import repair_swaps
 
 
 __all__ = ["TrackerConfig", "TrackResult", "REJECT_REASONS", "depth_size_ratio", "hand_size_px",
@@ -149,8 +152,6 @@ def depth_size_ratio(joints_cam: np.ndarray, joints_px: np.ndarray, anchor_depth
     """
     X = np.asarray(joints_cam, dtype=np.float64)
     P = np.asarray(joints_px, dtype=np.float64)
-    from demoforge.lib.ingest.alignment import nan_median
-
     z, _ = nan_median(np.where(np.isfinite(anchor_depth), anchor_depth, np.nan), axis=-1)
     f = 0.5 * (float(K[0, 0]) + float(K[1, 1]))
     with np.errstate(all="ignore"):
@@ -271,8 +272,6 @@ def track_hands(joints_px: np.ndarray, present: np.ndarray, confidence: np.ndarr
 
     cen = np.where(det[..., None], np.nanmean(np.where(det[..., None, None], P, 0.0), axis=2), np.nan)
     if cfg.repair_identity:
-        from demoforge.lib.ingest.track_repair import repair_swaps
-
         swapped = repair_swaps(cen, det, cfg.swap_margin_px, max_age=cfg.max_gap_frames)
     else:
         swapped = np.zeros(T, bool)
