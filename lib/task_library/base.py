@@ -133,7 +133,6 @@ class Demo:
         return self.n_frames / self.fps
 
     def keypoints(self) -> np.ndarray:
-        from . import get_task
         return get_task(self.task).keypoints_world(self.object_poses)
 
     def gripper_actions(self) -> np.ndarray:
@@ -553,3 +552,45 @@ def body_pos(model, data, name: str) -> np.ndarray:
 
 def local_point(T: np.ndarray, p_world: np.ndarray) -> np.ndarray:
     return T[:3, :3].T @ (np.asarray(p_world) - T[:3, 3])
+
+
+# ------------------------------------------------------------------ the tasks by name
+# The six of the library (registered by tasks.py when the package is imported) and their registered
+# variants; Demo.keypoints looks its task up here.
+TASK_NAMES = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
+
+_TASKS: dict[str, Task] = {}
+#: Registered task variants (Task.variant), by name: "<task>@<tag>"; looked up by get_task like a task,
+#: so code that takes a task name (the robot simulator's scene cache, execute) runs them unchanged.
+_VARIANTS: dict[str, Task] = {}
+
+
+def register_task(task: Task) -> None:
+    """Register one of the library's tasks under its name."""
+    if task.name not in TASK_NAMES:
+        raise ValueError(f"task {task.name!r} is not one of the library's {TASK_NAMES}")
+    _TASKS[task.name] = task
+
+
+def register_variant(task: Task, tag: str) -> str:
+    """Register a variant of a task under the name "<task.name>@<tag>" and return that name.  Registering
+    the same name again replaces it (variants are deterministic functions of their tag)."""
+    if not tag or "@" in tag or not tag.replace("-", "").replace("_", "").isalnum():
+        raise ValueError(f"variant tag must be a non-empty alphanumeric string (with - or _), got {tag!r}")
+    if task.name not in _TASKS:
+        raise ValueError(f"variant of unknown task {task.name!r}; known: {TASK_NAMES}")
+    key = f"{task.name}@{tag}"
+    _VARIANTS[key] = task
+    return key
+
+
+def get_task(name: str) -> Task:
+    try:
+        return _TASKS[name]
+    except KeyError:
+        pass
+    try:
+        return _VARIANTS[name]
+    except KeyError:
+        hint = " (variants must be registered first: register_variant)" if "@" in str(name) else ""
+        raise KeyError(f"unknown task {name!r}; known: {TASK_NAMES}{hint}") from None

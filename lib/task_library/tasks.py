@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import objects as ob
-from .base import (UP, Task, TaskObject, Track, inv_pose, local_point, make_pose, object_pose, side_pinch,
+from .base import (register_task, UP, Task, TaskObject, Track, inv_pose, local_point, make_pose, object_pose, side_pinch,
                    top_pinch, translated, unit, yaw_dir)
 from .scripting import (AP_REST, CARRY_KEYFRAMES, Style, _bin_kp, _bottle_kp, _bowl_kp, _can_kp, _cup_kp, _kp, _rim4,
                         _tilt_deg, _whisk_kp, approach_dir, grasp_sequence, holder_script, home_pose, pinch_for,
@@ -481,4 +481,5 @@ class EmptyVase(Task):
         return out, f"flower base in vase frame ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}); out of the vase: {out}"
 
 
-TASKS = {cls.name: cls() for cls in (Pouring, TrashInBin, PaperInCase, MixBowl, OpenContainer, EmptyVase)}
+for _cls in (Pouring, TrashInBin, PaperInCase, MixBowl, OpenContainer, EmptyVase):
+    register_task(_cls())
