@@ -15,7 +15,7 @@ from demoforge.tasks.ingest import arrays, take_task_name
 AUGMENT_VERSION = "1"
 
 
-def _demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
+def demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
     """The take's gripper trajectory (T, 2, 8) with undetected frames filled, and its object keypoints."""
     from demoforge.lib.trajectories.segmentation import fill_invalid_poses
 
@@ -58,7 +58,7 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     take = open_take(take_dir)
     name = take_task_name(take, task)
     spec = _require_task(name, take)
-    traj, kp = _demo_arrays(take.take_id, name, warehouse)
+    traj, kp = demo_arrays(take.take_id, name, warehouse)
     manual_arms = {int(k): list(v) for k, v in (manual or {}).items()}
     segs = segment_trajectory(traj, kp, spec.keypoint_object, manual=manual_arms or None)
     written = write_table("segments", {
@@ -93,7 +93,7 @@ def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
     from demoforge.lib.trajectories.segmentation import Segment, infer_object_arm
 
     spec = _require_task(task, take)
-    traj, kp = _demo_arrays(take_id, task, warehouse)
+    traj, kp = demo_arrays(take_id, task, warehouse)
     rows = read_table("segments", warehouse, task=task, take=take_id).to_pylist()
     segs = [Segment(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in rows]
     ko = np.asarray(spec.keypoint_object, int)
@@ -101,7 +101,8 @@ def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
     defined = getattr(getattr(take, "annotations", None), "task", None)
     stated = defined.object_arm_index() if defined is not None and defined.name == task else None
     return DemoSource(task=task, trajectory=traj, keypoints=kp, keypoint_object=ko, keypoints_local=local,
-                      segments=segs, object_arm=stated if stated is not None else infer_object_arm(traj, kp, ko))
+                      segments=segs, object_arm=stated if stated is not None else infer_object_arm(traj, kp, ko),
+                      workspace=None if callable(spec.workspace) else spec.workspace)
 
 
 @stage_task(name="augment_take", version=AUGMENT_VERSION)

@@ -32,7 +32,7 @@ def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: 
     demo = spec.scripted_demo(0)
     src = DemoSource(task=TASK, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
                      keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
-                     segments=demo.segments, object_arm=spec.object_arm(False))
+                     segments=demo.segments, object_arm=spec.object_arm(False), workspace=spec.workspace)
     batch = generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed, workspace=spec.workspace, workers=1)
     write_table("episodes", episodes_columns(TASK, TAKE, seed, batch), root)
     write_table("episode_steps", episode_steps_columns(TASK, TAKE, batch), root)

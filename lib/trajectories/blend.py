@@ -28,7 +28,7 @@ def carry_episode(source, actions: np.ndarray, keypoints: np.ndarray, mirrored: 
     ep = DemoSource(task=base.task, trajectory=np.asarray(actions, float), keypoints=np.asarray(keypoints, float),
                     keypoint_object=base.keypoint_object, keypoints_local=base.keypoints_local,
                     segments=list(base.segments), object_arm=base.object_arm, mirrored=base.mirrored,
-                    mirror_perm=base.mirror_perm)
+                    mirror_perm=base.mirror_perm, workspace=base.workspace)
     return transform_demo(ep, query_object_poses, mode="object")
 
 

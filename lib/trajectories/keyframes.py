@@ -53,7 +53,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from demoforge.lib.geometry import interpolate_poses, quat_angle, quat_normalize, quat_slerp
-from demoforge.lib.geometry.interpolation import _hemisphere_continuous
+from demoforge.lib.geometry.interpolation import hemisphere_continuous
 
 __all__ = ["encode_keyframes", "decode_keyframes", "answer_times", "keyframe_fractions", "reconstruction_error",
            "gripper_change_steps", "smooth_actions", "keyframe_actions", "KeyframeSettings", "DEFAULT_KEYFRAMES"]
@@ -158,7 +158,7 @@ def smooth_actions(actions: Any, sigma_steps: float) -> np.ndarray:
     out = a.copy()
     if sigma_steps == 0 or a.shape[0] < 3:
         return out
-    q_all = _hemisphere_continuous(quat_normalize(a[:, :, 3:7]))
+    q_all = hemisphere_continuous(quat_normalize(a[:, :, 3:7]))
     cuts = [0, *gripper_change_steps(a).tolist(), a.shape[0]]
     for s0, s1 in zip(cuts[:-1], cuts[1:]):
         if s1 - s0 < 3:

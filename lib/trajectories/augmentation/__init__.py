@@ -51,9 +51,8 @@ actions[i, :lengths[i]] is the full sequence including frame 0; initial = action
 from demoforge.lib.trajectories.augmentation.source import (  # noqa: F401
     DemoSource, estimate_object_poses, from_scripted_demo, object_groups,
 )
-from demoforge.lib.trajectories.augmentation.mirror import (  # noqa: F401
-    mirror_keypoints, mirror_permutation, mirror_source,
-)
+from demoforge.lib.trajectories.augmentation.mirror import mirror_keypoints, mirror_permutation  # noqa: F401
+from demoforge.lib.trajectories.augmentation.source import mirror_source  # noqa: F401
 from demoforge.lib.trajectories.augmentation.plan import (  # noqa: F401
     Plan, Run, execute_plan, make_plan, plan_object, plan_thesis, transform_demo, transform_keypoints,
     transform_matrices, transform_tables,

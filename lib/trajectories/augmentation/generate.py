@@ -8,8 +8,7 @@ import numpy as np
 
 from demoforge.lib import geometry as geo
 from demoforge.lib.trajectories.segmentation import Segment
-from demoforge.lib.trajectories.augmentation.source import DemoSource
-from demoforge.lib.trajectories.augmentation.mirror import mirror_source
+from demoforge.lib.trajectories.augmentation.source import DemoSource, mirror_source
 from demoforge.lib.trajectories.augmentation.plan import (
     Plan, Run, _pivots, execute_plan, make_plan, transform_keypoints, transform_matrices,
 )
@@ -192,15 +191,11 @@ def generate_episodes(demo_source: DemoSource, n: int = 10_000, n_mirrored: int 
     """Original (episode 0) + n augmented episodes: n - n_mirrored translated, n_mirrored mirrored and
     translated, each uniform in translation_range ((dx0, dx1), (dy0, dy1)) metres and yaw_range radians
     (one draw for the whole scene, or per object group if independent).  workspace: (2, 3) xyz box
-    (default: the task library's box of the task, if known; else unbounded).  Validity is computed for
+    (default: the source's, i.e. the task library's box of the task; else unbounded).  Validity is computed for
     every episode; actions are materialised now if materialize, else on first access of .actions."""
     src = demo_source
     if workspace is None:
-        try:
-            from demoforge.lib.task_library import get_task
-            workspace = get_task(src.task).workspace
-        except Exception:
-            workspace = np.array([[-np.inf] * 3, [np.inf] * 3])
+        workspace = src.workspace if src.workspace is not None else np.array([[-np.inf] * 3, [np.inf] * 3])
     workspace = np.asarray(workspace, float)
     if not 0 <= n_mirrored <= n:
         raise ValueError(f"need 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")

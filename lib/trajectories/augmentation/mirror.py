@@ -1,16 +1,11 @@
-"""The mirror flip across the YZ plane (x = 0): the arms' roles swapped, keypoints reflected and
-re-ordered so each keeps its name."""
+"""The mirror flip across the YZ plane (x = 0) of keypoints: reflected and re-ordered so each keeps its name
+(the whole demonstration's flip, arms swapped, is :func:`demoforge.lib.trajectories.augmentation.source.mirror_source`)."""
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from demoforge.lib import geometry as geo
-from demoforge.lib.trajectories.segmentation import Segment
-if TYPE_CHECKING:  # source.py needs mirror_permutation at run time
-    from demoforge.lib.trajectories.augmentation.source import DemoSource
 
 
 def mirror_permutation(keypoints_local: np.ndarray, keypoint_object: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -24,16 +19,6 @@ def mirror_permutation(keypoints_local: np.ndarray, keypoint_object: np.ndarray,
     j = np.argmin(d, axis=1)
     ok = d[np.arange(len(kl)), j] <= tol
     return np.where(ok, j, np.arange(len(kl)))
-
-
-def mirror_source(src: DemoSource) -> DemoSource:
-    """Reflect a demo across x = 0: poses (det +1), arms swapped, keypoints reflected + permuted."""
-    traj = geo.reflect_pose8(src.trajectory[:, ::-1])
-    kp = geo.reflect_points(src.keypoints)[src.mirror_perm]
-    segs = [Segment(1 - s.arm, s.kind, s.start, s.end, s.object) for s in src.segments]
-    return type(src)(task=src.task, trajectory=traj, keypoints=kp, keypoint_object=src.keypoint_object,
-                     keypoints_local=src.keypoints_local, segments=segs, object_arm=1 - src.object_arm,
-                     mirrored=not src.mirrored, mirror_perm=src.mirror_perm)
 
 
 def mirror_keypoints(keypoints: np.ndarray, perm: np.ndarray) -> np.ndarray:

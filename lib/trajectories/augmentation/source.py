@@ -24,6 +24,7 @@ class DemoSource:
     object_arm: np.ndarray  # (n_objects,) arm handling each object
     mirrored: bool = False
     mirror_perm: np.ndarray | None = None  # (K,), default from keypoints_local
+    workspace: np.ndarray | None = None  # (2, 3) xyz box the episodes must stay in (the task's); None: unbounded
 
     def __post_init__(self):
         self.trajectory = np.asarray(self.trajectory, float)
@@ -31,6 +32,8 @@ class DemoSource:
         self.keypoint_object = np.asarray(self.keypoint_object, int)
         self.keypoints_local = np.asarray(self.keypoints_local, float)
         self.object_arm = np.asarray(self.object_arm, int)
+        if self.workspace is not None:
+            self.workspace = np.asarray(self.workspace, float)
         self.segments = sorted((Segment(int(s.arm), str(s.kind), int(s.start), int(s.end), int(s.object))
                                 for s in self.segments), key=lambda s: (s.arm, s.start))
         if self.mirror_perm is None:
@@ -58,7 +61,17 @@ def from_scripted_demo(task, demo) -> DemoSource:
     return DemoSource(task=task.name, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
                       keypoint_object=task.keypoint_object, keypoints_local=task.keypoints_local,
                       segments=list(demo.segments), object_arm=task.object_arm(demo.mirror),
-                      mirrored=bool(demo.mirror))
+                      mirrored=bool(demo.mirror), workspace=task.workspace)
+
+
+def mirror_source(src: DemoSource) -> DemoSource:
+    """Reflect a demo across x = 0: poses (det +1), arms swapped, keypoints reflected + permuted."""
+    traj = geo.reflect_pose8(src.trajectory[:, ::-1])
+    kp = geo.reflect_points(src.keypoints)[src.mirror_perm]
+    segs = [Segment(1 - s.arm, s.kind, s.start, s.end, s.object) for s in src.segments]
+    return type(src)(task=src.task, trajectory=traj, keypoints=kp, keypoint_object=src.keypoint_object,
+                     keypoints_local=src.keypoints_local, segments=segs, object_arm=1 - src.object_arm,
+                     mirrored=not src.mirrored, mirror_perm=src.mirror_perm, workspace=src.workspace)
 
 
 def estimate_object_poses(keypoints: np.ndarray, keypoints_local: np.ndarray,
