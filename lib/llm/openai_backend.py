@@ -37,7 +37,7 @@ import urllib.parse
 import urllib.request
 from typing import Any
 
-from demoforge.lib.llm import (
+from demoforge.lib.llm.base import (
     Completion, LLMBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError, Sampling,
 )
 from demoforge.lib.settings import read_settings
@@ -143,7 +143,7 @@ class OpenAIBackend(LLMBackend):
             body["prompt"] = getattr(prompt, "text", None) or str(prompt)
             path = "/completions"
         if sampling.structured and self.structured_supported is not False:
-            from demoforge.lib.llm import grammar
+            from demoforge.lib.llm.base import grammar
 
             if self.mode == "chat":
                 body["response_format"] = grammar.response_format(grammar.answer_rows(prompt))

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from demoforge.lib.llm.local_backend import _LOCK, load_model
+from demoforge.lib.llm.llama_models import MODEL_LOCK, load_model
 from demoforge.lib.llm.structured_decoding import ALPHABET, DecodeResult, greedy_structured, token_piece
 
 __all__ = ["WIDE_ALPHABET", "ReducedModel", "decode", "reduced_gguf", "reduced_ids", "reduced_model"]
@@ -79,7 +79,7 @@ def _to_reduced(ids: np.ndarray, n_full: int) -> np.ndarray:
 
 def reduced_ids(llm) -> np.ndarray:
     """The sorted full-vocabulary ids the reduced model keeps (module docstring). Once per model."""
-    with _LOCK:
+    with MODEL_LOCK:
         hit = _IDS.get(id(llm))
         if hit is not None and hit[1] is llm:
             return hit[0]
@@ -142,7 +142,7 @@ def reduced_gguf(src: str | os.PathLike, ids: np.ndarray) -> Path:
     src = Path(src)
     ids = np.asarray(ids, dtype=np.int64)
     target = src.with_name(f"{src.stem}.vocab-{_digest(ids)}.gguf")
-    with _LOCK:
+    with MODEL_LOCK:
         if str(target) in _VERIFIED and target.exists():
             return target
         if not _valid(target):
@@ -238,7 +238,7 @@ _REDUCED: dict[tuple, ReducedModel] = {}
 def reduced_model(full_llm, src: str | os.PathLike, n_ctx: int, n_threads: int | None, n_batch: int,
                   swa_full: bool) -> ReducedModel:
     """The reduced model of ``src`` (whose loaded full model is ``full_llm``), built and loaded once."""
-    with _LOCK:  # the backend's: the models are loaded and called under it
+    with MODEL_LOCK:  # the backend's: the models are loaded and called under it
         ids = reduced_ids(full_llm)
         path = reduced_gguf(src, ids)
         llm = load_model(path, n_ctx, n_threads, n_batch, swa_full)
