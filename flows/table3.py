@@ -123,7 +123,7 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
         augmentation_queries, covering_options, placement_queries,
     )
     from demoforge.schemas.core import column_numpy, read_table
-    from demoforge.tasks.augment import _demo_arrays, load_demo_source
+    from demoforge.tasks.augment import demo_arrays, load_demo_source
 
     take_id = open_take(path).take_id
     name = database_name(take_id, protocol)
@@ -131,7 +131,7 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
         options, n_mirrored = {}, episodes // 2
     else:
         run_flow(ingest_take, path, warehouse, show_progress=show_progress)
-        options, n_mirrored = covering_options(spec, _demo_arrays(take_id, spec.name, warehouse)[1], seed=seed), 0
+        options, n_mirrored = covering_options(spec, demo_arrays(take_id, spec.name, warehouse)[1], seed=seed), 0
     aug = run_flow(augment_take_flow, path, warehouse,
                    augment=AugmentOptions(n=episodes, n_mirrored=n_mirrored, seed=seed, generation=options),
                    database=None if name == take_id else name, show_progress=show_progress)

@@ -9,7 +9,7 @@ from demoforge.bench.timing import BenchCase
 
 def cases(quick: bool) -> list[BenchCase]:
     from demoforge.lib.exports import frame_in_episode, next_poses
-    from demoforge.lib.exports.lerobot import STAT_KEYS, _episode_stats, features, lerobot_stats
+    from demoforge.lib.exports.lerobot import STAT_KEYS, episode_stats, features, lerobot_stats
 
     n = 2_000 if quick else 10_000
 
@@ -30,7 +30,7 @@ def cases(quick: bool) -> list[BenchCase]:
         feats = features()
 
         def fast():  # one vectorised reduction per distinct episode length
-            return _episode_stats(cols, feats, lengths)
+            return episode_stats(cols, feats, lengths)
 
         def baseline():  # LeRobot's way: statistics episode by episode
             out = {name: {s: [] for s in STAT_KEYS} for name in cols}

@@ -282,7 +282,7 @@ def evaluate_arctic_take(take, pred_cam, present=None, pred_px=None, alignment_c
                          dataset="arctic", detector=detector, detector_version=detector_version)
 
 
-def _load_synth_gt(take_dir: Path, T: int):
+def load_synth_ground_truth(take_dir: Path, T: int):
     import pyarrow.parquet as pq
 
     path = take_dir / "ground_truth" / "gt_hand_joints.parquet"
@@ -323,7 +323,7 @@ def evaluate_synthetic_take(take_path: str | os.PathLike, detector: str = "simul
     det = get_detector(detector, **detector_kw)
     track = det.detect_take(take)
     T = track.n_frames
-    gt, gpx, valid = _load_synth_gt(Path(take.path), T)
+    gt, gpx, valid = load_synth_ground_truth(Path(take.path), T)
     cfg, _ = _resolve_config(alignment_config)
     anchor_depth = None
     note = None

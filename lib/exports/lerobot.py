@@ -47,7 +47,7 @@ from demoforge.lib.exports import (
     frame_in_episode, next_poses,
 )
 from demoforge.lib.exports.lerobot_stats import (  # noqa: F401  (re-exported)
-    HISTOGRAM_BINS, QUANTILE_KEYS, QUANTILES, STAT_KEYS, _episode_stats, aggregate_stats, image_stats,
+    HISTOGRAM_BINS, QUANTILE_KEYS, QUANTILES, STAT_KEYS, episode_stats, aggregate_stats, image_stats,
     lerobot_stats, sample_indices,
 )
 
@@ -309,7 +309,7 @@ def write_lerobot_dataset(
             "data/chunk_index": pa.array(chunk_idx), "data/file_index": pa.array(file_idx),
             "dataset_from_index": pa.array(starts), "dataset_to_index": pa.array(ends),
         }
-        ep_stats = _episode_stats(cols, feats, lengths)
+        ep_stats = episode_stats(cols, feats, lengths)
         video_feats = {}
         for src in videos:
             vcols, vstats, vinfo = _write_videos(root, src, lengths, fps, video_files_size_in_mb, chunks_size,

@@ -92,7 +92,7 @@ def image_stats(frames: np.ndarray) -> dict[str, np.ndarray]:
     out["count"] = np.array([len(frames)], np.int64)
     return out
 
-def _episode_stats(cols: dict, feats: dict, lengths: np.ndarray, max_elements: int = 4_000_000
+def episode_stats(cols: dict, feats: dict, lengths: np.ndarray, max_elements: int = 4_000_000
                    ) -> dict[str, dict[str, np.ndarray]]:
     """Per-episode statistics of every numeric column, vectorised over batches of episodes of
     one length (usually all of them), ``max_elements`` values at a time."""

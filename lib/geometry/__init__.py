@@ -26,7 +26,7 @@ from __future__ import annotations
 from demoforge.lib.geometry._checks import _EPS_NORM, _as_float, _unit_vectors  # noqa: F401
 from demoforge.lib.geometry.alignment import apply_similarity, umeyama
 from demoforge.lib.geometry.camera import backproject, project_points
-from demoforge.lib.geometry.interpolation import _hemisphere_continuous, cubic_transition, interpolate_poses  # noqa: F401
+from demoforge.lib.geometry.interpolation import hemisphere_continuous, cubic_transition, interpolate_poses  # noqa: F401
 from demoforge.lib.geometry.rotations import (
     matrix_to_quat,
     quat_angle,

@@ -23,7 +23,7 @@ from demoforge.lib.geometry.rotations import (
 )
 
 
-def _hemisphere_continuous(q: np.ndarray) -> np.ndarray:
+def hemisphere_continuous(q: np.ndarray) -> np.ndarray:
     """Flip signs along axis 0 so consecutive quaternions have non-negative dot product."""
     if q.shape[0] < 2:
         return q
@@ -77,7 +77,7 @@ def interpolate_poses(
         raise ValueError("times, positions and query_times must be finite")
     if np.any(np.diff(times) <= 0):
         raise ValueError("times must be strictly increasing")
-    q = _hemisphere_continuous(q)
+    q = hemisphere_continuous(q)
     M = qt.size
     if K == 1:
         return (np.broadcast_to(pos, (M,) + pos.shape[1:]).copy(), np.broadcast_to(q, (M,) + q.shape[1:]).copy())

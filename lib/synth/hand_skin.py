@@ -166,13 +166,13 @@ def nail_poses(joints: np.ndarray, wrist_T: np.ndarray, side, style: HandStyle |
     """(5, 4, 4) poses of the nails (x along the distal phalanx towards the tip, z out of the nail)
     of one hand's joints (21, 3) with its wrist pose (4, 4): on the back of each distal phalanx,
     centred a third of its length from the tip, at the phalanx's flesh radius."""
-    from demoforge.lib.perception.hand_model import _thumb_frame, hand_capsules
+    from demoforge.lib.perception.hand_model import thumb_frame, hand_capsules
 
     style = style or HandStyle()
     J = np.asarray(joints, float)
     R = np.asarray(wrist_T, float)[:3, :3]
     mirror = np.array([1.0, -1.0, 1.0]) if side in (0, "left", "l") else np.ones(3)
-    _, n_thumb = _thumb_frame()
+    _, n_thumb = thumb_frame()
     # a finger bends towards its palmar side; the nail faces the other way
     back = np.stack([-(R @ (n_thumb * mirror))] + [R[:, 2]] * 4)
     base, tip = J[[a for a, _ in NAIL_JOINTS]], J[[b for _, b in NAIL_JOINTS]]
