@@ -24,37 +24,59 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
-def _imports(name: str, path: Path, module_level_only: bool) -> set[str]:
-    """Modules of the package that ``name`` imports (at module level, or anywhere)."""
+def _import_nodes(tree: ast.Module):
+    """Every import statement of a module: at module level, under ``if``/``try``, ``TYPE_CHECKING``, and
+    inside functions (a lazy import is an import: it ties the modules together all the same)."""
+    return [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))]
+
+
+def _imported(name: str, path: Path) -> list[tuple[str, str | None, int]]:
+    """(module of the package, name taken from it or None, line) for every import in ``name``'s file."""
     tree = ast.parse(path.read_text())
-    nodes = tree.body if module_level_only else list(ast.walk(tree))
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    out = set()
-    for n in nodes:
+    out = []
+    for n in _import_nodes(tree):
         if isinstance(n, ast.Import):
-            targets = [a.name for a in n.names]
-        elif isinstance(n, ast.ImportFrom):
+            targets = [(a.name, None) for a in n.names]
+        else:
             base = n.module or ""
             if n.level:
                 up = package.split(".")[: len(package.split(".")) - (n.level - 1)]
                 base = ".".join(up + ([n.module] if n.module else []))
-            # `from a.b import c`: module a.b.c when c is one, else a.b
-            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in n.names]
-        else:
-            continue
-        out |= {t for t in targets if t in MODULES and t != name}
+            # `from a.b import c`: module a.b.c when c is one, else name c of module a.b
+            targets = [(f"{base}.{a.name}", None) if f"{base}.{a.name}" in MODULES else (base, a.name)
+                       for a in n.names]
+        out += [(t, what, n.lineno) for t, what in targets if t in MODULES and t != name]
     return out
 
 
-def test_no_import_cycles():
-    edges = {m: _imports(m, p, module_level_only=True) for m, p in MODULES.items()}
-    index, low, stack, on, cycles = {}, {}, [], set(), []
+def _imports(name: str, path: Path, module_level_only: bool = False) -> set[str]:
+    """Modules of the package that ``name`` imports (anywhere in the file, or at module level only)."""
+    if not module_level_only:
+        return {t for t, _, _ in _imported(name, path)}
+    top = {n.lineno for n in ast.parse(path.read_text()).body if isinstance(n, (ast.Import, ast.ImportFrom))}
+    return {t for t, _, line in _imported(name, path) if line in top}
 
-    def visit(v):  # Tarjan's strongly connected components
+
+def _folder(module: str) -> str:
+    """The room a module lives in: lib's subfolders one by one (lib.takes, lib.sim, ...), else the layer."""
+    parts = module.split(".")
+    return ".".join(parts[:3]) if len(parts) > 2 and parts[1] == "lib" else ".".join(parts[:2])
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one node (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v):
         index[v] = low[v] = len(index)
         stack.append(v)
         on.add(v)
-        for w in edges[v]:
+        for w in sorted(edges.get(v, ())):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -74,7 +96,29 @@ def test_no_import_cycles():
     for v in sorted(edges):
         if v not in index:
             visit(v)
-    assert cycles == []
+    return cycles
+
+
+def _module_edges() -> dict[str, set[str]]:
+    return {m: _imports(m, p) for m, p in MODULES.items()}
+
+
+def test_no_import_loop_between_modules_counting_imports_inside_functions():
+    assert _cycles(_module_edges()) == []
+
+
+def test_no_import_loop_between_folders():
+    edges: dict[str, set[str]] = {}
+    for m, targets in _module_edges().items():
+        edges.setdefault(_folder(m), set()).update(_folder(t) for t in targets if _folder(t) != _folder(m))
+    assert _cycles(edges) == []
+
+
+def test_no_private_name_is_imported_from_another_folder():
+    """A leading underscore says "this file's business": another room that needs it needs a public name."""
+    leaks = [f"{m}:{line} takes {what} from {t}" for m, p in MODULES.items() for t, what, line in _imported(m, p)
+             if what and what.startswith("_") and not what.startswith("__") and _folder(t) != _folder(m)]
+    assert leaks == []
 
 
 def _layer(module: str) -> str:
@@ -144,3 +188,15 @@ def test_no_module_of_the_design_cards_folders_is_over_600_lines():
     long = {name: n for name, path in MODULES.items() if ".".join(name.split(".")[:2]) in design_card
             and (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
     assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+
+
+MAX_FUNCTION_LINES = 120  # a function longer than this does several things: give each its name
+
+
+def test_no_function_is_over_120_lines():
+    long = {}
+    for name, path in MODULES.items():
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.end_lineno - n.lineno + 1 > MAX_FUNCTION_LINES:
+                long[f"{name}.{n.name}"] = n.end_lineno - n.lineno + 1
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines: {long}"
