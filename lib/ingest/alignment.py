@@ -300,6 +300,97 @@ def _ffill_bfill(values: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
+def _anchor_translation(X: np.ndarray, P2: np.ndarray, z: np.ndarray, uv: np.ndarray, detected: np.ndarray,
+                        K: np.ndarray, cfg: AlignmentConfig):
+    """Step 2: each detected hand's translation (T, 2, 3) onto the depth read at its anchors, the
+    occluded anchors' and the temporally implausible readings left out, frames without a trusted
+    reading moved along the root's viewing ray to the depth interpolated in time.
+    -> (translation, valid anchors (T, 2, A), valid anchors per hand, no_depth, depth_outlier, anchors_used)."""
+    T = X.shape[0]
+    anchors = np.asarray(cfg.anchors, dtype=np.int64)
+    ray = backproject(uv, np.ones(uv.shape[:-1]), K)              # (T, 2, A, 3), z = 1
+    ray_unit = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    off = np.asarray(cfg.surface_offset_m, dtype=np.float64)
+    off = off[anchors] if off.ndim == 1 else np.full(anchors.shape, float(off))
+    Xs = ray * z[..., None] + off[:, None] * ray_unit             # joint centre behind the skin
+    dt_a = Xs - X[:, :, anchors, :]                              # (T, 2, A, 3), NaN if no depth
+    valid_a = np.isfinite(z)
+    n_valid = valid_a.sum(-1)
+    if np.isfinite(cfg.anchor_outlier_m):
+        zref, _ = nan_quantile(dt_a[..., 2], cfg.anchor_depth_quantile, axis=-1)
+        valid_a = valid_a & (np.abs(dt_a[..., 2] - zref[..., None]) <= cfg.anchor_outlier_m)
+    dt_a = np.where(valid_a[..., None], dt_a, np.nan)
+    if cfg.translation == "ray":
+        # the detector's error is a shift along the root's viewing ray: one unknown per hand,
+        # k_a = depth difference of anchor a / z-component of the root ray
+        root_px = P2[:, :, 0, :]
+        u_root = backproject(root_px, np.ones(root_px.shape[:-1]), K)
+        u_root = u_root / np.linalg.norm(u_root, axis=-1, keepdims=True)          # (T, 2, 3)
+        k_a = dt_a[..., 2] / u_root[:, :, None, 2]
+        dt_a = k_a[..., None] * u_root[:, :, None, :]
+    if cfg.combine == "median":
+        dt, _ = nan_median(np.moveaxis(dt_a, 2, -1), axis=-1)   # (T, 2, 3)
+    else:
+        with np.errstate(invalid="ignore"):
+            cnt = valid_a.sum(-1)[..., None]
+            dt = np.where(cnt > 0, np.nansum(dt_a, axis=2) / np.maximum(cnt, 1), np.nan)
+    has_depth = detected & (valid_a.sum(-1) >= cfg.min_anchors) & np.isfinite(dt).all(-1)
+    no_depth = detected & ~has_depth
+    bits = (1 << anchors.astype(np.int64))
+    anchors_used = np.where(detected, np.sum(np.where(valid_a, bits, 0), axis=-1), 0).astype(np.int64)
+    # temporal check of the corrected root depth: occluded anchors give depths far off their
+    # neighbours' (the true hand moves smoothly even though the detector's error jitters)
+    root = X[:, :, 0, :]
+    z_al = np.where(has_depth, root[..., 2] + dt[..., 2], np.nan)             # (T, 2)
+    depth_outlier = np.zeros_like(has_depth)
+    if cfg.depth_outlier_m is not None and np.isfinite(cfg.depth_outlier_m) and T > 2:
+        w = max(3, int(cfg.depth_median_frames) | 1)
+        pad = np.pad(z_al, ((w // 2, w // 2), (0, 0)), constant_values=np.nan)
+        win = np.lib.stride_tricks.sliding_window_view(pad, w, axis=0)          # (T, 2, w)
+        zmed_t, cnt = nan_median(win, axis=-1)
+        depth_outlier = has_depth & (cnt >= 3) & (np.abs(z_al - zmed_t) > cfg.depth_outlier_m)
+    ok_depth = has_depth & ~depth_outlier
+    # frames without a trusted reading: root depth interpolated in time from trusted frames,
+    # the hand moved along its root's viewing ray to that depth (the detector's error direction)
+    z_fill = fill_gaps(np.where(ok_depth, z_al, np.nan)[..., None], ok_depth, "interpolate")[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lam = z_fill / root[..., 2]
+    dt_fill = (lam - 1.0)[..., None] * root
+    dt = np.where(ok_depth[..., None], dt, dt_fill)
+    dt = np.where(detected[..., None], dt, np.nan)
+    # no depth anywhere in the take for this hand: keep the raw prediction (translation 0), flagged
+    dt = np.where(detected[..., None] & ~np.isfinite(dt), 0.0, dt)
+    return dt, valid_a, n_valid, no_depth, depth_outlier, anchors_used
+
+
+def _scale_correction(Xa: np.ndarray, P2: np.ndarray, valid_a: np.ndarray, detected: np.ndarray, K: np.ndarray,
+                      cfg: AlignmentConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Step 3: each hand scaled about its anchors' centre so that its projection spans the detector's 2D
+    keypoints (per frame, or one factor per take). -> (joints (T, 2, 21, 3), scale (T, 2))."""
+    T = Xa.shape[0]
+    anchors = np.asarray(cfg.anchors, dtype=np.int64)
+    va = valid_a[..., None]
+    centre = np.sum(np.where(va, Xa[:, :, anchors, :], 0.0), axis=2) / np.maximum(va.sum(axis=2), 1)
+    centre = np.where(va.any(axis=2), centre, np.nan)
+    centre = np.where(np.isfinite(centre), centre, Xa[:, :, anchors, :].mean(axis=2))
+    proj = project(Xa, K)
+    pa = proj - proj.mean(axis=2, keepdims=True)
+    qa = P2 - P2.mean(axis=2, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c_f = np.sum(pa * qa, axis=(2, 3)) / np.sum(qa * qa, axis=(2, 3))
+    c_f = np.where(detected & np.isfinite(c_f) & (c_f > 0.5) & (c_f < 2.0), c_f, np.nan)
+    if cfg.scale_correction == "take":
+        med, cnt = nan_median(c_f.T, axis=-1)
+        c_use = np.where(cnt > 0, med, 1.0)[None, :].repeat(T, 0)
+    else:
+        c_use = _ffill_bfill(c_f[..., None], np.isfinite(c_f))[..., 0]
+        c_use = np.where(np.isfinite(c_use), c_use, 1.0)
+    c_use = np.where(detected, c_use, np.nan)
+    Xa = centre[:, :, None, :] + (Xa - centre[:, :, None, :]) / c_use[..., None, None]
+    Xa = np.where(detected[..., None, None], Xa, np.nan)
+    return Xa, c_use
+
+
 def align_to_depth(joints_cam: np.ndarray, depth: np.ndarray | None, K: np.ndarray,
                    joints_px: np.ndarray | None = None, config: AlignmentConfig | None = None,
                    *, anchor_depth: np.ndarray | None = None, **overrides) -> AlignmentResult:
@@ -355,83 +446,13 @@ def align_to_depth(joints_cam: np.ndarray, depth: np.ndarray | None, K: np.ndarr
     source_slot = np.where(detected, src, -1)
 
     # --- 2. anchor translation ---------------------------------------------------------------
-    ray = backproject(uv, np.ones(uv.shape[:-1]), K)              # (T, 2, A, 3), z = 1
-    ray_unit = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
-    off = np.asarray(cfg.surface_offset_m, dtype=np.float64)
-    off = off[anchors] if off.ndim == 1 else np.full(anchors.shape, float(off))
-    Xs = ray * z[..., None] + off[:, None] * ray_unit             # joint centre behind the skin
-    dt_a = Xs - X[:, :, anchors, :]                              # (T, 2, A, 3), NaN if no depth
-    valid_a = np.isfinite(z)
-    n_valid = valid_a.sum(-1)
-    if np.isfinite(cfg.anchor_outlier_m):
-        zref, _ = nan_quantile(dt_a[..., 2], cfg.anchor_depth_quantile, axis=-1)
-        valid_a = valid_a & (np.abs(dt_a[..., 2] - zref[..., None]) <= cfg.anchor_outlier_m)
-    dt_a = np.where(valid_a[..., None], dt_a, np.nan)
-    if cfg.translation == "ray":
-        # the detector's error is a shift along the root's viewing ray: one unknown per hand,
-        # k_a = depth difference of anchor a / z-component of the root ray
-        root_px = P2[:, :, 0, :]
-        u_root = backproject(root_px, np.ones(root_px.shape[:-1]), K)
-        u_root = u_root / np.linalg.norm(u_root, axis=-1, keepdims=True)          # (T, 2, 3)
-        k_a = dt_a[..., 2] / u_root[:, :, None, 2]
-        dt_a = k_a[..., None] * u_root[:, :, None, :]
-    if cfg.combine == "median":
-        dt, _ = nan_median(np.moveaxis(dt_a, 2, -1), axis=-1)   # (T, 2, 3)
-    else:
-        with np.errstate(invalid="ignore"):
-            cnt = valid_a.sum(-1)[..., None]
-            dt = np.where(cnt > 0, np.nansum(dt_a, axis=2) / np.maximum(cnt, 1), np.nan)
-    has_depth = detected & (valid_a.sum(-1) >= cfg.min_anchors) & np.isfinite(dt).all(-1)
-    no_depth = detected & ~has_depth
-    bits = (1 << anchors.astype(np.int64))
-    anchors_used = np.where(detected, np.sum(np.where(valid_a, bits, 0), axis=-1), 0).astype(np.int64)
-    # temporal check of the corrected root depth: occluded anchors give depths far off their
-    # neighbours' (the true hand moves smoothly even though the detector's error jitters)
-    root = X[:, :, 0, :]
-    z_al = np.where(has_depth, root[..., 2] + dt[..., 2], np.nan)             # (T, 2)
-    depth_outlier = np.zeros_like(has_depth)
-    if cfg.depth_outlier_m is not None and np.isfinite(cfg.depth_outlier_m) and T > 2:
-        w = max(3, int(cfg.depth_median_frames) | 1)
-        pad = np.pad(z_al, ((w // 2, w // 2), (0, 0)), constant_values=np.nan)
-        win = np.lib.stride_tricks.sliding_window_view(pad, w, axis=0)          # (T, 2, w)
-        zmed_t, cnt = nan_median(win, axis=-1)
-        depth_outlier = has_depth & (cnt >= 3) & (np.abs(z_al - zmed_t) > cfg.depth_outlier_m)
-    ok_depth = has_depth & ~depth_outlier
-    # frames without a trusted reading: root depth interpolated in time from trusted frames,
-    # the hand moved along its root's viewing ray to that depth (the detector's error direction)
-    z_fill = fill_gaps(np.where(ok_depth, z_al, np.nan)[..., None], ok_depth, "interpolate")[..., 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lam = z_fill / root[..., 2]
-    dt_fill = (lam - 1.0)[..., None] * root
-    dt = np.where(ok_depth[..., None], dt, dt_fill)
-    dt = np.where(detected[..., None], dt, np.nan)
-    # no depth anywhere in the take for this hand: keep the raw prediction (translation 0), flagged
-    dt = np.where(detected[..., None] & ~np.isfinite(dt), 0.0, dt)
+    dt, valid_a, n_valid, no_depth, depth_outlier, anchors_used = _anchor_translation(X, P2, z, uv, detected, K, cfg)
     Xa = X + dt[:, :, None, :]
 
     # --- 3. scale correction from the 2D keypoints ---------------------------------------------
     scale = np.where(detected, 1.0, np.nan)
     if cfg.scale_correction != "none" and joints_px is not None:
-        va = valid_a[..., None]
-        centre = np.sum(np.where(va, Xa[:, :, anchors, :], 0.0), axis=2) / np.maximum(va.sum(axis=2), 1)
-        centre = np.where(va.any(axis=2), centre, np.nan)
-        centre = np.where(np.isfinite(centre), centre, Xa[:, :, anchors, :].mean(axis=2))
-        proj = project(Xa, K)
-        pa = proj - proj.mean(axis=2, keepdims=True)
-        qa = P2 - P2.mean(axis=2, keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c_f = np.sum(pa * qa, axis=(2, 3)) / np.sum(qa * qa, axis=(2, 3))
-        c_f = np.where(detected & np.isfinite(c_f) & (c_f > 0.5) & (c_f < 2.0), c_f, np.nan)
-        if cfg.scale_correction == "take":
-            med, cnt = nan_median(c_f.T, axis=-1)
-            c_use = np.where(cnt > 0, med, 1.0)[None, :].repeat(T, 0)
-        else:
-            c_use = _ffill_bfill(c_f[..., None], np.isfinite(c_f))[..., 0]
-            c_use = np.where(np.isfinite(c_use), c_use, 1.0)
-        c_use = np.where(detected, c_use, np.nan)
-        Xa = centre[:, :, None, :] + (Xa - centre[:, :, None, :]) / c_use[..., None, None]
-        Xa = np.where(detected[..., None, None], Xa, np.nan)
-        scale = c_use
+        Xa, scale = _scale_correction(Xa, P2, valid_a, detected, K, cfg)
 
     # --- 4. freeze and 5. fill ------------------------------------------------------------------
     frozen = freeze_outliers(Xa, detected, cfg.outlier_mse_threshold, cfg.max_freeze_frames)
