@@ -135,74 +135,15 @@ def hand_styles_for(seed: int) -> tuple[HandStyle, HandStyle]:
     return st, st
 
 
-def write_take(
-    out_dir: str | os.PathLike,
-    *,
-    task_name: str,
-    seed: int,
-    mirror: bool,
-    scene_xml: str,
-    object_names: Sequence[str],
-    keypoint_names: Sequence[str],
-    demo: Any,
-    styles: Sequence[HandStyle] | None = None,
-    depth_noise: bool = True,
-    video: bool = True,
-    blur_sigma: float = 0.6,
-    progress: Callable[[int, int], None] | None = None,
-    extra_meta: dict | None = None,
-    write_queue: int = 4,
-    hand_style: str = DEFAULT_HAND_STYLE,
-    hands: Sequence[str] = SIDES,
-) -> TakeSummary:
-    """Render ``demo`` in ``scene_xml`` and write the take layout (see the module docstring).
-
-    ``demo`` follows the task library's contract (fps, pinch_poses (T, 2, 4, 4), aperture (T, 2),
-    closed (T, 2), held_object (T, 2), object_poses (T, n, 4, 4), segments, keypoints()).
-    ``scene_xml`` must contain the free-joint bodies ``object_names``; the head camera and the hands
-    are added unless present. ``progress(done, total)`` is called after every frame written.
-    ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
-    (0: each frame is written before the next renders, the serial baseline of ``make bench``).
-    ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (demoforge.lib.synth.render.HAND_STYLES).
-    ``hands``: the hands in the picture; a hand left out is not drawn (its held object moves on its
-    own) and its ground truth is ``present = false`` in every frame (a one-hand recording).
-    """
+def _render_and_write(out: Path, renderer: SceneRenderer, joints: np.ndarray, obj_poses: np.ndarray,
+                      drawn: tuple[bool, ...], K: np.ndarray, T_wc: np.ndarray, fps: float,
+                      noise_rng: np.random.Generator | None, video: bool, write_queue: int,
+                      progress: Callable[[int, int], None] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render every frame and write its PNG, depth (noised with ``noise_rng`` when given) and video frame
+    on a writer thread; -> per frame and joint: visible (T, 2, 21), pixels (T, 2, 21, 2), camera (T, 2, 21, 3)."""
     import cv2
 
-    t_start = time.perf_counter()
-    out = Path(out_dir)
-    for sub in ("rgb", "depth", "ground_truth"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
-    styles = tuple(styles) if styles is not None else hand_styles_for(seed)
-    drawn = tuple(side in hands for side in SIDES)
-    if not any(drawn) or set(hands) - set(SIDES):
-        raise ValueError(f"hands must name one or both of {', '.join(SIDES)}, got {list(hands)}")
-    tid = take_id(task_name, seed, mirror)
-    fps = float(demo.fps)
-    pinch = np.asarray(demo.pinch_poses, float)
-    aperture = np.asarray(demo.aperture, float)
-    closed = np.asarray(demo.closed, bool)
-    held = np.asarray(demo.held_object)
-    obj_poses = np.asarray(demo.object_poses, float)
-    kp_world = np.asarray(demo.keypoints(), float)
-    n = pinch.shape[0]
-    frames = np.arange(n)
-    time_s = frames / fps
-
-    K = camera_K()
-    T_wc = camera_T_world_camera()
-    # Hands for every frame at once (vectorised): (T, 2, 21, 3).
-    joints = np.stack(
-        [hand_from_pinch(pinch[:, h], aperture[:, h], SIDES[h], styles[h])[0] for h in range(2)], axis=1
-    )
-
-    _write_json(out / "camera.json", {
-        "K": K, "width": WIDTH, "height": HEIGHT, "T_world_camera": T_wc, "fps": fps, "depth_unit": "m",
-    })
-
-    renderer = SceneRenderer(scene_xml, object_names, styles, T_world_camera=T_wc, blur_sigma=blur_sigma,
-                             hand_style=hand_style)
-    noise_rng = np.random.default_rng([int(seed), 11])
+    n = joints.shape[0]
     writer = None
     if video:
         writer = cv2.VideoWriter(str(out / "rgb.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps, (WIDTH, HEIGHT))
@@ -219,7 +160,7 @@ def write_take(
         if write_failed.is_set():
             return  # a frame before this one failed: write nothing after it (the take is abandoned)
         try:
-            depth = add_depth_noise(fr.depth, noise_rng) if depth_noise else fr.depth
+            depth = add_depth_noise(fr.depth, noise_rng) if noise_rng is not None else fr.depth
             bgr = np.ascontiguousarray(fr.rgb[..., ::-1])
             cv2.imwrite(str(out / "rgb" / f"{t:06d}.png"), bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
             np.save(out / "depth" / f"{t:06d}.npy", depth.astype(np.float32))
@@ -257,9 +198,22 @@ def write_take(
         renderer.close()
         if writer is not None:
             writer.release()
+    return visible, px, cam
 
-    # --- ground truth tables ------------------------------------------------------------------
-    gt = out / "ground_truth"
+
+def _write_ground_truth(gt: Path, tid: str, task_name: str, demo: Any, object_names: Sequence[str],
+                        joints: np.ndarray, cam: np.ndarray, px: np.ndarray, visible: np.ndarray,
+                        drawn: tuple[bool, ...], kp_world: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
+                        fps: float) -> dict[str, str]:
+    """The take's ground-truth tables (schemas/synthetic.py) under ``gt``; -> {table: file}."""
+    pinch = np.asarray(demo.pinch_poses, float)
+    aperture = np.asarray(demo.aperture, float)
+    closed = np.asarray(demo.closed, bool)
+    held = np.asarray(demo.held_object)
+    obj_poses = np.asarray(demo.object_poses, float)
+    n = pinch.shape[0]
+    frames = np.arange(n)
+    time_s = frames / fps
     inside = np.isfinite(px).all(-1) & (cam[..., 2] > 0) & (px[..., 0] >= -0.5) & (px[..., 0] < WIDTH - 0.5) \
         & (px[..., 1] >= -0.5) & (px[..., 1] < HEIGHT - 0.5) & np.asarray(drawn)[None, :, None]
     rows = n * 2
@@ -311,7 +265,78 @@ def write_take(
         "end": np.array([int(s.end) for s in segs], np.int32),
         "object": [_object_name(s.object, object_names) for s in segs],
     }, gt / "gt_segments.parquet").path
+    return files
 
+
+def write_take(
+    out_dir: str | os.PathLike,
+    *,
+    task_name: str,
+    seed: int,
+    mirror: bool,
+    scene_xml: str,
+    object_names: Sequence[str],
+    keypoint_names: Sequence[str],
+    demo: Any,
+    styles: Sequence[HandStyle] | None = None,
+    depth_noise: bool = True,
+    video: bool = True,
+    blur_sigma: float = 0.6,
+    progress: Callable[[int, int], None] | None = None,
+    extra_meta: dict | None = None,
+    write_queue: int = 4,
+    hand_style: str = DEFAULT_HAND_STYLE,
+    hands: Sequence[str] = SIDES,
+) -> TakeSummary:
+    """Render ``demo`` in ``scene_xml`` and write the take layout (see the module docstring).
+
+    ``demo`` follows the task library's contract (fps, pinch_poses (T, 2, 4, 4), aperture (T, 2),
+    closed (T, 2), held_object (T, 2), object_poses (T, n, 4, 4), segments, keypoints()).
+    ``scene_xml`` must contain the free-joint bodies ``object_names``; the head camera and the hands
+    are added unless present. ``progress(done, total)`` is called after every frame written.
+    ``write_queue``: rendered frames that may wait for the writer thread while the next frame renders
+    (0: each frame is written before the next renders, the serial baseline of ``make bench``).
+    ``hand_style``: "skin" (palm, forearm, sleeve) or "capsule" (demoforge.lib.synth.render.HAND_STYLES).
+    ``hands``: the hands in the picture; a hand left out is not drawn (its held object moves on its
+    own) and its ground truth is ``present = false`` in every frame (a one-hand recording).
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    for sub in ("rgb", "depth", "ground_truth"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    styles = tuple(styles) if styles is not None else hand_styles_for(seed)
+    drawn = tuple(side in hands for side in SIDES)
+    if not any(drawn) or set(hands) - set(SIDES):
+        raise ValueError(f"hands must name one or both of {', '.join(SIDES)}, got {list(hands)}")
+    tid = take_id(task_name, seed, mirror)
+    fps = float(demo.fps)
+    pinch = np.asarray(demo.pinch_poses, float)
+    aperture = np.asarray(demo.aperture, float)
+    closed = np.asarray(demo.closed, bool)
+    obj_poses = np.asarray(demo.object_poses, float)
+    kp_world = np.asarray(demo.keypoints(), float)
+    n = pinch.shape[0]
+
+    K = camera_K()
+    T_wc = camera_T_world_camera()
+    # Hands for every frame at once (vectorised): (T, 2, 21, 3).
+    joints = np.stack(
+        [hand_from_pinch(pinch[:, h], aperture[:, h], SIDES[h], styles[h])[0] for h in range(2)], axis=1
+    )
+
+    _write_json(out / "camera.json", {
+        "K": K, "width": WIDTH, "height": HEIGHT, "T_world_camera": T_wc, "fps": fps, "depth_unit": "m",
+    })
+
+    renderer = SceneRenderer(scene_xml, object_names, styles, T_world_camera=T_wc, blur_sigma=blur_sigma,
+                             hand_style=hand_style)
+    visible, px, cam = _render_and_write(out, renderer, joints, obj_poses, drawn, K, T_wc, fps,
+                                         np.random.default_rng([int(seed), 11]) if depth_noise else None,
+                                         video, write_queue, progress)
+
+    files = _write_ground_truth(out / "ground_truth", tid, task_name, demo, object_names, joints, cam, px, visible,
+                                drawn, kp_world, K, T_wc, fps)
+    kp_px, _ = project(kp_world, K, T_wc)
     _write_json(out / "annotations.json", {
         "object_keypoints_2d": {"frame": 0, "names": list(keypoint_names), "uv": kp_px[0]},
         "gripper_closed_ranges": {SIDES[h]: closed_ranges(closed[:, h]) for h in range(2)},
