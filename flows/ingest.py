@@ -10,9 +10,11 @@ import demoforge.lib  # noqa: F401
 from demoforge.lib.ingest.options import IngestOptions
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.ingest import (
-    align_keypoints, detect_hands, hand_presence, index_frames, ingest_metrics, map_grippers,
-    object_keypoints, overlay_video, take_media_key, take_task_name,
+    align_keypoints, detect_hands, hand_presence, index_frames, map_grippers, object_keypoints, take_media_key,
+    take_task_name,
 )
+from demoforge.tasks.ingest_drawing import overlay_video
+from demoforge.tasks.ingest_evaluation import ingest_metrics
 
 
 @flow(name="ingest-take")
@@ -113,7 +115,7 @@ def ingest_side_by_side(
     from demoforge.lib.takes import open_take
     from demoforge.lib.takes.sources import take_root
     from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.tasks.ingest import ingest_keypoint_metrics
+    from demoforge.tasks.ingest_evaluation import ingest_keypoint_metrics
     from demoforge.tasks.sim import demo_failure_row
 
     logger = get_run_logger()
