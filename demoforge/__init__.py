@@ -17,7 +17,7 @@ _checkout = _Path(__file__).resolve().parent.parent
 if (_checkout / "pyproject.toml").is_file() and (_checkout / "lib" / "__init__.py").is_file():
     __path__.append(str(_checkout))  # noqa: F821 (a package's __path__)
 
-# Other libraries' settings (Prefect: no telemetry, quiet logs) before any module imports them; the
+# Other libraries' settings (Prefect: no telemetry, quiet logs; MuJoCo: EGL) before any module imports them; the
 # user's environment wins (demoforge.lib.settings.LIBRARY_DEFAULTS).
 from demoforge.lib.settings import apply_library_defaults as _apply_library_defaults  # noqa: E402
 

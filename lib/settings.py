@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, MutableMapping
 
-__all__ = ["PREFIX", "VARIABLES", "RENAMED", "LIBRARY_DEFAULTS", "Settings", "read_settings", "adopt_old_names",
-           "apply_library_defaults"]
+__all__ = ["PREFIX", "VARIABLES", "OTHER_VARIABLES", "RENAMED", "LIBRARY_DEFAULTS", "Settings", "read_settings",
+           "adopt_old_names", "apply_library_defaults", "variables_table"]
 
 PREFIX = "DEMOFORGE_"
 
@@ -63,6 +63,13 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_POLICY_TRIALS": "scenes per kind the learned policy is judged on",
 }
 
+#: Other ecosystems' names demoforge reads, because users already set them for other tools.
+OTHER_VARIABLES: dict[str, str] = {
+    "OPENAI_BASE_URL": "the OpenAI-compatible server of the openai LLM backend",
+    "OPENAI_API_KEY": "its key (never written to a file, a log or a repr)",
+    "XDG_CACHE_HOME": "the user's cache folder (where the digest cache goes unless DEMOFORGE_DIGEST_CACHE is set)",
+}
+
 #: Other libraries' variables demoforge sets when the user has not: Prefect reads its settings when it
 #: is imported, so ``demoforge/__init__.py`` applies them before any module can import it.
 LIBRARY_DEFAULTS: dict[str, str] = {
@@ -75,6 +82,8 @@ LIBRARY_DEFAULTS: dict[str, str] = {
     "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "180",
     # demoforge prints its own progress and warnings (one line each); Prefect's INFO lines are noise
     "PREFECT_LOGGING_LEVEL": "WARNING",
+    # MuJoCo picks its OpenGL backend when it is imported; a headless machine needs EGL (PyOpenGL follows it)
+    "MUJOCO_GL": "egl",
 }
 
 #: the names of the previous release, read for one more release
@@ -113,6 +122,7 @@ def apply_library_defaults(environ: MutableMapping[str, str] | None = None) -> N
     env = os.environ if environ is None else environ
     for name, value in LIBRARY_DEFAULTS.items():
         env.setdefault(name, value)
+    env.setdefault("PYOPENGL_PLATFORM", env["MUJOCO_GL"])
 
 
 def _path(env: Mapping[str, str], name: str) -> Path | None:
@@ -137,6 +147,7 @@ class Settings:
     llm_model: str | None = None
     openai_base_url: str | None = None
     openai_api_key: str | None = None
+    cache_home: Path | None = None
 
     def __repr__(self) -> str:  # never print a key
         key = "set" if self.openai_api_key else None
@@ -153,10 +164,10 @@ class Settings:
 def digest_cache_dir() -> Path:
     """Where file digests and recordings' frame indexes are remembered across processes
     ($DEMOFORGE_DIGEST_CACHE, else $XDG_CACHE_HOME/demoforge/digests or ~/.cache/demoforge/digests)."""
-    configured = read_settings().digest_cache
-    if configured:
-        return configured
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "demoforge" / "digests"
+    settings = read_settings()
+    if settings.digest_cache:
+        return settings.digest_cache
+    return (settings.cache_home or Path.home() / ".cache") / "demoforge" / "digests"
 
 
 def read_settings(environ: Mapping[str, str] | None = None) -> Settings:
@@ -176,4 +187,16 @@ def read_settings(environ: Mapping[str, str] | None = None) -> Settings:
         llm_model=env.get("DEMOFORGE_LLM_MODEL") or None,
         openai_base_url=env.get("OPENAI_BASE_URL") or None,
         openai_api_key=env.get("OPENAI_API_KEY") or None,
+        cache_home=_path(env, "XDG_CACHE_HOME"),
     )
+
+
+def variables_table() -> str:
+    """The Markdown table of every environment variable demoforge reads or sets (docs/settings.md)."""
+    lines = ["| variable | what it sets |", "|---|---|"]
+    lines += [f"| `{name}` | {doc} |" for name, doc in VARIABLES.items()]
+    lines += [f"| `{name}` | {doc} |" for name, doc in OTHER_VARIABLES.items()]
+    lines += [f"| `{name}` | set to `{value}` unless you set it (another library's setting) |"
+              for name, value in LIBRARY_DEFAULTS.items()]
+    lines.append("| `PYOPENGL_PLATFORM` | set to `MUJOCO_GL`'s value unless you set it |")
+    return "\n".join(lines) + "\n"

@@ -92,3 +92,25 @@ def test_prefect_gets_the_library_defaults_whichever_module_imports_it_first():
     mine = {"PREFECT_LOGGING_LEVEL": "INFO"}
     apply_library_defaults(mine)
     assert mine["PREFECT_LOGGING_LEVEL"] == "INFO" and mine["PREFECT_SERVER_ANALYTICS_ENABLED"] == "false"
+
+
+def test_the_docs_table_lists_every_variable_the_settings_know():
+    from demoforge.lib.settings import variables_table
+
+    assert variables_table() in (ROOT / "docs" / "settings.md").read_text()
+
+
+def test_no_module_but_the_settings_reads_an_environment_variable_except_prefects():
+    """One reader: a variable read elsewhere is missing from Settings and from docs/settings.md."""
+    import re
+
+    read = re.compile(r"""(?:environ(?:\.get|\.setdefault|\.pop)?\s*[\[(]|getenv\()\s*["']([A-Za-z0-9_]+)["']""")
+    found = {}
+    for folder in ("lib", "tasks", "flows", "schemas", "demoforge"):
+        for path in (ROOT / folder).rglob("*.py"):
+            if path == ROOT / "lib" / "settings.py":
+                continue
+            for name in read.findall(path.read_text()):
+                if not name.startswith("PREFECT_"):
+                    found.setdefault(name, []).append(str(path.relative_to(ROOT)))
+    assert found == {}
