@@ -143,7 +143,7 @@ class OpenAIBackend(LLMBackend):
             body["prompt"] = getattr(prompt, "text", None) or str(prompt)
             path = "/completions"
         if sampling.structured and self.structured_supported is not False:
-            from demoforge.lib.llm.base import grammar
+            from demoforge.lib.llm import grammar
 
             if self.mode == "chat":
                 body["response_format"] = grammar.response_format(grammar.answer_rows(prompt))
