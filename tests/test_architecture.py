@@ -200,3 +200,23 @@ def test_no_function_is_over_120_lines():
             if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.end_lineno - n.lineno + 1 > MAX_FUNCTION_LINES:
                 long[f"{name}.{n.name}"] = n.end_lineno - n.lineno + 1
     assert not long, f"functions over {MAX_FUNCTION_LINES} lines: {long}"
+
+
+def test_every_demoforge_import_resolves_statically_in_the_checkout():
+    """What mypy, pyright and an editor's go-to-definition see: mypy's own module finder, on the checkout
+    as a source root, finds the file of every ``demoforge.*`` module that the package, the tests and the
+    scripts import (no run-time search-path hook: demoforge/lib, /tasks, /flows, /schemas are folders)."""
+    from mypy.modulefinder import FindModuleCache, ModuleNotFoundReason, SearchPaths
+    from mypy.options import Options
+
+    names = set()
+    for folder in ("demoforge", "tests", "scripts"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for n in _import_nodes(ast.parse(path.read_text())):
+                if isinstance(n, ast.Import):
+                    names |= {a.name for a in n.names if a.name.split(".")[0] == "demoforge"}
+                elif n.module and not n.level and n.module.split(".")[0] == "demoforge":
+                    names.add(n.module)
+    finder = FindModuleCache(SearchPaths((str(ROOT),), (), (), ()), None, Options())
+    unresolved = sorted(m for m in names if isinstance(finder.find_module(m), ModuleNotFoundReason))
+    assert len(names) > 100 and unresolved == []
