@@ -7,7 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from demoforge.bench.run import CASE_FACTORIES, run_benchmarks
+from demoforge.bench.registry import CASE_FACTORIES
+from demoforge.bench.run import run_benchmarks
 from demoforge.bench.timing import BenchCase, run_case
 from demoforge.schemas.catalog import query
 
@@ -88,7 +89,7 @@ def test_bench_flow_refuses_an_unknown_stage(prefect_api, warehouse):
 def test_the_cases_scratch_files_are_removed_when_the_process_ends(tmp_path):
     scratch = tmp_path / "tmpdir"
     scratch.mkdir()
-    code = ("import pathlib, sys; from demoforge.bench.run import CASE_FACTORIES; "
+    code = ("import pathlib, sys; from demoforge.bench.registry import CASE_FACTORIES; "
             "from demoforge.bench.timing import run_case; [run_case(c) for c in CASE_FACTORIES['warehouse'](True)]; "
             "print(sum(p.is_file() for p in pathlib.Path(sys.argv[1]).rglob('*.parquet')))")
     r = subprocess.run([sys.executable, "-c", code, str(scratch)], capture_output=True, text=True,
@@ -103,3 +104,18 @@ def test_the_help_names_every_registered_stage():
 
     assert sorted(STAGES) == sorted(CASE_FACTORIES)
     assert "llm" in CASE_FACTORIES
+
+
+def test_every_stage_has_its_cases_in_a_module_of_its_own_and_run_py_holds_none():
+    import ast
+    from pathlib import Path
+
+    from demoforge.bench.registry import CASE_MODULES
+
+    bench = Path(__file__).resolve().parents[1] / "demoforge" / "bench"
+    for stage, module in CASE_MODULES.items():
+        tree = ast.parse((bench / f"{module}.py").read_text())
+        assert any(isinstance(n, ast.FunctionDef) and n.name == "cases" for n in tree.body), (stage, module)
+    calls = [n for n in ast.walk(ast.parse((bench / "run.py").read_text()))
+             if isinstance(n, ast.Call) and getattr(n.func, "id", None) == "BenchCase"]
+    assert calls == []

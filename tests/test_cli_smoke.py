@@ -87,7 +87,7 @@ def test_commands_on_an_episode_database(prefect_api, ingested_warehouse, trash_
 
 
 def test_tables_catalog_sql_and_bench(prefect_api, warehouse):
-    from demoforge.bench.run import CASE_FACTORIES
+    from demoforge.bench.registry import CASE_FACTORIES
 
     r = _run("bench", "--stage", "warehouse", "--quick")
     rows = query("SELECT stage, case_name, seconds, baseline_seconds, ratio FROM benchmarks", warehouse).to_pylist()

@@ -1,10 +1,14 @@
-"""Benchmark cases for augmentation and retrieval (registered by the lead in demoforge/bench/run.py)."""
+"""Benchmark cases for augmentation and retrieval (registered in demoforge/bench/registry.py)."""
 
 from __future__ import annotations
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.scratch import folder_removed_at_exit
+from demoforge.schemas.core import write_table
 
 
 def _source():
@@ -74,4 +78,37 @@ def cases(quick: bool) -> list[BenchCase]:
         out.append(BenchCase("retrieval", f"top-3 keypoint MSE over 1M episodes ({n_q} queries)", 1_000_000,
                              "episodes", "Python loop over episodes, sorted", ret_setup(1_000_000, n_q), ret_check,
                              repeats=2, baseline_size=10_000))
+    out.append(_episode_steps_write_case(quick))
     return out
+
+
+def _episode_steps_write_case(quick: bool) -> BenchCase:
+    """Writing the episode_steps table of 10k episodes: validated and atomic, against row-by-row Python."""
+    n = 2_000 if quick else 10_000
+
+    def write_setup(k: int):
+        from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+        from demoforge.lib.task_library import get_task
+        from demoforge.tasks.augment import episode_steps_columns
+
+        task = get_task("empty_vase")
+        batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1,
+                                  n_mirrored=(k - 1) // 2, seed=0, materialize=True)
+        tmp = folder_removed_at_exit("demoforge-bench-")
+
+        def fast():
+            return write_table("episode_steps", episode_steps_columns("empty_vase", "bench", batch), tmp)[0].rows
+
+        def baseline():  # one Python row per step, then pyarrow and Parquet
+            rows = [{"task": "empty_vase", "take": "bench", "episode_id": int(e), "step": s,
+                     "action": batch.actions[e, s].astype(np.float32).tolist()}
+                    for e in range(len(batch)) for s in range(int(batch.lengths[e]))]
+            (tmp / "base").mkdir(exist_ok=True)
+            pq.write_table(pa.Table.from_pylist(rows), tmp / "base" / "data.parquet")
+            return len(rows)
+
+        return fast, baseline
+
+    return BenchCase("augmentation", "write episode_steps of 10k episodes (validated, atomic)", n + 1 if not quick else n,
+                         "episodes", "one Python dict per step -> pyarrow -> Parquet", write_setup,
+                         repeats=1, baseline_size=200)

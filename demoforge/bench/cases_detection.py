@@ -1,4 +1,4 @@
-"""Benchmark cases of hand detection (registered in demoforge/bench/run.py as stage "detection").
+"""Benchmark cases of hand detection (registered in demoforge/bench/registry.py).
 
 MediaPipe's hand landmarker on 640x480 frames of the default pouring take (skin look, rendered
 here, untimed): video mode (palm detection only when a hand is lost, landmark tracking otherwise;

@@ -1,4 +1,4 @@
-"""Benchmark cases of the exports (to be registered in demoforge/bench/run.py as stage `exports`)."""
+"""Benchmark cases of the exports (registered in demoforge/bench/registry.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Benchmark cases of the torch HaMeR (demoforge.lib.perception.hamer): frames/s against batch size (registered in demoforge/bench/run.py).
+"""Benchmark cases of the torch HaMeR (demoforge.lib.perception.hamer): frames/s against batch size (registered in demoforge/bench/registry.py).
 
 Throughput depends on the architecture, not on the weights, so the cases use random weights in the
 released key layout and the synthetic MANO model: no licensed file is needed. On CUDA the network

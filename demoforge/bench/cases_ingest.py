@@ -1,4 +1,4 @@
-"""Benchmark cases of the ingest stage after detection (registered in demoforge/bench/run.py)."""
+"""Benchmark cases of the ingest stage after detection (registered in demoforge/bench/registry.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Benchmark cases of the embedded LLM (registered in demoforge/bench/run.py as stage "llm").
+"""Benchmark cases of the embedded LLM (registered in demoforge/bench/registry.py).
 
 trial   fast     = one Table 3 "3 Retrieved" trial's prompt and greedy structured answer with the local
                    backend's fast decoder (demoforge.lib.llm.structured_decoding) on the reduced-
