@@ -18,19 +18,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.test_architecture import MODULES, _folder, _imports  # noqa: E402
+from tests.import_graph import find_modules, imported, room  # noqa: E402
 
 SHELL = ("demoforge.cli", "demoforge.runtime", "demoforge.bench")
 LAYER_ROWS = [("command line", ["demoforge.cli"]), ("application shell", ["demoforge.runtime", "demoforge.bench"]),
               ("flows/", ["demoforge.flows"]), ("tasks/", ["demoforge.tasks"]), ("schemas/", ["demoforge.schemas"])]
 
 
+MODULES = find_modules(ROOT)
+
+
 def room_edges() -> dict[str, dict[str, int]]:
     """{room: {room it imports: number of module-to-module imports}}."""
     edges: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for m, p in MODULES.items():
-        for t in _imports(m, p):
-            a, b = _folder(m), _folder(t)
+        for t in {t for t, _, _ in imported(m, p, MODULES)}:
+            a, b = room(m), room(t)
             if a != b:
                 edges[a][b] += 1
     return edges
@@ -38,7 +41,7 @@ def room_edges() -> dict[str, dict[str, int]]:
 
 def lib_rows(edges: dict[str, dict[str, int]]) -> list[list[str]]:
     """lib's rooms by depth: a room sits one row above the deepest room it imports (the graph has no loop)."""
-    rooms = sorted({_folder(m) for m in MODULES if m.startswith("demoforge.lib.")} | {"demoforge.lib"})
+    rooms = sorted({room(m) for m in MODULES if m.startswith("demoforge.lib.")} | {"demoforge.lib"})
     depth: dict[str, int] = {}
 
     def level(r: str) -> int:

@@ -1,53 +1,19 @@
-"""The layers of docs/architecture.md, checked on the source: no import cycles, no import back up a
-layer, Prefect stages only in tasks/."""
+"""The layers of docs/architecture.md, checked on the source (tests/import_graph.py reads it): no import
+loop between modules or rooms (imports inside functions count), no private name taken from another room,
+no import back up a layer, Prefect stages only in tasks/, no module over 600 lines nor function over 120,
+every demoforge import resolvable by static tools."""
 
 import ast
 from pathlib import Path
 
+from tests.import_graph import cycles, find_modules, import_nodes, imported, room
+
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = {"demoforge": ROOT / "demoforge", "lib": ROOT / "lib", "tasks": ROOT / "tasks", "flows": ROOT / "flows",
-           "schemas": ROOT / "schemas"}
-
-
-def _modules() -> dict[str, Path]:
-    out = {}
-    for top, folder in FOLDERS.items():
-        for p in sorted(folder.rglob("*.py")):
-            parts = list(p.relative_to(folder).with_suffix("").parts)
-            if parts[-1] == "__init__":
-                parts = parts[:-1]
-            prefix = ["demoforge"] if top == "demoforge" else ["demoforge", top]
-            out[".".join(prefix + parts)] = p
-    return out
-
-
-MODULES = _modules()
-
-
-def _import_nodes(tree: ast.Module):
-    """Every import statement of a module: at module level, under ``if``/``try``, ``TYPE_CHECKING``, and
-    inside functions (a lazy import is an import: it ties the modules together all the same)."""
-    return [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))]
+MODULES = find_modules(ROOT)
 
 
 def _imported(name: str, path: Path) -> list[tuple[str, str | None, int]]:
-    """(module of the package, name taken from it or None, line) for every import in ``name``'s file."""
-    tree = ast.parse(path.read_text())
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    out = []
-    for n in _import_nodes(tree):
-        if isinstance(n, ast.Import):
-            targets = [(a.name, None) for a in n.names]
-        else:
-            base = n.module or ""
-            if n.level:
-                up = package.split(".")[: len(package.split(".")) - (n.level - 1)]
-                base = ".".join(up + ([n.module] if n.module else []))
-            # `from a.b import c`: module a.b.c when c is one, else name c of module a.b
-            targets = [(f"{base}.{a.name}", None) if f"{base}.{a.name}" in MODULES else (base, a.name)
-                       for a in n.names]
-        out += [(t, what, n.lineno) for t, what in targets if t in MODULES and t != name]
-    return out
+    return imported(name, path, MODULES)
 
 
 def _imports(name: str, path: Path, module_level_only: bool = False) -> set[str]:
@@ -58,66 +24,25 @@ def _imports(name: str, path: Path, module_level_only: bool = False) -> set[str]
     return {t for t, _, line in _imported(name, path) if line in top}
 
 
-def _folder(module: str) -> str:
-    """The room a module lives in: lib's subfolders one by one (lib.takes, lib.sim, ...), else the layer."""
-    parts = module.split(".")
-    return ".".join(parts[:3]) if len(parts) > 2 and parts[1] == "lib" else ".".join(parts[:2])
-
-
-def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
-    """The strongly connected components of more than one node (Tarjan), each sorted."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on: set[str] = set()
-    cycles: list[list[str]] = []
-
-    def visit(v):
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in sorted(edges.get(v, ())):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                cycles.append(sorted(comp))
-
-    for v in sorted(edges):
-        if v not in index:
-            visit(v)
-    return cycles
-
-
 def _module_edges() -> dict[str, set[str]]:
     return {m: _imports(m, p) for m, p in MODULES.items()}
 
 
 def test_no_import_loop_between_modules_counting_imports_inside_functions():
-    assert _cycles(_module_edges()) == []
+    assert cycles(_module_edges()) == []
 
 
 def test_no_import_loop_between_folders():
     edges: dict[str, set[str]] = {}
     for m, targets in _module_edges().items():
-        edges.setdefault(_folder(m), set()).update(_folder(t) for t in targets if _folder(t) != _folder(m))
-    assert _cycles(edges) == []
+        edges.setdefault(room(m), set()).update(room(t) for t in targets if room(t) != room(m))
+    assert cycles(edges) == []
 
 
-def test_no_private_name_is_imported_from_another_folder():
+def test_no_private_name_is_imported_from_another_room():
     """A leading underscore says "this file's business": another room that needs it needs a public name."""
     leaks = [f"{m}:{line} takes {what} from {t}" for m, p in MODULES.items() for t, what, line in _imported(m, p)
-             if what and what.startswith("_") and not what.startswith("__") and _folder(t) != _folder(m)]
+             if what and what.startswith("_") and not what.startswith("__") and room(t) != room(m)]
     assert leaks == []
 
 
@@ -212,7 +137,7 @@ def test_every_demoforge_import_resolves_statically_in_the_checkout():
     names = set()
     for folder in ("demoforge", "tests", "scripts"):
         for path in sorted((ROOT / folder).rglob("*.py")):
-            for n in _import_nodes(ast.parse(path.read_text())):
+            for n in import_nodes(ast.parse(path.read_text())):
                 if isinstance(n, ast.Import):
                     names |= {a.name for a in n.names if a.name.split(".")[0] == "demoforge"}
                 elif n.module and not n.level and n.module.split(".")[0] == "demoforge":
