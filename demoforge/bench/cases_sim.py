@@ -62,7 +62,7 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
 
     opt = sim_options or options()[0]
     eps = _episodes(task_name, episodes, frames)
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     execute(task_name, *eps[0], options=opt)  # warm caches outside the measurement
     T = mujoco.mjtTimer
     acc = dict.fromkeys(("wall", "physics", "collision", "constraint_make", "solver", "steps"), 0.0)

@@ -32,7 +32,7 @@ def render_episode(task_name: str, object_poses, actions, out_mp4, fps: float = 
         writer.write(frame)
         writer.release()
         return res
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     m = sc.model
     d = mujoco.MjData(m)  # separate data: the scene's own data belongs to the executor
     cam = mujoco.MjvCamera()
@@ -93,7 +93,7 @@ def episode_frames(task_name: str, object_keypoints, actions, K: np.ndarray, T_w
     states, res = _resimulate_states(task_name, object_keypoints, actions, fps, opt)
     if res.failure == "invalid_action" or not states:
         raise ValueError(f"cannot render the episode: {res.detail}")
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     m = sc.model
     d = mujoco.MjData(m)
     with mujoco.Renderer(m, height=height, width=width) as r:
