@@ -13,7 +13,8 @@ from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
-from demoforge.cli.root import current_warehouse, fail, number_format_option, structured_option
+from demoforge.cli.root import (current_warehouse, fail, gripper_option, number_format_option, robot_choice,
+                                robot_option, structured_option)
 
 app = typer.Typer()
 
@@ -206,24 +207,33 @@ def simulate(
     workers: int = typer.Option(2, min=1, help="Worker processes."),
     chunk_size: int = typer.Option(100, min=1, help="Episodes per cached chunk (a crash loses at most one chunk)."),
     seed: int = typer.Option(0, help="Seed of the episode sample."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
-    """Execute episodes with two parallel-jaw grippers in MuJoCo physics and record success and failure reasons."""
+    """Execute episodes with a robot in MuJoCo physics and record success and failure reasons.
+
+    --robot grippers (the default): two free-floating parallel-jaw grippers; --robot aloha: two ViperX
+    300 arms through inverse kinematics, which also fail episodes they cannot reach (`unreachable`,
+    `joint_limit`) or whose arm links hit the table, an object or the other arm (`link_collision`)."""
     from demoforge.flows.sim import simulate_episodes
 
+    robot, gripper = robot_choice(robot, gripper)
     n = _episodes_option(episodes)
     try:
         run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
-                          workers=workers, seed=seed)
+                 workers=workers, seed=seed, robot=robot, gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
 
     wh = current_warehouse()
-    result = query("SELECT * FROM report_sim WHERE task = ?", wh, [task])
+    result = query("SELECT * EXCLUDE (robot, gripper) FROM report_sim WHERE task = ? AND robot = ? AND gripper = ?",
+                   wh, [task, robot, gripper])
     _emit(result, OutputFormat.table, None, 40)
     if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
-        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}'\". Whether a "
-                   f"failure is the trajectory's or chance: demoforge stability --task {task}")
+        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}' AND robot = '{robot}'\"."
+                   f" Whether a failure is the trajectory's or chance: demoforge stability --task {task}"
+                   + (f" --robot {robot}" if robot != "grippers" else ""))
 
 
 @app.command()
@@ -237,21 +247,25 @@ def stability(
     workers: int = typer.Option(2, min=1, help="Worker processes."),
     chunk_size: int = typer.Option(20, min=1, help="Episodes per cached chunk (each executed `repeats` times)."),
     seed: int = typer.Option(0, help="Seed of the episode sample and of the shifts."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Check how stable the robot check's verdicts are: execute each episode several times with the whole
     scene shifted by a fraction of a millimetre. An episode whose outcome flips is decided by numerical chaos, not by its
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
     from demoforge.flows.sim import check_stability
 
+    robot, gripper = robot_choice(robot, gripper)
     n = _episodes_option(episodes)
     try:
         run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
-                 take=take, chunk_size=chunk_size, workers=workers, seed=seed)
+                 take=take, chunk_size=chunk_size, workers=workers, seed=seed, robot=robot, gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
 
-    _emit(query("SELECT * FROM report_sim_stability WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)
+    _emit(query("SELECT * FROM report_sim_stability WHERE task = ? AND robot = ? AND gripper = ?", current_warehouse(),
+                [task, robot, gripper]), OutputFormat.table, None, 40)
 
 
 @app.command("render-episode")
@@ -260,12 +274,16 @@ def render_episode_cmd(
     episode: int = typer.Option(..., "--episode", "-e", help="Episode id (see the `episodes` table)."),
     out: Path = typer.Option(Path("episode.mp4"), "--out", "-o", help="Output MP4."),
     take: Optional[str] = typer.Option(None, help="Episode database (source take)."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Render an offscreen video of the robot executing one episode."""
     from demoforge.flows.sim import render_episode_video
 
+    robot, gripper = robot_choice(robot, gripper)
     try:
-        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take)
+        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take, robot=robot,
+                                   gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")

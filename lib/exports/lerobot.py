@@ -18,6 +18,10 @@ one step later (the last step of an episode holds its pose), each a flat float32
 (2, 8) pose array of docs/architecture.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
 right_gripper`` (policies read a 1-D state; the names keep the 2 x 8 structure recoverable).
 Quaternions are scalar-last ``qx, qy, qz, qw``; gripper 1 = open, 0 = closed; world (table) frame, m.
+In joint space (``joint_state`` given: an arm robot's export) both are instead the robot's joint values
+per step, named by ``state_names``: for the ALOHA arms 14 float32, ``left_waist .. left_wrist_rotate,
+left_gripper, right_...`` (rad; the gripper's normalized opening, 1 open, 0 closed), as the ALOHA
+datasets name them, with ``robot_type`` ``aloha``.
 ``observation.environment_state`` (when given) = the 11 object keypoints of the step, flattened to
 33 float32 named ``<keypoint>_x, _y, _z`` (lib/exports/object_state.py says how they move).
 ``observation.images.<camera>`` (when given) = a video feature: RGB frames in mp4 files.
@@ -92,10 +96,12 @@ class VideoSource:
 
 
 def features(environment_names: list[str] | None = None, provenance: bool = False,
-             videos: dict[str, dict] | None = None) -> dict:
+             videos: dict[str, dict] | None = None, state_names: list[str] | None = None) -> dict:
     """The `features` of info.json: dtype, shape and names of every column of the data files (and
-    of every video, whose ``info`` holds the stream's codec, size and rate)."""
-    vec = {"dtype": "float32", "shape": [len(POSE16_NAMES)], "names": list(POSE16_NAMES)}
+    of every video, whose ``info`` holds the stream's codec, size and rate). ``state_names``: the
+    state's and action's names (default: the two grippers' 16 pose values)."""
+    names = list(state_names) if state_names is not None else list(POSE16_NAMES)
+    vec = {"dtype": "float32", "shape": [len(names)], "names": names}
     out = {"observation.state": dict(vec), "action": dict(vec)}
     if environment_names is not None:
         out[ENV_STATE] = {"dtype": "float32", "shape": [len(environment_names)], "names": list(environment_names)}
@@ -114,14 +120,16 @@ def keypoint_feature_names(keypoint_names: Iterable[str]) -> list[str]:
 
 
 def _frame_columns(poses: np.ndarray, lengths: np.ndarray, task_of_episode: np.ndarray, fps: float,
-                   environment_state: np.ndarray | None, provenance: dict | None) -> dict:
+                   environment_state: np.ndarray | None, provenance: dict | None,
+                   joint_state: np.ndarray | None = None) -> dict:
     """Every frame's columns as numpy arrays: state, action, (environment state,) index columns and
-    (the per-frame provenance)."""
+    (the per-frame provenance). The state is the poses flattened, or ``joint_state`` (F, D) if given."""
     frame_index = frame_in_episode(lengths)
     episode_index = np.repeat(np.arange(len(lengths), dtype=np.int64), lengths)
+    state = poses.reshape(len(poses), 16) if joint_state is None else joint_state
     cols = {
-        "observation.state": poses.reshape(len(poses), 16).astype(np.float32),
-        "action": next_poses(poses, lengths).reshape(len(poses), 16).astype(np.float32),
+        "observation.state": state.astype(np.float32),
+        "action": next_poses(state, lengths).astype(np.float32),
     }
     if environment_state is not None:
         cols[ENV_STATE] = environment_state.reshape(len(poses), -1).astype(np.float32)
@@ -238,6 +246,8 @@ def write_lerobot_dataset(
     source: dict | None = None,
     environment_state: np.ndarray | None = None,
     environment_names: list[str] | None = None,
+    joint_state: np.ndarray | None = None,
+    state_names: list[str] | None = None,
     videos: list[VideoSource] | None = None,
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
     video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
@@ -251,11 +261,20 @@ def write_lerobot_dataset(
     task_of_episode: (N,) index into ``tasks`` (default all 0). provenance: per-episode arrays
     ``take``, ``episode_id``, ``kind`` (and ``valid``): ``demoforge/*`` columns of the episodes
     table, and ``demoforge.take / .episode_id / .kind`` in every data row when all three are given.
-    environment_state: (F, E) per frame, named by ``environment_names`` (E); videos: cameras whose
-    frames become ``observation.images.<key>``. source: JSON-able description of the export,
-    written to meta/demoforge.json.
+    environment_state: (F, E) per frame, named by ``environment_names`` (E); joint_state: (F, D) the
+    robot's joint values per frame, named by ``state_names`` (D), which then are the state and action
+    instead of the poses; videos: cameras whose frames become ``observation.images.<key>``. source:
+    JSON-able description of the export, written to meta/demoforge.json.
     """
     poses, lengths = check_episodes(poses, lengths)
+    if joint_state is not None:
+        joint_state = np.asarray(joint_state)
+        if joint_state.ndim != 2 or len(joint_state) != len(poses) or state_names is None \
+                or joint_state.shape[1] != len(state_names):
+            raise ExportError(f"joint_state must have one row of len(state_names) values per frame ({len(poses)}), "
+                              f"got {joint_state.shape}")
+        if not np.isfinite(joint_state).all():
+            raise ExportError("joint_state contains NaN or inf")
     n = len(lengths)
     if not tasks or len(set(tasks)) != len(tasks):
         raise ExportError(f"tasks must be a non-empty list of distinct task texts, got {tasks!r}")
@@ -281,8 +300,10 @@ def write_lerobot_dataset(
     if len({v.key for v in videos}) != len(videos):
         raise ExportError("video keys must be distinct")
 
-    cols = _frame_columns(poses, lengths, task_of_episode, fps, environment_state, row_provenance)
-    feats = features(environment_names if environment_state is not None else None, row_provenance is not None)
+    cols = _frame_columns(poses, lengths, task_of_episode, fps, environment_state, row_provenance, joint_state)
+    names = state_names if joint_state is not None else None
+    feats = features(environment_names if environment_state is not None else None, row_provenance is not None,
+                     state_names=names)
     bytes_per_frame = sum(np.asarray(v[:1]).nbytes if v.dtype != object and v.dtype.kind != "U" else 32
                           for v in cols.values())
     file_of = _file_plan(lengths, data_files_size_in_mb, chunks_size, bytes_per_frame)
@@ -319,7 +340,7 @@ def write_lerobot_dataset(
             video_feats[IMAGE_PREFIX + src.key] = vinfo
         if video_feats:  # video features go before the index columns, as LeRobot lists them
             feats = features(environment_names if environment_state is not None else None,
-                             row_provenance is not None, video_feats)
+                             row_provenance is not None, video_feats, state_names=names)
         for name, st in ep_stats.items():
             for k in STAT_KEYS:
                 v = st[k].astype(np.int64) if k == "count" else st[k]

@@ -40,7 +40,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
 
 from .failures import FAILURES, classify
-from .robots import Robot
+from .robots import PlanEvent, Robot
 from .robots.base import as_index as _as_index
 from .robots.grippers import GrippersRobot
 from .scene import PAIR_ARMS, PAIR_LINK, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
@@ -375,6 +375,7 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     m.opt.timestep = 1.0 / (fps * sch.steps_per_frame)
     cpf, steps_per_frame, sub_l = sch.cpf, sch.steps_per_frame, sch.sub
     plan = sc.binding.plan(sc, actions, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps)
+    plan_events = sorted(plan.events + _stroke_events(sc, obj0, sch, fps), key=lambda e: e.frame)
     fc = _FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
     pose0 = np.concatenate([sch.pos[0], sch.quat[0]], axis=-1)
     sc.reset(obj0, pose0, np.where(sch.closed_cmd[0], 0.0, spec.opening), plan)
@@ -385,7 +386,7 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         steps += pre
 
     T = n + sch.settle_frames
-    rec = _Records(sc, T, opt, plan.first_failure_frame)
+    rec = _Records(sc, T, opt, min((e.frame for e in plan_events), default=None))
     hist, gp = rec.hist, rec.gp
     obj_body = sc.obj_body
     fq = sc.finger_qadr
@@ -442,10 +443,37 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
                 if rest >= opt.rest_frames and i < T - 1:
                     settled = i
                     break
-    return _finish(sc, opt, fps, n, sch, plan, rec, stop, settled, steps, t_wall)
+    return _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, t_wall)
 
 
-def _finish(sc, opt, fps, n, sch, plan, rec, stop, settled, steps, t_wall) -> SimResult:
+def _stroke_events(sc: SimScene, obj0: np.ndarray, sch: _Schedule, fps: float) -> list[PlanEvent]:
+    """`wider_than_stroke` where a hand closes on an object it cannot open around: the object nearest
+    (by its keypoints at the episode's start) to where the hand closes, whose grasp width is not less
+    than the hand's opening. Objects narrower than the opening (every object for the 2F-140): none."""
+    opening = sc.spec.opening
+    widths = sc.task.grasp_widths
+    if (widths < opening).all():
+        return []
+    kp = sc.task.keypoints_world(obj0)
+    owner = sc.task.keypoint_object
+    closed = sch.closed_cmd
+    n = len(closed)
+    lead = int(round(sc.spec.close_lead_s * fps))
+    events = []
+    for arm in range(2):
+        onsets = np.flatnonzero(np.concatenate([closed[:1, arm], closed[1:, arm] & ~closed[:-1, arm]]))
+        for o in onsets.tolist():
+            at = sch.pos[min(o + lead, n - 1), arm]  # where the hand is when g switches to closed
+            k = int(owner[np.argmin(np.linalg.norm(kp - at, axis=1))])
+            if widths[k] >= opening:
+                events.append(PlanEvent(o, "wider_than_stroke",
+                                        f"arm {arm} closes on the {sc.task.object_names[k]} at t = {o / fps:.2f} s: "
+                                        f"it is {widths[k] * 1000:.0f} mm wide where grasped, the hand opens "
+                                        f"{opening * 1000:.0f} mm"))
+    return events
+
+
+def _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, t_wall) -> SimResult:
     """The predicate (unless a hard failure stopped the simulation) and the verdict."""
     m, d = sc.model, sc.data
     closed_cmd = sch.closed_cmd
@@ -462,7 +490,7 @@ def _finish(sc, opt, fps, n, sch, plan, rec, stop, settled, steps, t_wall) -> Si
         ok, pdetail = None, f"not evaluated: simulation stopped at t = {stop / fps:.2f} s after a hard failure"
     failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), rec.hist, rec.gp, rec.touch,
                                        rec.arm_contact, rec.table_force, g_cmd, n, rec.diag,
-                                       link_contact=rec.link_contact, plan_events=plan.events)
+                                       link_contact=rec.link_contact, plan_events=plan_events)
     res = SimResult(sc.task.name, failure is None, failure, detail, ok, str(pdetail),
                     steps * m.opt.timestep, steps, time.perf_counter() - t_wall, n, events,
                     rec.gp, rec.hist, rec.touch, rec.arm_contact, rec.table_force, g_cmd, dict(plan.summary))

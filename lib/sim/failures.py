@@ -43,6 +43,8 @@ FAILURES = ("invalid_action", "missed_grasp", "object_dropped", "arm_collision",
 HARD = ("arm_collision", "table_collision", "left_workspace", "unreachable", "joint_limit", "link_collision",
         "wider_than_stroke")
 
+PLANNED = ("unreachable", "joint_limit", "wider_than_stroke")  # found before physics (lib/sim/robots)
+
 MOVE_MIN = 0.03  # m the gripper must travel while closed for a missed grasp to matter
 DRIFT_MAX = 0.03  # m object drift in the gripper frame -> lost
 RELEASE_SPEED = 0.05  # m/s
@@ -102,7 +104,9 @@ def classify(sc, opt, fps, pred_ok, pred_detail, hist, gp, touch, arm_contact, t
             k = int(np.argmax(out_o[fo]))
             events.append((fo / fps, "left_workspace",
                            f"{names[k]} at {np.round(opos[fo, k], 3).tolist()} outside the workspace at t = {fo / fps:.2f} s"))
-    hard = sorted(e for e in events if e[1] in HARD)
+    # earliest first; at the same instant a failure found while planning (the cause: an unreachable
+    # pose, a too wide object) before what physics then shows (e.g. the stretched arm leaving the workspace)
+    hard = sorted((e for e in events if e[1] in HARD), key=lambda e: (e[0], e[1] not in PLANNED, e[1], e[2]))
     if hard:
         return hard[0][1], hard[0][2], sorted(events)
     if pred_ok:

@@ -95,8 +95,12 @@ BITS = 'contype="3" conaffinity="3"'
 PAD_SOL = 'priority="1" solref="0.005 1" solimp="0.99 0.999 0.0005 0.5 2"'
 
 
-def _f(*v) -> str:
+def mjcf_numbers(*v) -> str:
+    """Numbers as an MJCF attribute value (6 significant digits)."""
     return " ".join(f"{float(x):.6g}" for x in v)
+
+
+_f = mjcf_numbers
 
 
 def hand_body(spec: GripperSpec, p: str, col: str, wrist: bool = True) -> str:
