@@ -23,9 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-XS = (-0.25, -0.35, -0.45, -0.55, -0.65)
-YS = (-0.45, -0.35, -0.25, -0.15, -0.05, 0.05, 0.15, 0.25)
-YAWS_DEG = (90.0,)  # the waist turns +-180 degrees: the base yaw only moves where that range ends
+XS = (-0.35, -0.45, -0.55)
+YS = (-0.15, -0.05, 0.05, 0.15, 0.25)
+ZS = (0.0, 0.15)  # on the table top, or on a 15 cm riser
+YAW = math.pi / 2  # the waist turns +-180 degrees: the base yaw only moves where that range ends
 
 
 def demos(task: str, seeds: int) -> list[np.ndarray]:
@@ -47,8 +48,7 @@ def score(base, hand: str, episodes: list[np.ndarray]) -> dict:
         steps += len(bad)
         ok_steps += int((~bad).sum())
         ok_eps += int(not bad.any())
-    return {"x": base.x, "y": base.y, "yaw_deg": round(math.degrees(base.yaw)), "steps_ok": ok_steps / steps,
-            "episodes_ok": ok_eps / len(episodes)}
+    return {"x": base.x, "y": base.y, "z": base.z, "steps_ok": ok_steps / steps, "episodes_ok": ok_eps / len(episodes)}
 
 
 def main() -> None:
@@ -65,13 +65,12 @@ def main() -> None:
     for task in a.tasks:
         eps = demos(task, a.seeds)
         t0 = time.perf_counter()
-        rows = [score(BasePose(x, y, 0.0, math.radians(yaw)), a.hand, eps)
-                for x, y, yaw in itertools.product(XS, YS, YAWS_DEG)]
+        rows = [score(BasePose(x, y, z, YAW), a.hand, eps) for x, y, z in itertools.product(XS, YS, ZS)]
         rows.sort(key=lambda r: (-r["steps_ok"], -r["episodes_ok"]))
         everything[task] = rows
         print(f"\n{task} ({len(eps)} scripted episodes, hand {a.hand}, {time.perf_counter() - t0:.0f} s)")
         for r in rows[:5]:
-            print(f"  x {r['x']:+.2f}  y {r['y']:+.2f}  yaw {r['yaw_deg']:3d} deg  steps reachable "
+            print(f"  x {r['x']:+.2f}  y {r['y']:+.2f}  z {r['z']:.2f}  steps reachable "
                   f"{100 * r['steps_ok']:5.1f} %  episodes {100 * r['episodes_ok']:5.1f} %")
     if a.json:
         a.json.write_text(json.dumps(everything, indent=1))

@@ -324,6 +324,13 @@ def _sim_cases(quick: bool) -> list[BenchCase]:
     return cases(quick)
 
 
+@register("arms")
+def _arms_cases(quick: bool) -> list[BenchCase]:
+    from demoforge.bench.cases_arms import cases
+
+    return cases(quick)
+
+
 @flow(name="benchmarks", log_prints=True)
 def run_benchmarks(warehouse: str, stages: Iterable[str] | None = None, quick: bool = False) -> list[dict]:
     """Run the benchmark cases of the given stages (all by default) and append them to `benchmarks`."""

@@ -41,6 +41,7 @@ def evaluate(
     policy_epochs: int = typer.Option(6, envvar="DEMOFORGE_POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
+    robot: Optional[List[str]] = typer.Option(None, "--robot", envvar="DEMOFORGE_ROBOTS", help="Robots every task's sample is executed with, side by side (repeatable; `name` or `name+hand`; default: grippers, aloha and aloha+2f140: the floating grippers and the ViperX arms with ALOHA's fingers and with the 2F-140). The stability check and the Table 3 / Table 4 / policy evaluations use the first."),
     detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
@@ -59,7 +60,15 @@ def evaluate(
     if mirror not in MIRROR_CHOICES:
         raise fail(f"--mirror must be {', '.join(MIRROR_CHOICES[:-1])} or {MIRROR_CHOICES[-1]}, got {mirror!r}")
     from demoforge.flows.evaluate import detector_problem
-    from demoforge.lib.evaluation.config import DETECTORS, EvaluateConfig
+    from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot
+    from demoforge.lib.sim.robots import RobotError, get_robot
+
+    robots = [r for part in (robot or ROBOTS) for r in str(part).replace(",", " ").split()]
+    for label in robots:
+        try:
+            get_robot(*parse_robot(label))
+        except RobotError as e:
+            raise fail(f"--robot {label}: {e}")
 
     detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
     bad = [d for d in detectors if d not in DETECTORS]
@@ -75,7 +84,8 @@ def evaluate(
             llm_tasks=llm_task or ("pouring",), trials=trials, grid_scenes=grid_scenes, llm_backend=llm_backend,
             llm_options={"model": llm_model} if llm_model else {}, llm_structured=structured,
             llm_number_format=number_format, variation_trials=variation_trials, policy_epochs=policy_epochs,
-            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)))
+            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)),
+            robots=tuple(dict.fromkeys(robots)))
     except ValueError as e:
         raise fail(str(e))
     warehouse, reports_dir = current_warehouse(), reports.resolve()

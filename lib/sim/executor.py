@@ -514,6 +514,7 @@ def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
     for name in sorted(assets):
         h.update(name.encode() + hashlib.sha256(assets[name]).digest())
     h.update(repr(replace(opt, keep_trajectory=False)).encode())
+    h.update(opt.robot.settings(task_name).encode())
     return h.hexdigest()
 
 

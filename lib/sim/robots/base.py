@@ -138,6 +138,11 @@ class Robot(abc.ABC):
     def bind(self, model, task_name: str) -> RobotBinding:
         """Index the robot in a compiled scene of `task_name`."""
 
+    def settings(self, task_name: str) -> str:
+        """What else decides the robot's motion besides its MJCF (e.g. its IK's speed limits and version),
+        as text: part of the scene fingerprint, so cached results go stale when it changes."""
+        return ""
+
     def joint_trajectory(self, task_name: str, actions: np.ndarray):
         """(joints (n, len(joint_names)), per-step summary) of an episode in joint space; only for arms."""
         raise NotImplementedError(f"the {self.name} robot has no joints to export")

@@ -29,6 +29,7 @@ from .placement import bases_for
 from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
+IK_VERSION = "1"  # bump when the IK (lib/sim/robots/ik.py, seeds.py) gives other joints for the same poses
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
 JOINT_NAMES = tuple(f"{side}_{j}" for side in SIDES for j in (*JOINTS, "gripper"))
@@ -72,6 +73,12 @@ class AlohaRobot(Robot):
 
     def bind(self, model, task_name: str) -> "AlohaBinding":
         return AlohaBinding(model, self, task_name)
+
+    def settings(self, task_name: str) -> str:
+        from demoforge.lib.sim.robots import ik
+
+        return (f"ik {IK_VERSION}: speed {SPEED}, rest {REST}, tolerance {ik.POSITION_TOL} m {ik.ROTATION_TOL_DEG} deg, "
+                f"converged {ik.CONVERGED_POSITION} m {ik.CONVERGED_ROTATION} rad, feed-forward {LEAD.tolist()}")
 
     def ik(self, task_name: str):
         """The task's IK solver (one per process and placement)."""

@@ -43,12 +43,12 @@ MESH_FILE = "vx300s_dependencies.xml"
 SIDES = ("left", "right")
 JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 # per joint: position gain (N m / rad), damping gain (N m s / rad), torque limit (N m), armature (kg m^2),
-# speed limit for the IK (rad/s; the servos' no-load speed, rounded down)
+# speed limit for the IK (rad/s: the servos' no-load speed at 12 V, XM540-W270 30 rpm, XM430-W350 46 rpm)
 KP = (400.0, 800.0, 600.0, 150.0, 150.0, 60.0)
 KV = (40.0, 80.0, 50.0, 8.0, 8.0, 3.0)
 TORQUE = (10.6, 21.2, 21.2, 10.6, 10.6, 4.1)
 ARMATURE = (0.05, 0.1, 0.08, 0.02, 0.02, 0.01)
-SPEED = (3.0, 3.0, 3.0, 4.0, 4.0, 4.5)
+SPEED = (3.14, 3.14, 3.14, 3.14, 3.14, 4.8)
 # the joint angles gym-aloha starts its arms in (START_ARM_POSE): folded, the gripper in front of the base
 REST = (0.0, -0.96, 1.16, 0.0, -0.3, 0.0)
 # where the pinch site sits on the wrist-rotate link (x along the approach), per hand
@@ -202,6 +202,9 @@ def arms_parts(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec) -
     """Both arms: worldbody, equality, tendon, actuator and contact fragments."""
     wb, eq, tn, ac, ct = [], [], [], [], []
     for side, base in zip(SIDES, bases):
+        if base.z > 0:  # a base raised above the table top stands on a riser (drawn; the arm never reaches under it)
+            wb.append(f'<geom name="{side}_riser" type="box" pos="{_f(base.x, base.y, base.z / 2)}" '
+                      f'size="{_f(0.07, 0.07, base.z / 2)}" rgba="0.2 0.2 0.22 1" contype="0" conaffinity="0"/>')
         wb.append(arm_xml(side, base, hand, spec))
         drive = finger_drive(spec, f"{side}_hand")
         eq.append(drive["equality"])
@@ -213,7 +216,7 @@ def arms_parts(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec) -
             ac.append(f'<position name="{side}_{name}" joint="{side}_{name}" kp="{KP[j]:.6g}" kv="{KV[j]:.6g}" '
                       f'forcerange="{_f(-TORQUE[j], TORQUE[j])}" ctrlrange="{_f(lo - 0.5, hi + 0.5)}"/>')
         ac.append(drive["actuator"])
-        bodies = arm_bodies(wb[-1])
+        bodies = arm_bodies(wb[-1])  # the arm just added
         ct += [f'<exclude body1="{a}" body2="{b}"/>' for i, a in enumerate(bodies) for b in bodies[i + 1:]]
     return {"worldbody": "\n".join(wb), "equality": "\n".join(eq), "tendon": "\n".join(tn),
             "actuator": "\n".join(ac), "contact": "\n".join(ct)}
