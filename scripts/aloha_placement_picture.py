@@ -52,8 +52,8 @@ def render_task(task: str, hand: str, width: int = 560, height: int = 420) -> np
     d.qpos[:] = sc.data.qpos
     mujoco.mj_forward(m, d)
     cam = mujoco.MjvCamera()
-    cam.lookat[:] = (0.0, 0.12, 0.12)
-    cam.distance, cam.azimuth, cam.elevation = 1.9, 240.0, -32.0
+    cam.lookat[:] = (0.0, 0.1, 0.3)
+    cam.distance, cam.azimuth, cam.elevation = 2.3, 235.0, -24.0
     with mujoco.Renderer(m, height=height, width=width) as r:
         r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         r.update_scene(d, camera=cam)

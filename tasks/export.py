@@ -355,9 +355,11 @@ def _refuse_foreign(out: Path, marker: str | None) -> None:
 
 
 def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None,
-                     with_images: bool = False) -> None:
+                     with_images: bool = False, robot: str = "grippers", gripper: str | None = None,
+                     unchecked: bool = False) -> None:
     """The checks that need no Prefect run: known task, episodes present, --out not someone else's,
-    and with images every source take's camera."""
+    with images every source take's camera, and for an arm robot's export (unless unchecked) episodes
+    whose check with it passed."""
     from demoforge.lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
@@ -366,6 +368,11 @@ def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | 
         raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
     _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
     files = episode_files(warehouse, task, take)
+    if robot != "grippers" and not unchecked:
+        from demoforge.lib.sim.robots import get_robot
+
+        arm = get_robot(robot, gripper)
+        checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
     if with_images:
         take_cameras(warehouse, [take] if take else sorted({f.parent.name.split("=", 1)[1] for f in files
                                                             if f.parent.name.startswith("take=")}))

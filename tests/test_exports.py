@@ -426,7 +426,17 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
                       (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images",
                         "--image-size", "33x20"], "--image-size"),
                       (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--image-size", "64x48"],
-                       "needs --with-images")):
+                       "needs --with-images"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "aloha"],
+                       "demoforge simulate --task pouring --robot aloha --gripper aloha"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "a.hdf5"), "--robot", "aloha"],
+                       "is for `export lerobot`"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--unchecked"],
+                       "--unchecked is for"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "ur5"],
+                       "--robot must be one of grippers, aloha"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "aloha",
+                        "--gripper", "robotiq"], "carries aloha or 2f140")):
         r = runner.invoke(app, args)
         assert r.exit_code == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.output)
     assert (foreign / "notes.txt").read_text() == "keep me" and not (tmp_path / "j").exists()

@@ -91,7 +91,7 @@ def export_cmd(
             raise fail("--image-size needs --with-images")
     wh = str(current_warehouse())
     try:
-        preflight_export(wh, task, str(out), fmt.value, take, with_images)  # user errors before a Prefect run starts
+        preflight_export(wh, task, str(out), fmt.value, take, with_images, robot, gripper, unchecked)  # before a Prefect run
         if fmt is ExportFormat.lerobot:
             m = export_lerobot_flow(wh, task=task, out=str(out), take=take, include_invalid=include_invalid,
                                     limit=limit, with_images=with_images, image_size=size, robot=robot,

@@ -118,13 +118,14 @@ class ArmsIK:
         self.iterations, self.first_iterations = int(iterations), int(first_iterations)
 
     def _set_targets(self, pos: np.ndarray, wxyz: np.ndarray) -> None:
-        SE3, SO3 = self.mink.SE3, self.mink.SO3
+        SE3 = self.mink.SE3
         for a in range(2):
-            self.tasks[a].set_target(SE3.from_rotation_and_translation(SO3(wxyz[a]), pos[a]))
+            self.tasks[a].set_target(SE3(wxyz_xyz=np.concatenate([wxyz[a], pos[a]])))
 
     def _errors(self, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self.cfg.data
-        pe = np.linalg.norm(d.site_xpos[self.sites] - pos, axis=1)
+        diff = d.site_xpos[self.sites] - pos
+        pe = np.sqrt(np.einsum("ai,ai->a", diff, diff))
         re = _rotation_angle(d.site_xmat[self.sites].reshape(2, 3, 3), R)
         return pe, re
 
@@ -132,10 +133,11 @@ class ArmsIK:
         """Up to max_iter QP steps towards the targets from the current configuration; stops early once
         both arms are converged or (give_up) an iteration no longer brings the unconverged ones closer
         (an arm held by a limit or out of reach stays where it is: more iterations would only cost time)."""
-        self._set_targets(pos, wxyz)
         pe, re = self._errors(pos, R)
         k = 0
         off = np.maximum(pe / CONVERGED_POSITION, re / CONVERGED_ROTATION)
+        if (off > 1.0).any():
+            self._set_targets(pos, wxyz)  # only when a QP is solved (the prediction often lands already)
         while k < max_iter and (off > 1.0).any():
             result = self.qpsolvers.solve_problem(self.mink.build_ik(self.cfg, self.tasks, dt, 1e-12, self.limits),
                                                   solver="daqp")
@@ -208,6 +210,7 @@ class ArmsIK:
         q = np.zeros((n, self.model.nq))
         pe_all, re_all = np.zeros((n, 2)), np.zeros((n, 2))
         range_lim, speed_lim = np.zeros((n, 2), bool), np.zeros((n, 2), bool)
+        clipped_all = np.zeros((n, self.model.nq), bool)
         q[0], pe_all[0], re_all[0] = q0, pe0, re0
         self.cfg.update(q0)
         iters = 0
@@ -223,10 +226,9 @@ class ArmsIK:
             if clipped.any():  # the servos cannot move that far in one step: the arm lags behind
                 self.cfg.update(q[t - 1] + np.clip(dq, -step_max, step_max))
                 pe, re = self._errors(pos[t], R[t])
-            q[t], pe_all[t], re_all[t] = self.cfg.q, pe, re
-            for a, dofs in enumerate(self.arm_dofs):
-                speed_lim[t, a] = bool(clipped[dofs].any())
+            q[t], pe_all[t], re_all[t], clipped_all[t] = self.cfg.q, pe, re, clipped
         for a, dofs in enumerate(self.arm_dofs):
+            speed_lim[:, a] = clipped_all[:, dofs].any(axis=1)
             qa = q[:, dofs]
             range_lim[:, a] = ((qa - self.lower[dofs] < AT_LIMIT) | (self.upper[dofs] - qa < AT_LIMIT)).any(axis=1)
         return IKSolution(q, pe_all, np.degrees(re_all), range_lim, speed_lim, iters)
