@@ -69,25 +69,13 @@ def _ik_check(fast, baseline) -> None:
 
 def _physics_setup(task: str, frames: int | None):
     def setup(n: int):
-        from demoforge.lib.sim import SimOptions, execute_many
+        from demoforge.bench.cases_sim import scripted_episodes, timed_pair
+        from demoforge.lib.sim import SimOptions
         from demoforge.lib.sim.robots import get_robot
-        from demoforge.lib.task_library import get_task
 
-        eps = []
-        for i in range(n):
-            d = get_task(task).scripted_demo(i // 2 % 2, bool(i % 2))
-            a = d.gripper_actions()
-            eps.append((d.placement.object_poses, a if frames is None else a[:frames]))
         arms = SimOptions(robot=get_robot("aloha", "2f140"), stop_on_hard_failure=False)
-        grippers = SimOptions(stop_on_hard_failure=False)
-
-        def fast():
-            return [r.failure for r in execute_many(task, eps, workers=1, options=arms)]
-
-        def baseline():
-            return [r.failure for r in execute_many(task, eps, workers=1, options=grippers)]
-
-        return fast, baseline
+        return timed_pair(task, scripted_episodes(task, n, frames), arms, SimOptions(stop_on_hard_failure=False),
+                          workers=1)
 
     return setup
 

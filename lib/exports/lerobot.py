@@ -233,6 +233,43 @@ def _write_videos(root: Path, src: VideoSource, lengths: np.ndarray, fps: int, f
     return cols, {k: np.stack(v) for k, v in stats.items()}, info
 
 
+def _per_frame(values, names, frames: int, what: str, names_what: str) -> np.ndarray | None:
+    """A per-frame feature (frames, len(names)) checked (one finite row of len(names) values per frame)."""
+    if values is None:
+        return None
+    values = np.asarray(values)
+    if values.shape[0] != frames or names is None or values.reshape(frames, -1).shape[1] != len(names):
+        raise ExportError(f"{what} must have one row of len({names_what}) values per frame ({frames}), "
+                          f"got {values.shape}")
+    if not np.isfinite(values).all():
+        raise ExportError(f"{what} contains NaN or inf")
+    return values.reshape(frames, -1)
+
+
+def _write_data_files(root: Path, cols: dict, feats: dict, file_of: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                      chunks_size: int) -> None:
+    """data/chunk-*/file-*.parquet: each file the frames of its episodes (file_of: the file of each episode)."""
+    for f in np.unique(file_of):
+        eps = np.flatnonzero(file_of == f)
+        lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
+        tbl = pa.table({
+            name: (_fixed_list(v[lo:hi]) if v.ndim == 2 else pa.array(v[lo:hi], type=_ARROW[feats[name]["dtype"]]))
+            for name, v in cols.items()
+        })
+        path = root / DATA_PATH.format(chunk_index=int(f // chunks_size), file_index=int(f % chunks_size))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(tbl, path)
+
+
+def _row_provenance(provenance: dict | None, n: int) -> dict | None:
+    """The provenance written into every data row (take, episode_id and kind all given), else None;
+    every given per-episode array checked to hold n values."""
+    for k, vals in (provenance or {}).items():
+        if k in _PROVENANCE_COLUMNS and len(vals) != n:
+            raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
+    return provenance if provenance and all(k in provenance for k in ("take", "episode_id", "kind")) else None
+
+
 def write_lerobot_dataset(
     out: str | os.PathLike,
     poses: np.ndarray,
@@ -267,14 +304,7 @@ def write_lerobot_dataset(
     JSON-able description of the export, written to meta/demoforge.json.
     """
     poses, lengths = check_episodes(poses, lengths)
-    if joint_state is not None:
-        joint_state = np.asarray(joint_state)
-        if joint_state.ndim != 2 or len(joint_state) != len(poses) or state_names is None \
-                or joint_state.shape[1] != len(state_names):
-            raise ExportError(f"joint_state must have one row of len(state_names) values per frame ({len(poses)}), "
-                              f"got {joint_state.shape}")
-        if not np.isfinite(joint_state).all():
-            raise ExportError("joint_state contains NaN or inf")
+    joint_state = _per_frame(joint_state, state_names, len(poses), "joint_state", "state_names")
     n = len(lengths)
     if not tasks or len(set(tasks)) != len(tasks):
         raise ExportError(f"tasks must be a non-empty list of distinct task texts, got {tasks!r}")
@@ -283,19 +313,9 @@ def write_lerobot_dataset(
         raise ExportError(f"task_of_episode must give one index into the {len(tasks)} tasks per episode")
     if fps <= 0:
         raise ExportError(f"fps must be positive, got {fps}")
-    for k, vals in (provenance or {}).items():
-        if k in _PROVENANCE_COLUMNS and len(vals) != n:
-            raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
-    row_provenance = provenance if provenance and all(k in provenance for k in ("take", "episode_id", "kind")) \
-        else None
-    if environment_state is not None:
-        environment_state = np.asarray(environment_state)
-        if environment_state.shape[0] != len(poses) or environment_names is None or \
-                environment_state.reshape(len(poses), -1).shape[1] != len(environment_names):
-            raise ExportError(f"environment_state must have one row of len(environment_names) values per frame "
-                              f"({len(poses)}), got {environment_state.shape}")
-        if not np.isfinite(environment_state).all():
-            raise ExportError("environment_state contains NaN or inf")
+    row_provenance = _row_provenance(provenance, n)
+    environment_state = _per_frame(environment_state, environment_names, len(poses), "environment_state",
+                                   "environment_names")
     videos = list(videos or [])
     if len({v.key for v in videos}) != len(videos):
         raise ExportError("video keys must be distinct")
@@ -312,16 +332,7 @@ def write_lerobot_dataset(
     ends = starts + lengths
 
     with atomic_dir(out, overwrite=overwrite) as root:
-        for f in np.unique(file_of):
-            eps = np.flatnonzero(file_of == f)
-            lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
-            tbl = pa.table({
-                name: (_fixed_list(v[lo:hi]) if v.ndim == 2 else pa.array(v[lo:hi], type=_ARROW[feats[name]["dtype"]]))
-                for name, v in cols.items()
-            })
-            path = root / DATA_PATH.format(chunk_index=int(chunk_idx[eps[0]]), file_index=int(file_idx[eps[0]]))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            pq.write_table(tbl, path)
+        _write_data_files(root, cols, feats, file_of, starts, ends, chunks_size)
 
         ep_cols: dict[str, pa.Array] = {
             "episode_index": pa.array(np.arange(n, dtype=np.int64)),
@@ -363,21 +374,11 @@ def write_lerobot_dataset(
 
         stats = {name: aggregate_stats(st) for name, st in ep_stats.items()}
         _write_json(stats, root / STATS_PATH)
-        info = {
-            "codebase_version": CODEBASE_VERSION,
-            "robot_type": robot_type,
-            "total_episodes": n,
-            "total_frames": int(len(poses)),
-            "total_tasks": len(tasks),
-            "chunks_size": chunks_size,
-            "data_files_size_in_mb": data_files_size_in_mb,
-            "video_files_size_in_mb": video_files_size_in_mb,
-            "fps": fps,
-            "splits": {"train": f"0:{n}"},
-            "data_path": DATA_PATH,
-            "video_path": VIDEO_PATH if videos else None,
-            "features": feats,
-        }
+        info = {"codebase_version": CODEBASE_VERSION, "robot_type": robot_type, "total_episodes": n,
+                "total_frames": int(len(poses)), "total_tasks": len(tasks), "chunks_size": chunks_size,
+                "data_files_size_in_mb": data_files_size_in_mb, "video_files_size_in_mb": video_files_size_in_mb,
+                "fps": fps, "splits": {"train": f"0:{n}"}, "data_path": DATA_PATH,
+                "video_path": VIDEO_PATH if videos else None, "features": feats}
         _write_json(info, root / INFO_PATH)
         if source is not None:
             _write_json(source, root / PROVENANCE_FILE)
