@@ -230,12 +230,16 @@ REPORT_VIEWS: dict[str, str] = {
     """,
     # The robots side by side, per task: success, reachable fraction and the failure classes with counts.
     "report_sim_robots": """
+        WITH f AS (
+            SELECT task, robot, gripper, string_agg(failure || ' ' || n, ', ' ORDER BY n DESC, failure) AS failures
+            FROM (SELECT task, robot, gripper, failure, count(*) AS n FROM sim_outcomes WHERE NOT success
+                  GROUP BY ALL)
+            GROUP BY ALL)
         SELECT task, robot, gripper, count(*) AS episodes,
                round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
                round(avg(CASE WHEN reachable THEN 1.0 WHEN NOT reachable THEN 0.0 END), 3) AS reachable_fraction,
-               round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm,
-               string_agg(failure || ' ' || n, ', ' ORDER BY n DESC, failure) FILTER (WHERE failure <> '') AS failures
-        FROM (SELECT *, count(*) OVER (PARTITION BY task, robot, gripper, failure) AS n FROM sim_outcomes)
+               round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm, any_value(f.failures) AS failures
+        FROM sim_outcomes LEFT JOIN f USING (task, robot, gripper)
         GROUP BY task, robot, gripper ORDER BY task, robot <> 'grippers', robot, gripper
     """,
     # Why episodes failed in physics.

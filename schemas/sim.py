@@ -50,9 +50,10 @@ SIM_RESULTS = table(
         Column("reachable", pa.bool_(), "Arms only: every step's pinch poses are within 1 cm and 5 degrees of their "
                "targets after inverse kinematics (null for the grippers, which reach every pose).", nullable=True),
         Column("ik_position_error_m", pa.float64(), "Arms only: the worst pinch position residual after inverse "
-               "kinematics over the episode's steps, m (null for the grippers).", nullable=True),
+               "kinematics over the episode's steps, m, up to the first step off its target when there is one (the "
+               "simulation stops there) (null for the grippers).", nullable=True),
         Column("ik_rotation_error_deg", pa.float64(), "Arms only: the worst pinch orientation residual after inverse "
-               "kinematics, degrees (null for the grippers).", nullable=True),
+               "kinematics, degrees, the same steps (null for the grippers).", nullable=True),
         Column("duration_s", pa.float64(), "Simulated time, s."),
         Column("physics_steps", pa.int64(), "Physics steps taken."),
         Column("wall_s", pa.float64(), "Wall time of the episode in its worker process, s."),

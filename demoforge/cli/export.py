@@ -102,6 +102,13 @@ def export_cmd(
     except ExportError as e:
         raise fail(str(e))
     typer.echo(f"{m.path}: {m.rows:,} frames of task {task} as {fmt.value} ({len(m.files)} files)")
+    if robot != "grippers":
+        import json
+
+        source = json.loads((Path(m.path) / "meta" / "demoforge.json").read_text())
+        left = source.get("left_out_unreachable", [])
+        typer.echo(f"joint space of the {robot} arms ({gripper}); {len(left)} selected episode(s) the arms cannot "
+                   "reach left out" + (" (meta/demoforge.json lists them)" if left else ""))
 
 
 @app.command("view")

@@ -374,7 +374,8 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
     sch = _schedule(actions, fps, opt, spec, opt.physics.timestep)
     m.opt.timestep = 1.0 / (fps * sch.steps_per_frame)
     cpf, steps_per_frame, sub_l = sch.cpf, sch.steps_per_frame, sch.sub
-    plan = sc.binding.plan(sc, actions, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps)
+    plan = sc.binding.plan(sc, actions, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps,
+                           until_failure=opt.stop_on_hard_failure)
     plan_events = sorted(plan.events + _stroke_events(sc, obj0, sch, fps), key=lambda e: e.frame)
     fc = _FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
     pose0 = np.concatenate([sch.pos[0], sch.quat[0]], axis=-1)

@@ -100,9 +100,10 @@ class RobotBinding(abc.ABC):
 
     @abc.abstractmethod
     def plan(self, scene, actions: np.ndarray, quat: np.ndarray, targets_pos: np.ndarray,
-             targets_wxyz: np.ndarray, ctrl_per_frame: int, fps: float) -> MotionPlan:
+             targets_wxyz: np.ndarray, ctrl_per_frame: int, fps: float, until_failure: bool = False) -> MotionPlan:
         """The episode's plan. actions: (n, 2, 8); quat: (n, 2, 4) unit xyzw; targets_pos,
-        targets_wxyz: the pinch targets interpolated at control rate ((n - 1) * ctrl_per_frame, 2, 3 | 4)."""
+        targets_wxyz: the pinch targets interpolated at control rate ((n - 1) * ctrl_per_frame, 2, 3 | 4);
+        until_failure: the simulation stops at the first hard failure, so a plan may stop there too."""
 
     @abc.abstractmethod
     def reset(self, d, plan: MotionPlan, pose0: np.ndarray, width0: np.ndarray) -> None:

@@ -86,6 +86,12 @@ class IKSolution:
                 "reachable": not bool(self.failed_steps().any())}
 
 
+def _first_bad(sol: IKSolution) -> int:
+    """The first step off its target (len when none)."""
+    bad = sol.failed_steps().any(axis=1)
+    return int(np.argmax(bad)) if bad.any() else len(bad)
+
+
 def _rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     """Angle (rad) between rotation matrices (..., 3, 3)."""
     c = (np.einsum("...ij,...ij->...", Ra, Rb) - 1.0) / 2.0
@@ -151,8 +157,12 @@ class ArmsIK:
                 break
         return pe, re, k
 
-    def solve(self, poses: np.ndarray, fps: float = 30.0) -> IKSolution:
-        """Joints for every step of (n, 2, >= 7) poses [x y z qx qy qz qw ...] (world frame)."""
+    def solve(self, poses: np.ndarray, fps: float = 30.0, until_failure: bool = False) -> IKSolution:
+        """Joints for every step of (n, 2, >= 7) poses [x y z qx qy qz qw ...] (world frame).
+
+        until_failure: stop tracking at the first step off its target (the simulator, which stops there
+        anyway, needs no more): the later steps hold that step's joints and residuals, and of the two wrist
+        branches the one that gets further is kept."""
         from scipy.spatial.transform import Rotation
 
         poses = np.asarray(poses, float)
@@ -162,16 +172,22 @@ class ArmsIK:
         R = Rotation.from_quat(xyzw.reshape(-1, 4)).as_matrix().reshape(n, 2, 3, 3)
         wxyz = xyzw[..., [3, 0, 1, 2]]
         q0, pe0, re0, iters = self._first_step(poses[0], pos[0], R[0], wxyz[0])
-        sol = self._track(q0, pe0, re0, pos, R, wxyz, fps)
+        sol = self._track(q0, pe0, re0, pos, R, wxyz, fps, until_failure)
         sol.iterations += iters
         bad = sol.failed_steps().sum(axis=0)
         if self.flip is not None and bad.any():
             q1 = self.flip(q0)
             self.cfg.update(q1)
             pe1, re1 = self._errors(pos[0], R[0])
-            other = self._track(q1, pe1, re1, pos, R, wxyz, fps)
+            other = self._track(q1, pe1, re1, pos, R, wxyz, fps, until_failure)
             sol.iterations += other.iterations
-            better = other.failed_steps().sum(axis=0) < bad
+            if until_failure:  # a run stopped at its first failure: keep the run that got further
+                if _first_bad(other) > _first_bad(sol):
+                    other.iterations = sol.iterations
+                    sol = other
+                better = np.zeros(2, bool)
+            else:
+                better = other.failed_steps().sum(axis=0) < bad
             for a, dofs in enumerate(self.arm_dofs):
                 if better[a]:
                     sol.q[:, dofs] = other.q[:, dofs]
@@ -204,8 +220,9 @@ class ArmsIK:
         self.cfg.update(best_q)
         return best_q, best_pe, best_re, iters
 
-    def _track(self, q0, pe0, re0, pos, R, wxyz, fps) -> IKSolution:
-        """Warm-started IK from q0 along the steps, each step's change clipped to the speed limits."""
+    def _track(self, q0, pe0, re0, pos, R, wxyz, fps, until_failure: bool = False) -> IKSolution:
+        """Warm-started IK from q0 along the steps, each step's change clipped to the speed limits (with
+        until_failure: up to the first step off its target, the later steps holding it)."""
         n = len(pos)
         q = np.zeros((n, self.model.nq))
         pe_all, re_all = np.zeros((n, 2)), np.zeros((n, 2))
@@ -227,6 +244,9 @@ class ArmsIK:
                 self.cfg.update(q[t - 1] + np.clip(dq, -step_max, step_max))
                 pe, re = self._errors(pos[t], R[t])
             q[t], pe_all[t], re_all[t], clipped_all[t] = self.cfg.q, pe, re, clipped
+            if until_failure and ((pe > POSITION_TOL) | (np.degrees(re) > ROTATION_TOL_DEG)).any():
+                q[t + 1:], pe_all[t + 1:], re_all[t + 1:], clipped_all[t + 1:] = q[t], pe, re, clipped
+                break
         for a, dofs in enumerate(self.arm_dofs):
             speed_lim[:, a] = clipped_all[:, dofs].any(axis=1)
             qa = q[:, dofs]

@@ -29,7 +29,7 @@ from .placement import bases_for
 from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
-IK_VERSION = "1"  # bump when the IK (lib/sim/robots/ik.py, seeds.py) gives other joints for the same poses
+IK_VERSION = "2"  # 2: the simulator's IK stops at the first failing step; bump when the IK (lib/sim/robots/ik.py, seeds.py) gives other joints for the same poses
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
 JOINT_NAMES = tuple(f"{side}_{j}" for side in SIDES for j in (*JOINTS, "gripper"))
@@ -193,8 +193,9 @@ class AlohaBinding(RobotBinding):
             self.geom_part[g] = (PART_FINGER_L if part == "hand_finger_l" else PART_FINGER_R if part == "hand_finger_r"
                                  else PART_PALM if part in hand_bodies else PART_LINK)
 
-    def plan(self, scene, actions, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps) -> MotionPlan:
-        sol = self.robot.ik(self.task_name).solve(np.concatenate([actions[..., :3], quat], axis=-1), fps)
+    def plan(self, scene, actions, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps, until_failure=False) -> MotionPlan:
+        sol = self.robot.ik(self.task_name).solve(np.concatenate([actions[..., :3], quat], axis=-1), fps,
+                                                  until_failure=until_failure)
         n, cpf = len(actions), ctrl_per_frame
         tq = np.arange(1, (n - 1) * cpf + 1) / cpf
         q_ctrl = np.stack([np.interp(tq, np.arange(n), sol.q[:, j]) for j in range(sol.q.shape[1])], axis=1) \
