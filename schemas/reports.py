@@ -238,7 +238,8 @@ REPORT_VIEWS: dict[str, str] = {
         SELECT task, robot, gripper, count(*) AS episodes,
                round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
                round(avg(CASE WHEN reachable THEN 1.0 WHEN NOT reachable THEN 0.0 END), 3) AS reachable_fraction,
-               round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm, any_value(f.failures) AS failures
+               round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm,
+               round(median(ik_rotation_error_deg), 1) AS median_ik_error_deg, any_value(f.failures) AS failures
         FROM sim_outcomes LEFT JOIN f USING (task, robot, gripper)
         GROUP BY task, robot, gripper ORDER BY task, robot <> 'grippers', robot, gripper
     """,
