@@ -148,7 +148,7 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
     arms = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=4, show_progress=False,
                              robot="aloha", gripper="2f140")
     assert [m.rows for m in arms] == [4] and "robot=aloha/gripper=2f140/" in arms[0].files[0]
-    assert all(m.is_intact() for m in first)
+    assert all(m.is_intact() for m in again)
     got = query("SELECT robot, gripper, episode_id, reachable, ik_position_error_m, failure FROM sim_outcomes "
                 "ORDER BY robot, episode_id", warehouse).to_pylist()
     assert [(r["robot"], r["episode_id"]) for r in got] == [("aloha", r["episode_id"]) for r in rows] + [
