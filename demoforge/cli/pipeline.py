@@ -243,7 +243,7 @@ def simulate(
     if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
         typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}' AND robot = '{robot}'\"."
                    f" Whether a failure is the trajectory's or chance: demoforge stability --task {task}"
-                   + (f" --robot {robot}" if robot != "grippers" else ""))
+                   + (f" --robot {robot} --gripper {gripper}" if robot != "grippers" else ""))
 
 
 @app.command()
