@@ -154,3 +154,25 @@ def test_the_scripted_demonstrations_with_the_arms_fail_where_the_docs_say(pouri
         r = got[t]
         assert r.failure == failure and why in r.detail, (t, r.failure, r.detail)
         assert r.robot["reachable"] is (failure is None), (t, r.robot)
+
+
+def test_the_arms_are_rendered_executing_an_episode(tmp_path):
+    """render_episode with the arms: the MP4 shows the arms (their links cover pixels the grippers' scene
+    leaves empty) and the result is the simulation's."""
+    import cv2
+
+    from demoforge.lib.sim.render import render_episode
+
+    d = get_task("pouring").scripted_demo(1)
+    act = d.gripper_actions()[:20]
+    frames = {}
+    for name, robot in (("arms", get_robot("aloha", "2f140")), ("grippers", get_robot("grippers"))):
+        out = tmp_path / f"{name}.mp4"
+        r = render_episode("pouring", d.placement.object_poses, act, out, width=96, height=72,
+                           options=SimOptions(robot=robot, stop_on_hard_failure=False))
+        cap = cv2.VideoCapture(str(out))
+        ok, frames[name] = cap.read()
+        cap.release()
+        assert ok and frames[name].shape == (72, 96, 3) and r.n_frames == 20
+    differ = np.abs(frames["arms"].astype(int) - frames["grippers"].astype(int)).max(axis=2) > 40
+    assert differ.mean() > 0.01, differ.mean()
