@@ -370,12 +370,14 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
          on_frame: Callable[[Any], None] | None = None) -> SimResult:
     mj, m, d = sc.mj, sc.model, sc.data
     spec = sc.spec
+    # what the robot executes: the actions, or an arm's own start, transits and time-scaling (robots/base.py)
+    execution = sc.binding.prepare(sc, obj0, actions, fps, until_failure=opt.stop_on_hard_failure)
+    actions = execution.actions
     n = actions.shape[0]
     sch = _schedule(actions, fps, opt, spec, opt.physics.timestep)
     m.opt.timestep = 1.0 / (fps * sch.steps_per_frame)
     cpf, steps_per_frame, sub_l = sch.cpf, sch.steps_per_frame, sch.sub
-    plan = sc.binding.plan(sc, actions, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps,
-                           until_failure=opt.stop_on_hard_failure)
+    plan = sc.binding.plan(sc, execution, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps)
     plan_events = sorted(plan.events + _stroke_events(sc, obj0, sch, fps), key=lambda e: e.frame)
     fc = _FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
     pose0 = np.concatenate([sch.pos[0], sch.quat[0]], axis=-1)
@@ -498,6 +500,14 @@ def _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, 
     return res if opt.keep_trajectory else res.strip()
 
 
+def planned_execution(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
+                      options: SimOptions | None = None):
+    """What the robot executes of an episode, without physics (robots/base.py Execution: the executed (m, 2, 8)
+    actions and, for an arm robot, its joint trajectory): the same plan execute() runs, to its end."""
+    opt = options or SimOptions()
+    sc = get_scene(task_name, opt.robot, opt.physics)
+    obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
+    return sc.binding.prepare(sc, obj0, np.asarray(actions, float), float(fps), until_failure=False)
 
 
 def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
@@ -588,5 +598,5 @@ def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
     return out  # type: ignore[return-value]
 
 
-__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "scene_fingerprint", "validate_actions", "as_object_poses",
-           "object_poses_from_keypoints", "FAILURES"]
+__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "planned_execution", "scene_fingerprint",
+           "validate_actions", "as_object_poses", "object_poses_from_keypoints", "FAILURES"]

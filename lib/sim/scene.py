@@ -235,6 +235,12 @@ class SimScene:
         its pinch points at pose0 (2, 7 xyzw) and apertures width0 (2,)."""
         mj, m, d = self.mj, self.model, self.data
         mj.mj_resetData(m, d)
+        self.place_objects(d, object_poses)
+        self.binding.reset(d, plan, pose0, width0)
+        mj.mj_forward(m, d)
+
+    def place_objects(self, d, object_poses: np.ndarray) -> None:
+        """The objects (n_obj, 4, 4) and the extra free bodies of that placement into MjData d's qpos."""
         q = xyzw_to_wxyz(matrix_to_quat(object_poses[:, :3, :3]))
         for k in range(self.n_obj):
             a = self.obj_qadr[k]
@@ -242,8 +248,6 @@ class SimScene:
             d.qpos[a + 3:a + 7] = q[k]
         for a, pq in zip(self.extra_qadr, self.extra_poses(object_poses)):
             d.qpos[a:a + 7] = pq
-        self.binding.reset(d, plan, pose0, width0)
-        mj.mj_forward(m, d)
 
 
 _CACHE: dict = {}

@@ -23,8 +23,8 @@ from typing import Callable
 
 from demoforge.lib.errors import UserError
 
-from .base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, MotionPlan, PlanEvent, Robot,
-                   RobotBinding, SceneParts)
+from .base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, Execution, MotionPlan, PlanEvent,
+                   Robot, RobotBinding, SceneParts)
 
 DEFAULT_ROBOT = "grippers"
 
@@ -67,6 +67,6 @@ def get_robot(name: str = DEFAULT_ROBOT, gripper: str | None = None) -> Robot:
     return factory() if len(choices) == 1 else factory(hand=gripper)
 
 
-__all__ = ["DEFAULT_ROBOT", "NO_ARM", "PART_FINGER_L", "PART_FINGER_R", "PART_LINK", "PART_PALM", "MotionPlan",
-           "PlanEvent", "Robot", "RobotBinding", "RobotError", "SceneParts", "available_robots", "get_robot",
+__all__ = ["DEFAULT_ROBOT", "Execution", "NO_ARM", "PART_FINGER_L", "PART_FINGER_R", "PART_LINK", "PART_PALM",
+           "MotionPlan", "PlanEvent", "Robot", "RobotBinding", "RobotError", "SceneParts", "available_robots", "get_robot",
            "gripper_choices", "register_robot"]

@@ -3,12 +3,14 @@
 A :class:`Robot` is a frozen, hashable description (its fields are its options: which gripper, where
 its bases stand). The scene builder (lib/sim/scene.py) adds its MJCF (:meth:`Robot.scene_parts`) to a
 task's scene and binds it to the compiled model (:meth:`Robot.bind`: joint, actuator and geom indices);
-the executor (lib/sim/executor.py) asks the binding for a :class:`MotionPlan` per episode (how each
-control step drives the robot, and the hard failures known before any physics, such as an
-unreachable pose), resets the robot into the plan's first state and records the actual pinch poses.
+the executor (lib/sim/executor.py) asks the binding what it executes of an episode
+(:meth:`RobotBinding.prepare`: the actions as they are, or an arm's own start, transits and
+time-scaling), then for a :class:`MotionPlan` (how each control step drives the robot, and the hard
+failures known before any physics, such as an unreachable pose), resets the robot into the plan's
+first state and records the actual pinch poses.
 The failure checks read the geoms' parts (:data:`PART_FINGER_L` ... :data:`PART_LINK`); the renderer
 draws whatever the scene holds; the exports ask for the joint names and the joint trajectory of an
-episode (:meth:`Robot.joint_trajectory`, arms only).
+episode as the robot executes it (:meth:`Robot.joint_values` of the binding's :class:`Execution`, arms only).
 
 Every robot drives its fingers the same way (lib/sim/gripper.py, :func:`~demoforge.lib.sim.gripper.finger_drive`):
 two slide joints `<hand>_l`, `<hand>_r` coupled symmetric, one force-limited position actuator on
@@ -55,6 +57,15 @@ class SceneParts:
 
 
 @dataclass
+class Execution:
+    """What a robot executes of an episode: (m, 2, 8) actions at the episode's frame rate (the given ones
+    for a robot that follows any pose; an arm robot's own start, transits and time-scaling otherwise)
+    and the robot's planning state (e.g. its joint trajectory), handed to :meth:`RobotBinding.plan`."""
+    actions: np.ndarray
+    state: Any = None
+
+
+@dataclass
 class PlanEvent:
     """A hard failure found while planning, before physics: at action frame `frame`."""
     frame: int
@@ -98,12 +109,19 @@ class RobotBinding(abc.ABC):
     rest_lin: np.ndarray
     rest_ang: np.ndarray
 
+    def prepare(self, scene, object_poses: np.ndarray, actions: np.ndarray, fps: float,
+                until_failure: bool = False) -> Execution:
+        """What the robot executes of the episode's (n, 2, 8) actions with the objects at object_poses
+        (n_obj, 4, 4); by default the actions as they are. until_failure: the simulation stops at the
+        first hard failure, so the robot may stop planning there too."""
+        return Execution(actions)
+
     @abc.abstractmethod
-    def plan(self, scene, actions: np.ndarray, quat: np.ndarray, targets_pos: np.ndarray,
-             targets_wxyz: np.ndarray, ctrl_per_frame: int, fps: float, until_failure: bool = False) -> MotionPlan:
-        """The episode's plan. actions: (n, 2, 8); quat: (n, 2, 4) unit xyzw; targets_pos,
-        targets_wxyz: the pinch targets interpolated at control rate ((n - 1) * ctrl_per_frame, 2, 3 | 4);
-        until_failure: the simulation stops at the first hard failure, so a plan may stop there too."""
+    def plan(self, scene, execution: Execution, quat: np.ndarray, targets_pos: np.ndarray,
+             targets_wxyz: np.ndarray, ctrl_per_frame: int, fps: float) -> MotionPlan:
+        """The episode's plan for the executed actions (``execution.actions``, (m, 2, 8)). quat: (m, 2, 4)
+        unit xyzw; targets_pos, targets_wxyz: the pinch targets interpolated at control rate
+        ((m - 1) * ctrl_per_frame, 2, 3 | 4)."""
 
     @abc.abstractmethod
     def reset(self, d, plan: MotionPlan, pose0: np.ndarray, width0: np.ndarray) -> None:
@@ -144,8 +162,9 @@ class Robot(abc.ABC):
         as text: part of the scene fingerprint, so cached results go stale when it changes."""
         return ""
 
-    def joint_trajectory(self, task_name: str, actions: np.ndarray):
-        """(joints (n, len(joint_names)), per-step summary) of an episode in joint space; only for arms."""
+    def joint_values(self, execution: Execution) -> np.ndarray:
+        """(m, len(joint_names)) joint values of an executed episode (its :meth:`RobotBinding.prepare`), as the
+        joint-space export writes them; only for a robot with joints."""
         raise NotImplementedError(f"the {self.name} robot has no joints to export")
 
     @property

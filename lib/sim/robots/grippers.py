@@ -82,7 +82,7 @@ class GrippersBinding(RobotBinding):
                 self.geom_part[g] = PART_FINGER_L if name.endswith("_l") else PART_FINGER_R if name.endswith("_r") \
                     else PART_PALM
 
-    def plan(self, scene, actions, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps, until_failure=False) -> MotionPlan:
+    def plan(self, scene, execution, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps) -> MotionPlan:
         return _MocapPlan(self.mocap, targets_pos, targets_wxyz)
 
     def reset(self, d, plan, pose0, width0) -> None:

@@ -1,11 +1,16 @@
 """The `aloha` robot: two ViperX 300 6-DOF arms (gym-aloha's model) executing episodes in joint space.
 
-Per episode: the (n, 2, 8) pinch poses go through inverse kinematics (lib/sim/robots/ik.py, mink) to
-(n, 12) joint angles within the joints' ranges and speed limits; the arms' position actuators follow
-them, interpolated linearly between the action frames at the control rate; the fingers get the same
-force-limited finger command as the grippers. A step whose pose the IK cannot reach within 1 cm and
-5 degrees is a hard failure (`unreachable` or `joint_limit`) at that step; an arm link touching the
-table, an object or the other arm is `link_collision` (lib/sim/failures.py).
+Per episode (lib/sim/robots/arm_motion.py): both arms start at their ready pose (gym-aloha's start
+pose, `REST`), move in joint space into each arm's window of the episode (from its first skill
+segment to its last), follow the window's (2, 8) pinch poses through inverse kinematics
+(lib/sim/robots/ik.py, mink), with the gripper's symmetric orientation where that is nearer, and move
+back to the ready pose after it; the whole joint trajectory is slowed wherever a joint would exceed
+its servo's speed (lib/sim/robots/retiming.py). The arms' position actuators follow it, interpolated
+linearly between the executed frames at the control rate; the fingers get the same force-limited
+finger command as the grippers. A step of a window whose pose the IK cannot reach within 1 cm and 5
+degrees is a hard failure (`unreachable`, or `joint_limit` with a joint at the end of its range) at
+that step; an arm link touching the table, an object or the other arm is `link_collision`
+(lib/sim/failures.py).
 
 Hands (`hand`): `aloha`, the ViperX gripper with ALOHA's fingers (69 mm between the pads fully open);
 `2f140`, the Robotiq 2F-140 of the floating grippers on the wrist (the thesis's "6-DOF arm with a
@@ -14,22 +19,24 @@ parallel gripper" that fits every object of the task library).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from demoforge.lib.sim.gripper import GripperSpec
-from demoforge.lib.sim.robots.base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, MotionPlan,
-                                           PlanEvent, Robot, RobotBinding, SceneParts, as_index)
+from demoforge.lib.sim.robots.base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, Execution,
+                                           MotionPlan, PlanEvent, Robot, RobotBinding, SceneParts, as_index)
 
-from .model import JOINTS, KP, KV, REST, SIDES, SPEED, BasePose, arms_parts, hand_spec, joint_ranges, kinematic_model_xml, mesh_assets
+from .model import JOINTS, KP, KV, REST, SIDES, SPEED, BasePose, arms_parts, hand_spec, kinematic_model_xml, mesh_assets
 from .placement import bases_for
 from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
-IK_VERSION = "2"  # 2: the simulator's IK stops at the first failing step; bump when the IK (lib/sim/robots/ik.py, seeds.py) gives other joints for the same poses
+# 2: the simulator's IK stops at the first failing step; 3: ready-pose start, transits, symmetric orientation,
+# time-scaling instead of speed clipping. Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py)
+# gives other joints for the same poses
+IK_VERSION = "3"
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
 JOINT_NAMES = tuple(f"{side}_{j}" for side in SIDES for j in (*JOINTS, "gripper"))
@@ -77,8 +84,9 @@ class AlohaRobot(Robot):
     def settings(self, task_name: str) -> str:
         from demoforge.lib.sim.robots import ik
 
-        return (f"ik {IK_VERSION}: speed {SPEED}, rest {REST}, tolerance {ik.POSITION_TOL} m {ik.ROTATION_TOL_DEG} deg, "
-                f"converged {ik.CONVERGED_POSITION} m {ik.CONVERGED_ROTATION} rad, feed-forward {LEAD.tolist()}")
+        return (f"ik {IK_VERSION}: speed {SPEED}, ready {REST}, tolerance {ik.POSITION_TOL} m {ik.ROTATION_TOL_DEG} deg, "
+                f"converged {ik.CONVERGED_POSITION} m {ik.CONVERGED_ROTATION} rad, iterations {ik.TRIES} tries, "
+                f"feed-forward {LEAD.tolist()}")
 
     def ik(self, task_name: str):
         """The task's IK solver (one per process and placement)."""
@@ -88,17 +96,27 @@ class AlohaRobot(Robot):
             solver = _IK_CACHE[key] = _make_ik(self.bases_for(task_name), self.hand, self.gripper)
         return solver
 
-    def joint_trajectory(self, task_name: str, actions: np.ndarray):
-        """(n, 14) joint values of an episode as the joint-space export writes them (per arm: the six
-        joints from IK, then the gripper's normalized opening, 1 open / 0 closed: the action's g), and
-        the IK solution (its residual per step)."""
-        actions = np.asarray(actions, float)
-        sol = self.ik(task_name).solve(actions)
-        out = np.zeros((len(actions), 14))
+    def motion(self, task_name: str, actions: np.ndarray, object_keypoints: np.ndarray, fps: float = 30.0,
+               until_failure: bool = False, collides=None):
+        """The arms' motion for an episode (lib/sim/robots/arm_motion.py): what they execute of its (n, 2, 8)
+        actions with the objects' keypoints (K, 3) at its start; collides: the transits' collision check
+        (AlohaBinding.collision_check; None: unchecked)."""
+        from demoforge.lib.sim.robots.arm_motion import plan_arm_motion
+        from demoforge.lib.task_library import get_task
+
+        return plan_arm_motion(self.ik(task_name), actions, object_keypoints, get_task(task_name).keypoint_object,
+                               fps, np.array(REST * 2), until_failure, collides)
+
+    def joint_values(self, execution: Execution) -> np.ndarray:
+        """(m, 14) joint values of an episode as the arms execute it (AlohaBinding.prepare) and the joint-space
+        export writes it: per arm the six joints, then the gripper's normalized opening (1 open, 0 closed:
+        the g of the demonstrated step each executed frame has reached)."""
+        motion = execution.state
+        out = np.zeros((len(motion.q), 14))
         for a in range(2):
-            out[:, 7 * a:7 * a + 6] = sol.q[:, 6 * a:6 * a + 6]
-            out[:, 7 * a + 6] = np.clip(actions[:, a, 7], 0.0, 1.0)
-        return out, sol
+            out[:, 7 * a:7 * a + 6] = motion.q[:, 6 * a:6 * a + 6]
+            out[:, 7 * a + 6] = np.clip(motion.poses[:, a, 7], 0.0, 1.0)
+        return out
 
 
 _IK_CACHE: dict = {}
@@ -108,29 +126,13 @@ def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
     from demoforge.lib.sim.robots.ik import ArmsIK
 
     xml, files = kinematic_model_xml(bases, hand, spec)
-    rest = np.array(REST * 2)
     geometry = []
 
-    def seeds(pose0: np.ndarray) -> list[np.ndarray]:
-        """The arms' geometric solutions for the first pose (seeds.py), then the rest configuration."""
+    def arm_seeds(arm: int, pose: np.ndarray) -> list[np.ndarray]:
+        """The arm's geometric solutions (seeds.py) for a pinch pose [x y z qx qy qz qw]."""
         if not geometry:
             geometry.append(ViperXGeometry(solver.model))
-        per_arm = [geometry[0].solutions(base, pose0[a]) for a, base in enumerate(bases)]
-        out = [np.concatenate([per_arm[0][i], per_arm[1][i]]) for i in range(min(map(len, per_arm)))]
-        return out + [rest]
-
-    lo, hi = np.tile(joint_ranges(), (2, 1)).T
-
-    def flip(q: np.ndarray) -> np.ndarray:
-        """The other wrist branch of the same pinch poses: the ViperX wrist is roll-pitch-roll about
-        collinear axes, so (roll + pi, -pitch, roll + pi) leaves the gripper where it is."""
-        out = np.array(q, float)
-        for a in range(2):
-            for j in (3, 5):
-                v = out[6 * a + j] + math.pi
-                out[6 * a + j] = v - 2 * math.pi if v > hi[6 * a + j] else v
-            out[6 * a + 4] = -out[6 * a + 4]
-        return np.clip(out, lo, hi)
+        return geometry[0].solutions(bases[arm], pose)
 
     def out_of_reach(poses: np.ndarray) -> np.ndarray:
         """(n, 2): the pinch target is farther from the shoulder joint than the stretched arm reaches."""
@@ -143,7 +145,7 @@ def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
         return out
 
     solver = ArmsIK(xml, files, sites=[f"{s}_hand_pinch" for s in SIDES], arm_joints=(range(6), range(6, 12)),
-                    speed=SPEED * 2, seeds=seeds, flip=flip, out_of_reach=out_of_reach)
+                    speed=SPEED * 2, arm_seeds=arm_seeds, rest=np.array(REST * 2), out_of_reach=out_of_reach)
     return solver
 
 
@@ -193,24 +195,57 @@ class AlohaBinding(RobotBinding):
             self.geom_part[g] = (PART_FINGER_L if part == "hand_finger_l" else PART_FINGER_R if part == "hand_finger_r"
                                  else PART_PALM if part in hand_bodies else PART_LINK)
 
-    def plan(self, scene, actions, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps, until_failure=False) -> MotionPlan:
-        sol = self.robot.ik(self.task_name).solve(np.concatenate([actions[..., :3], quat], axis=-1), fps,
-                                                  until_failure=until_failure)
-        n, cpf = len(actions), ctrl_per_frame
+    def prepare(self, scene, object_poses, actions, fps, until_failure=False) -> Execution:
+        motion = self.robot.motion(self.task_name, actions, scene.task.keypoints_world(object_poses), fps,
+                                   until_failure=until_failure, collides=self.collision_check(scene, object_poses))
+        return Execution(motion.poses, motion)
+
+    def collision_check(self, scene, object_poses):
+        """rows (k, 12) of both arms' joints -> (k, 2) bool: the arm touches the table, an object at its
+        place at the episode's start, or the other arm (the scene's contact tables; fingers open)."""
+        import mujoco
+
+        m = scene.model
+        if getattr(self, "_check_data", None) is None:
+            self._check_data = mujoco.MjData(m)
+        d = self._check_data
+        mujoco.mj_resetData(m, d)
+        scene.place_objects(d, np.asarray(object_poses, float))
+        kind, arm_of = scene.pair_kind, self.geom_arm
+
+        def collides(rows: np.ndarray) -> np.ndarray:
+            out = np.zeros((len(rows), 2), bool)
+            for i, q in enumerate(rows):
+                d.qpos[self.arm_qadr] = q
+                mujoco.mj_kinematics(m, d)
+                mujoco.mj_collision(m, d)
+                for g1, g2 in d.contact.geom[:d.ncon]:
+                    if kind[g1, g2]:
+                        for g in (g1, g2):
+                            if arm_of[g] >= 0:
+                                out[i, arm_of[g]] = True
+            return out
+
+        return collides
+
+    def plan(self, scene, execution, quat, targets_pos, targets_wxyz, ctrl_per_frame, fps) -> MotionPlan:
+        motion = execution.state
+        q = motion.q
+        n, cpf = len(q), ctrl_per_frame
         tq = np.arange(1, (n - 1) * cpf + 1) / cpf
-        q_ctrl = np.stack([np.interp(tq, np.arange(n), sol.q[:, j]) for j in range(sol.q.shape[1])], axis=1) \
-            if n > 1 else sol.q[:0]
+        q_ctrl = np.stack([np.interp(tq, np.arange(n), q[:, j]) for j in range(q.shape[1])], axis=1) \
+            if n > 1 else q[:0]
         # velocity feed-forward: the position actuator's damping acts on the joint's velocity, so a command
         # ahead of the reference by (kv / kp) x its velocity makes the force kp (q_ref - q) + kv (v_ref - v):
         # the servo tracks a moving reference without the lag a plain position command would have
         if n > 1:
-            v_ref = np.diff(sol.q, axis=0)[np.minimum((tq - 1e-9).astype(int), n - 2)] * fps
+            v_ref = np.diff(q, axis=0)[np.minimum((tq - 1e-9).astype(int), n - 2)] * fps
             q_ctrl = q_ctrl + v_ref * LEAD
         events = []
-        first = sol.first_failure()
+        first = motion.first_failure()
         if first is not None:
             events.append(PlanEvent(first[0], first[2], first[3]))
-        return _JointPlan(self.arm_act, q_ctrl, sol.q[0], events, sol.summary())
+        return _JointPlan(self.arm_act, q_ctrl, q[0], events, motion.summary())
 
     def reset(self, d, plan, pose0, width0) -> None:
         d.qpos[self.arm_qadr] = plan.q0
