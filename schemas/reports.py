@@ -228,7 +228,8 @@ REPORT_VIEWS: dict[str, str] = {
         FROM sim_outcomes GROUP BY task, take, robot, gripper, kind
         ORDER BY task, take, robot <> 'grippers', robot, gripper, kind
     """,
-    # The robots side by side, per task: success, reachable fraction and the failure classes with counts.
+    # The robots side by side, per task: success, reachable fraction, the arms' IK residual and time-scale
+    # (executed over demonstrated duration) and the failure classes with counts.
     "report_sim_robots": """
         WITH f AS (
             SELECT task, robot, gripper, string_agg(failure || ' ' || n, ', ' ORDER BY n DESC, failure) AS failures
@@ -239,7 +240,9 @@ REPORT_VIEWS: dict[str, str] = {
                round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
                round(avg(CASE WHEN reachable THEN 1.0 WHEN NOT reachable THEN 0.0 END), 3) AS reachable_fraction,
                round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm,
-               round(median(ik_rotation_error_deg), 1) AS median_ik_error_deg, any_value(f.failures) AS failures
+               round(median(ik_rotation_error_deg), 1) AS median_ik_error_deg,
+               round(median(time_scale), 2) AS median_time_scale, round(max(time_scale), 2) AS max_time_scale,
+               any_value(f.failures) AS failures
         FROM sim_outcomes LEFT JOIN f USING (task, robot, gripper)
         GROUP BY task, robot, gripper ORDER BY task, robot <> 'grippers', robot, gripper
     """,

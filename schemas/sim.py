@@ -27,7 +27,7 @@ ROBOT_COLUMNS = [
 
 SIM_RESULTS = table(
     "sim_results",
-    version=3,
+    version=4,
     doc=("One row per episode, robot and run (selection) executed in MuJoCo physics with real contacts, friction and "
          "gravity; objects are never welded. `robot` says which: the two floating grippers or the two ALOHA arms "
          "(with their inverse kinematics' residual). One row per episode and robot: the `sim_outcomes` view."),
@@ -54,6 +54,9 @@ SIM_RESULTS = table(
                "simulation stops there) (null for the grippers).", nullable=True),
         Column("ik_rotation_error_deg", pa.float64(), "Arms only: the worst pinch orientation residual after inverse "
                "kinematics, degrees, the same steps (null for the grippers).", nullable=True),
+        Column("time_scale", pa.float64(), "Arms only: the executed duration over the demonstrated duration: the "
+               "arms start at their ready pose and slow the episode wherever a joint would exceed its servo's speed "
+               "(1.0: nothing slowed; lib/sim/robots/retiming.py) (null for the grippers).", nullable=True),
         Column("duration_s", pa.float64(), "Simulated time, s."),
         Column("physics_steps", pa.int64(), "Physics steps taken."),
         Column("wall_s", pa.float64(), "Wall time of the episode in its worker process, s."),
@@ -123,6 +126,10 @@ def _migrate(root: str | os.PathLike, schema, old_versions: dict[bytes, tuple[st
             continue
         t = _upgrade(schema, pq.read_table(old), old_versions[version][1])
         new = base.joinpath(*(f"{k}={t.column(k)[0].as_py()}" for k in schema.partition_by)) / DATA_FILE
+        if new == old:  # the same layout (a column added): rewritten in place, atomically
+            write_table(schema, t, root)
+            moved += 1
+            continue
         if new.exists():
             existing = pq.read_table(new)
             existing = _upgrade(schema, existing, {})
@@ -143,12 +150,14 @@ def _migrate(root: str | os.PathLike, schema, old_versions: dict[bytes, tuple[st
 
 
 def migrate_sim_results(root: str | os.PathLike) -> int:
-    """Version 1 (`task=/take=/chunk=`, no selection: moved to selection `legacy`) and version 2 files
-    (before robots had names) to version 3: `robot` = grippers, `gripper` = 2f140, the arms' columns null.
-    Version 1 wrote a sample run and a whole-database run into the same chunk files, so which run a v1
-    file came from is not recorded; its rows are kept as they are."""
+    """Version 1 (`task=/take=/chunk=`, no selection: moved to selection `legacy`), version 2 (before robots
+    had names: `robot` = grippers, `gripper` = 2f140, the arms' columns null) and version 3 files (before
+    `time_scale`: null, rewritten in place) to version 4. Version 1 wrote a sample run and a whole-database
+    run into the same chunk files, so which run a v1 file came from is not recorded; its rows are kept as
+    they are."""
     return _migrate(root, SIM_RESULTS, {b"1": ("task=*/take=*/chunk=*", {"selection": LEGACY_SELECTION}),
-                                        b"2": ("task=*/take=*/selection=*/chunk=*", {})})
+                                        b"2": ("task=*/take=*/selection=*/chunk=*", {}),
+                                        b"3": ("task=*/take=*/robot=*/gripper=*/selection=*/chunk=*", {})})
 
 
 def migrate_sim_stability(root: str | os.PathLike) -> int:

@@ -72,10 +72,11 @@ def _outcome_columns(r) -> dict:
 
 
 def _ik_columns(r) -> dict:
-    """The arms' IK residual of a SimResult (null for a robot without arms, or an episode refused before IK)."""
+    """The arms' IK residual and time-scale of a SimResult (null for a robot without arms, or an episode refused
+    before IK)."""
     ik = r.robot or {}
     return {"reachable": ik.get("reachable"), "ik_position_error_m": ik.get("ik_position_error_m"),
-            "ik_rotation_error_deg": ik.get("ik_rotation_error_deg")}
+            "ik_rotation_error_deg": ik.get("ik_rotation_error_deg"), "time_scale": ik.get("time_scale")}
 
 
 @stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers",))

@@ -250,7 +250,7 @@ def test_version_2_sim_results_become_the_grippers_rows(warehouse):
             "selection": ["sample-2-seed0"], "chunk": [0], "episode_id": [4], "kind": ["translated"],
             "success": [False], "failure": ["unreachable"], "detail": ["arm 0 ends 30 mm ..."],
             "predicate_ok": [None], "predicate_detail": [""], "reachable": [False], "ik_position_error_m": [0.03],
-            "ik_rotation_error_deg": [2.0], "duration_s": [0.5], "physics_steps": [240], "wall_s": [0.2]}
+            "ik_rotation_error_deg": [2.0], "time_scale": [1.1], "duration_s": [0.5], "physics_steps": [240], "wall_s": [0.2]}
     write_table("sim_results", arms, warehouse)
     rows = query("SELECT robot, gripper, selection, episode_id, success, reachable, ik_position_error_m "
                  "FROM sim_outcomes ORDER BY robot, episode_id", warehouse).to_pylist()
@@ -266,7 +266,7 @@ def test_version_2_sim_results_become_the_grippers_rows(warehouse):
 def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_run(warehouse):
     base = {"task": "pouring", "take": "t0", "robot": "grippers", "gripper": "2f140", "kind": "translated",
             "failure": "", "detail": "", "predicate_ok": True, "predicate_detail": "", "reachable": None,
-            "ik_position_error_m": None, "ik_rotation_error_deg": None, "duration_s": 1.0, "physics_steps": 480,
+            "ik_position_error_m": None, "ik_rotation_error_deg": None, "time_scale": None, "duration_s": 1.0, "physics_steps": 480,
             "wall_s": 0.1}
     rows = [dict(base, selection="sample-2-seed0", chunk=0, episode_id=0, success=False),
             dict(base, selection="sample-2-seed0", chunk=0, episode_id=7, success=False),
@@ -313,3 +313,23 @@ def test_no_query_splices_a_value_into_its_sql():
     files = [p for d in ("lib", "tasks", "flows", "schemas", "scripts") for p in sorted((PROJECT_ROOT / d).rglob("*.py"))]
     assert len(files) > 50
     assert [b for f in files for b in _spliced_values(f)] == []
+
+
+def test_version_3_sim_results_gain_a_null_time_scale_in_place(warehouse):
+    """Results written before the arms were retimed (no `time_scale`) keep their file, rows and values; the
+    column is null (not measured), and the migration runs once."""
+    from demoforge.schemas.core import migrate_warehouse, read_table, write_table
+
+    row = {"task": ["pouring"], "take": ["t0"], "robot": ["aloha"], "gripper": ["2f140"], "selection": ["all"],
+           "chunk": [0], "episode_id": [3], "kind": ["translated"], "success": [False], "failure": ["joint_limit"],
+           "detail": ["speed"], "predicate_ok": [None], "predicate_detail": [""], "reachable": [False],
+           "ik_position_error_m": [0.02], "ik_rotation_error_deg": [15.0], "time_scale": [None], "duration_s": [0.2],
+           "physics_steps": [100], "wall_s": [0.1]}
+    (written,) = write_table("sim_results", row, warehouse)
+    path = Path(written.path)
+    t = pq.read_table(path).drop(["time_scale"])
+    pq.write_table(t.replace_schema_metadata({**t.schema.metadata, b"demoforge.schema_version": b"3"}), path)
+    assert migrate_warehouse(warehouse) == {"sim_results": 1} and path.exists()
+    got = read_table("sim_results", warehouse).to_pylist()
+    assert len(got) == 1 and got[0]["time_scale"] is None and got[0]["failure"] == "joint_limit"
+    assert got[0]["ik_rotation_error_deg"] == 15.0 and migrate_warehouse(warehouse) == {}
