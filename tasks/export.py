@@ -198,16 +198,22 @@ def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None,
     joints = arm.joint_names
     only = None if not joints or unchecked else checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
     sel = load_episodes(warehouse, task, take, include_invalid, limit, only=only)
-    joint_state, joint_source, dropped = None, {}, []
+    joint_state, joint_source, dropped, demonstrated = None, {}, [], sel
     if joints:
-        sel, joint_state, dropped = _reachable_joint_space(arm, sel, progress)
+        sel, joint_state, dropped, demonstrated, scale = _reachable_joint_space(arm, sel, progress)
         joint_source = {"robot": arm.name, "gripper": arm.gripper_name, "state": list(joints),
                         "check": "unchecked: every selected episode the arms reach" if unchecked else
                                  f"sim_results success with robot {arm.name}, gripper {arm.gripper_name}",
+                        "trajectory": "as the arms run it, at the dataset's fps: from their ready pose, joint-space "
+                                      "transits into and out of each arm's skill segments, the segments through "
+                                      "inverse kinematics, slowed where a joint would exceed its servo's speed "
+                                      "(lib/sim/robots/arm_motion.py)",
+                        "time_scale": [round(float(x), 4) for x in scale],
                         "left_out_unreachable": dropped}
     spec = get_task(task)
     env = episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, spec.keypoint_object)
-    videos = [episode_video_source(warehouse, sel, image_size, robot=arm)] if with_images else None
+    # the video: each episode executed again by the robot from its demonstrated poses (the frames it runs)
+    videos = [episode_video_source(warehouse, demonstrated, image_size, robot=arm)] if with_images else None
     write_lerobot_dataset(
         out, sel.poses, sel.lengths, tasks=[task_instruction(task)],
         provenance={"take": sel.take, "episode_id": sel.episode_id, "kind": sel.kind, "valid": sel.valid},
@@ -228,15 +234,17 @@ def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None,
 
 
 def _reachable_joint_space(arm, sel: EpisodeSelection, progress: bool):
-    """(the selection without the episodes the arms cannot reach, their joint values (F, D), the
-    left-out episodes as [take, id, worst position error m, worst rotation error deg])."""
+    """(the episodes the arms reach as they execute them: executed poses and lengths, their joint values
+    (F', D), the left-out episodes as [take, id, worst position error m, worst rotation error deg], the
+    kept episodes as demonstrated, and each kept episode's time-scale)."""
     from tqdm.auto import tqdm
 
     from demoforge.lib.exports.joint_space import joint_episodes
 
     with tqdm(total=len(sel.lengths), desc=f"{sel.task}: inverse kinematics ({arm.label})", unit="episode",
               disable=not progress) as bar:
-        js = joint_episodes(arm, sel.task, sel.poses, sel.lengths, progress=lambda i: bar.update(i - bar.n))
+        js = joint_episodes(arm, sel.task, sel.poses, sel.lengths, sel.keypoints,
+                            progress=lambda i: bar.update(i - bar.n))
     dropped = [[str(t), int(e), round(float(p), 4), round(float(r), 2)]
                for t, e, p, r, k in zip(sel.take, sel.episode_id, js.position_error, js.rotation_error, js.keep)
                if not k]
@@ -244,7 +252,11 @@ def _reachable_joint_space(arm, sel: EpisodeSelection, progress: bool):
         raise ExportError(f"task {sel.task!r}: the {arm.label} arms cannot reach any of the {len(sel.lengths)} "
                           f"selected episodes (the first's worst residual: {js.position_error[0] * 1000:.0f} mm, "
                           f"{js.rotation_error[0]:.1f} deg); `demoforge simulate --robot {arm.name}` says why")
-    return subset(sel, js.keep), js.joints, dropped
+    kept = subset(sel, js.keep)
+    executed = EpisodeSelection(task=kept.task, poses=js.poses, lengths=js.lengths, take=kept.take,
+                                episode_id=kept.episode_id, kind=kept.kind, valid=kept.valid, transform=kept.transform,
+                                keypoints=kept.keypoints, sources=kept.sources)
+    return executed, js.joints, dropped, kept, js.time_scale[js.keep]
 
 
 def take_cameras(warehouse: str, takes: list[str]) -> dict:

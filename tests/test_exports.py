@@ -653,7 +653,8 @@ def _sim_rows(ids: list[int], success: list[bool], robot: str = "aloha", gripper
             "selection": ["ids-test"] * n, "chunk": [0] * n, "episode_id": ids, "kind": ["translated"] * n,
             "success": success, "failure": ["" if s else "unreachable" for s in success], "detail": [""] * n,
             "predicate_ok": [None] * n, "predicate_detail": [""] * n, "reachable": success,
-            "ik_position_error_m": [0.001] * n, "ik_rotation_error_deg": [0.1] * n, "duration_s": [1.0] * n,
+            "ik_position_error_m": [0.001] * n, "ik_rotation_error_deg": [0.1] * n, "time_scale": [1.0] * n,
+            "duration_s": [1.0] * n,
             "physics_steps": [480] * n, "wall_s": [0.1] * n}
 
 
@@ -661,14 +662,18 @@ def test_joint_space_export_reproduces_the_poses_and_keeps_only_checked_reachabl
     """`export lerobot --robot aloha`: 14 joint values per step named as the ALOHA datasets name them; the
     arms' FK of the exported joints is the episode's gripper poses (1 cm, 5 degrees, as the check), the
     gripper columns are g; only episodes whose arm check passed (all it reaches with --unchecked), never
-    one the IK cannot reach."""
+    one the IK cannot reach. The exported trajectory is what the arms run (their ready-pose start and
+    time-scaling included), at the dataset's fps."""
     from scipy.spatial.transform import Rotation
 
     from demoforge.lib.exports.lerobot import read_lerobot_episode
     from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.sim import SimOptions, planned_execution
     from demoforge.lib.sim.robots.aloha import JOINT_NAMES
+    from demoforge.lib.sim.robots.aloha.model import REST
+    from demoforge.lib.sim.robots.retiming import at
     from demoforge.schemas.core import write_table
-    from demoforge.tasks.export import export_lerobot
+    from demoforge.tasks.export import export_lerobot, load_episodes
 
     wh, info = arm_episode_wh
     with pytest.raises(ExportError, match="demoforge simulate --task pouring --robot aloha"):
@@ -683,21 +688,30 @@ def test_joint_space_export_reproduces_the_poses_and_keeps_only_checked_reachabl
     valid = sum(info["valid"].values())
     assert s["episodes"] == valid - 1 and s["left_out_unreachable"] == 1, s
     assert [r[1] for r in source["left_out_unreachable"]] == [info["far"]]
-    ik = get_robot("aloha").ik(TASK)
+    arms = get_robot("aloha")
+    ik = arms.ik(TASK)
+    sel = load_episodes(str(wh), TASK)
+    assert len(source["time_scale"]) == s["episodes"] and min(source["time_scale"]) > 1.0
     for e in range(s["episodes"]):
         ep = read_lerobot_episode(tmp_path / "all", e)
+        i = int(np.flatnonzero(sel.episode_id == int(ep["demoforge.episode_id"][0]))[0])
         poses = info["actions"][int(ep["demoforge.episode_id"][0])]
+        # what the arms run: from their ready pose, slowed where a servo is too slow, at the dataset's fps
+        motion = planned_execution(TASK, sel.keypoints[i], poses, options=SimOptions(robot=arms)).state
         state = ep["observation.state"].astype(np.float64)
-        assert state.shape == (len(poses), 14)
+        assert state.shape == (len(motion.q), 14) and len(motion.q) > len(poses)
+        assert source["time_scale"][e] == pytest.approx(motion.time_scale, abs=1e-4)
+        np.testing.assert_allclose(state[0, [0, 1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]], REST * 2, atol=1e-6)
         np.testing.assert_array_equal(ep["action"][:-1], ep["observation.state"][1:])
-        np.testing.assert_array_equal(state[:, [6, 13]], np.clip(poses[:, :, 7], 0, 1))
-        for t in range(0, len(poses), 17):
-            ik.cfg.update(np.concatenate([state[t, :6], state[t, 7:13]]))
-            d = ik.cfg.data
-            assert np.linalg.norm(d.site_xpos[ik.sites] - poses[t, :, :3], axis=1).max() < 0.01
-            R = Rotation.from_quat(poses[t, :, 3:7]).as_matrix()
-            cos = (np.einsum("aij,aij->a", d.site_xmat[ik.sites].reshape(2, 3, 3), R) - 1) / 2
-            assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 5.0
+        np.testing.assert_allclose(state[:, [6, 13]], np.clip(motion.poses[:, :, 7], 0, 1), atol=1e-6)
+        # inside each arm's window the FK of the exported joints is on the demonstrated path
+        for a in range(2):
+            w0, w1 = motion.windows[a]
+            for t in np.flatnonzero((motion.s >= w0) & (motion.s <= w1 - 1))[::17]:
+                ik.cfg.update(np.concatenate([state[t, :6], state[t, 7:13]]))
+                d = ik.cfg.data
+                target = at(poses[:, a, :3], motion.s[t:t + 1])[0]
+                assert np.linalg.norm(d.site_xpos[ik.sites[a]] - target) < 0.01
     exported = [int(read_lerobot_episode(tmp_path / "all", e)["demoforge.episode_id"][0]) for e in range(s["episodes"])]
     dropped = [r[1] for r in source["left_out_unreachable"]]
     # the arm check: only the episodes whose check passed, less any the IK cannot reach
