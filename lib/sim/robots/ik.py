@@ -230,7 +230,7 @@ class ArmsIK:
                    ) -> Iterator[tuple[np.ndarray, bool, bool]]:
         """(q of the arm's joints, flipped, within tolerance) for the pose [x y z qx qy qz qw], nearest first
         (the slowest joint's travel time from `reference`, the arm's joints; a seed outside the joints'
-        ranges counts its excess ten times): every seed refined by mink, those that converge (1 mm, 0.5 degrees)
+        ranges counts its excess ten times): every seed refined by mink (until an iteration no longer brings it closer), those that converge (1 mm, 0.5 degrees)
         first, then those within tolerance (a seed held at a joint's range), then, when none is, the closest
         of the others (the arm cannot reach the pose; its residual says how far)."""
         pos, R, wxyz = self.targets(np.asarray(pose, float)[None, None].repeat(2, axis=1))
@@ -255,7 +255,7 @@ class ArmsIK:
             q = self.cfg.q.copy()
             q[dofs] = np.clip(s, lo, hi)
             self.cfg.update(q)
-            pe, re, _ = self._iterate(pos, Ra, wa, self.first_iterations, 1.0, active, give_up=False)
+            pe, re, _ = self._iterate(pos, Ra, wa, self.first_iterations, 1.0, active)
             qa = self.cfg.q[dofs].copy()
             score = max(pe[arm] / POSITION_TOL, np.degrees(re[arm]) / ROTATION_TOL_DEG)
             converged = pe[arm] <= CONVERGED_POSITION and re[arm] <= CONVERGED_ROTATION

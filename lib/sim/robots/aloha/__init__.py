@@ -34,9 +34,9 @@ from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
 # 2: the simulator's IK stops at the first failing step; 3: ready-pose start, transits, symmetric orientation,
-# time-scaling instead of speed clipping. Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py)
-# gives other joints for the same poses
-IK_VERSION = "3"
+# time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving.
+# Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
+IK_VERSION = "4"
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
 JOINT_NAMES = tuple(f"{side}_{j}" for side in SIDES for j in (*JOINTS, "gripper"))
