@@ -370,8 +370,7 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
          on_frame: Callable[[Any], None] | None = None) -> SimResult:
     mj, m, d = sc.mj, sc.model, sc.data
     spec = sc.spec
-    # what the robot executes: the actions, or an arm's own start, transits and time-scaling (robots/base.py)
-    execution = sc.binding.prepare(sc, obj0, actions, fps, until_failure=opt.stop_on_hard_failure)
+    execution = sc.binding.prepare(sc, obj0, actions, fps, until_failure=opt.stop_on_hard_failure)  # robots/base.py
     actions = execution.actions
     n = actions.shape[0]
     sch = _schedule(actions, fps, opt, spec, opt.physics.timestep)
@@ -502,8 +501,7 @@ def _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, 
 
 def planned_execution(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
                       options: SimOptions | None = None):
-    """What the robot executes of an episode, without physics (robots/base.py Execution: the executed (m, 2, 8)
-    actions and, for an arm robot, its joint trajectory): the same plan execute() runs, to its end."""
+    """What the robot executes of an episode (robots/base.py Execution), as execute() plans it, without physics."""
     opt = options or SimOptions()
     sc = get_scene(task_name, opt.robot, opt.physics)
     obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
