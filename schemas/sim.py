@@ -56,7 +56,8 @@ SIM_RESULTS = table(
                "kinematics, degrees, the same steps (null for the grippers).", nullable=True),
         Column("time_scale", pa.float64(), "Arms only: the executed duration over the demonstrated duration: the "
                "arms start at their ready pose and slow the episode wherever a joint would exceed its servo's speed "
-               "(1.0: nothing slowed; lib/sim/robots/retiming.py) (null for the grippers).", nullable=True),
+               "(1.0 and the ready pose's one frame: nothing slowed; lib/sim/robots/retiming.py) (null for the "
+               "grippers).", nullable=True),
         Column("duration_s", pa.float64(), "Simulated time, s."),
         Column("physics_steps", pa.int64(), "Physics steps taken."),
         Column("wall_s", pa.float64(), "Wall time of the episode in its worker process, s."),
