@@ -17,5 +17,7 @@ for top in MAPPED:
 setup(
     packages=packages,
     package_dir={"demoforge": "demoforge", **{f"demoforge.{top}": top for top in MAPPED}},
-    package_data={"demoforge.lib.annotate": ["page.html"]},
+    package_data={"demoforge.lib.annotate": ["page.html"],
+                  # the ViperX arms' MJCF and meshes (gym-aloha 0.1.5, Apache-2.0) with their licence
+                  "demoforge.lib.sim.robots.aloha": ["assets/*"]},
 )

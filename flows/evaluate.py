@@ -10,7 +10,7 @@ from demoforge.runtime.artifacts import ProgressArtifact
 from demoforge.flows.augment import augment_take_flow
 from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
 from demoforge.flows.keypoint_eval import evaluate_keypoints
-from demoforge.lib.evaluation.config import DETECTORS, EvaluateConfig  # noqa: F401  (DETECTORS: the CLI's choices)
+from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot  # noqa: F401  (the CLI's choices)
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.flows.report import write_report
 from demoforge.runtime.runners import run_flow
@@ -50,9 +50,10 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
     accuracy, keypoint metrics and the robot executing its ingested demonstration, each detector in its
     own rows; with `detectors=["simulated"]` none of this runs: the cost of the main job before it);
     the first plain take of each task becomes that task's database of `episodes` episodes, of which
-    `sim_episodes` (the original demonstration and a seeded sample) are executed by the robot in MuJoCo,
-    and `stability_episodes` of them `stability_repeats` times with the scene shifted by about 0.1 mm (how
-    far a single verdict can be trusted).
+    `sim_episodes` (the original demonstration and a seeded sample) are executed in MuJoCo by each of
+    `robots` (the same sample, side by side: the floating grippers and the ALOHA arms with each hand),
+    and `stability_episodes` of them `stability_repeats` times by the first robot with the scene shifted
+    by about 0.1 mm (how far a single verdict can be trusted).
     Table 3 (flows/table3.py, protocol `thesis`, the first take of each of `llm_tasks`): the LLM-free
     baselines and the learned policy on `grid_scenes` query scenes, the three prompts on the first
     `trials` of them with `llm_backend` (the embedded Gemma 3 270M by default: about 50 s per trial on 2
@@ -83,11 +84,14 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
             run_flow(augment_take_flow, m.path, warehouse, augment=AugmentOptions.half_mirrored(c.episodes, c.seed))
             task = name.split("_s")[0].removeprefix("synth_")
             first_take[task] = m.path
-            if c.sim_episodes:
-                run_flow(simulate_episodes, warehouse, task=task, episodes=c.sim_episodes, take=name, seed=c.seed)
+            for label in c.robots if c.sim_episodes else ():
+                robot, hand = parse_robot(label)
+                run_flow(simulate_episodes, warehouse, task=task, episodes=c.sim_episodes, take=name, seed=c.seed,
+                         robot=robot, gripper=hand)
             if c.stability_episodes and c.stability_repeats >= 2:
+                robot, hand = parse_robot(c.robots[0])
                 run_flow(check_stability, warehouse, task=task, episodes=c.stability_episodes,
-                         repeats=c.stability_repeats, take=name, seed=c.seed)
+                         repeats=c.stability_repeats, take=name, seed=c.seed, robot=robot, gripper=hand)
         else:
             run_flow(ingest_take, m.path, warehouse)
         if len(detectors) > 1:

@@ -9,20 +9,30 @@ from prefect import flow
 import demoforge.lib  # noqa: F401
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.export import (
-    _refuse_foreign, episode_files, export_lerobot_stage, export_robomimic_stage, write_view,
+    _refuse_foreign, check_files, episode_files, export_lerobot_stage, export_robomimic_stage, write_view,
 )
 
 
 @flow(name="export-lerobot")
 def export_lerobot_flow(warehouse: str, task: str, out: str, take: str | None = None,
                         include_invalid: bool = False, limit: int | None = None, with_images: bool = False,
-                        image_size: tuple[int, int] | None = None) -> Manifest:
-    """A task's episodes as a LeRobotDataset v3.0 folder at ``out`` (replaces an earlier export there)."""
+                        image_size: tuple[int, int] | None = None, robot: str = "grippers",
+                        gripper: str | None = None, unchecked: bool = False) -> Manifest:
+    """A task's episodes as a LeRobotDataset v3.0 folder at ``out`` (replaces an earlier export there):
+    the grippers' poses, or an arm robot's joint values (`robot`, `gripper`) of the episodes its check
+    passed (all it reaches with `unchecked`)."""
+    from demoforge.lib.sim.robots import get_robot
+
+    arm = get_robot(robot, gripper)
     out_p = Path(out).resolve()
     _refuse_foreign(out_p, "meta/info.json")
-    return run_stage(export_lerobot_stage, warehouse, sources=episode_files(warehouse, task, take),
+    sources = episode_files(warehouse, task, take)
+    if arm.joint_names and not unchecked:
+        sources += check_files(warehouse, task, arm.name, arm.gripper_name)
+    return run_stage(export_lerobot_stage, warehouse, sources=sources,
                      warehouse=warehouse, task=task, out=str(out_p), take=take, include_invalid=include_invalid,
-                     limit=limit, with_images=with_images, image_size=image_size)
+                     limit=limit, with_images=with_images, image_size=image_size, robot=arm.name,
+                     gripper=arm.gripper_name, unchecked=unchecked)
 
 
 @flow(name="export-robomimic")

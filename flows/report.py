@@ -17,6 +17,19 @@ from demoforge.schemas.reports import REPORT_VIEWS
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 
+# Views for SQL that the report does not show: `demoforge llm-eval`'s prompting trials on placement scenes
+# (not the Table 3 grid, which the report shows in the thesis's layout).
+SQL_ONLY_VIEWS = {"report_table3", "report_llm_failures"}
+
+# The views the report shows (each report view is one of these or SQL-only)
+SHOWN_VIEWS = {
+    "report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks", "report_ingest_by_task",
+    "report_ingest_accuracy", "report_segmentation", "report_ingested_demos", "report_augmentation",
+    "report_table1", "report_table2", "report_appendix_b", "report_big_vs_small", "report_real_photos",
+    "report_sim", "report_sim_robots", "report_sim_failures", "report_sim_stability", "report_table4",
+    "report_table4_failures", "report_policy", "report_policy_failures", "report_table3_grid",
+    "report_table3_intervals", "report_table3_failures"}
+
 # While write_report runs: every view it has queried, so that publishing them as Prefect artifacts
 # after the Markdown does not query each of them a second time.
 _REPORT_VIEWS_READ: dict[tuple[str, str], object] | None = None
@@ -154,6 +167,29 @@ def table3_sections(warehouse: Path, reports: Path, stamp: str) -> list[str]:
             _section("Table 3: why trials failed", "report_table3_failures", warehouse, reports, stamp)]
 
 
+def sim_sections(warehouse: Path, reports: Path, stamp: str, params: dict) -> list[str]:
+    """The robots side by side (per task: success, reachable fraction, failure classes), per episode kind,
+    and why episodes failed."""
+    md = []
+    robots = ", ".join(params.get("robots") or ["grippers"])
+    sim_stamp = stamp + f" · robots: {robots} · episodes per task: {params.get('sim_episodes')}"
+    md.append(_section("The robots side by side", "report_sim_robots", warehouse, reports, sim_stamp,
+                       "The same sample of each task's episodes (the original demonstration first) executed by "
+                       "each robot with real contacts, friction and gravity: `grippers`, two free-floating "
+                       "Robotiq 2F-140-class grippers (every pose reachable, only the hands collide); `aloha`, two "
+                       "ViperX 300 6-DOF arms driven in joint space from inverse kinematics (mink), with ALOHA's "
+                       "own fingers (`gripper` aloha: 69 mm between the pads) or the 2F-140 on the wrists. "
+                       "`reachable_fraction`: the episodes whose every step the arms reach within 1 cm and 5 "
+                       "degrees; `failures`: each failure class with its count (`unreachable`, `joint_limit`: a "
+                       "pose beyond reach or a joint at its range's end or speed limit; `link_collision`: an arm "
+                       "link on the table, an object or the other arm; `wider_than_stroke`: an object the hand "
+                       "cannot open around). docs/robot-checks.md says where the arms stand and why they fail."))
+    md.append(_section("Robot success checks in MuJoCo physics, per episode kind", "report_sim", warehouse, reports,
+                       sim_stamp, "The robots replay what the ingest recovered from the video, not the script."))
+    md.append(_section("Why episodes failed in physics", "report_sim_failures", warehouse, reports, sim_stamp))
+    return md
+
+
 def write_report(warehouse: str | Path, reports_dir: str | Path, params: dict) -> Path:
     global _REPORT_VIEWS_READ
     _REPORT_VIEWS_READ = {}
@@ -221,13 +257,6 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "mirrored-and-translated episodes; invalid ones are kept and flagged with the reason."))
     llm_stamp = stamp + f" · LLM backend: {params.get('llm_backend')} · trials per strategy: {params.get('trials')}"
     md += table3_sections(warehouse, reports, llm_stamp + f" · LLM-free and policy scenes: {params.get('grid_scenes')}")
-    md.append(_section("Prompting trials of `demoforge llm-eval` (placement scenes; not the grid above)", "report_table3", warehouse, reports, llm_stamp,
-                       "Successes of the predicted trajectories in the MuJoCo check, per take and strategy: "
-                       "`single` (the original demonstration as the only example), `random` (3 random "
-                       "augmented episodes), `retrieval` (the top 3 by keypoint MSE), and the LLM-free "
-                       "baselines `replay_top1` (the nearest episode itself) and `transform_demo` (the "
-                       "demonstration carried to the scene by the augmentation transform)."))
-    md.append(_section("Why prompting trials failed", "report_llm_failures", warehouse, reports, llm_stamp))
     pol_stamp = stamp + (f" · policy: {params.get('policy_epochs')} epochs, {params.get('policy_waypoints')} waypoints, "
                          f"{params.get('policy_trials')} scenes per kind")
     md.append(_section("Learned keypoint policy", "report_policy", warehouse, reports, pol_stamp,
@@ -262,20 +291,14 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "table's far corners."))
     md.append(_section("Why trials failed under scene variations", "report_table4_failures", warehouse, reports,
                        var_stamp))
-    md.append(_section("Robot success checks in MuJoCo physics", "report_sim", warehouse, reports, stamp,
-                       "A sample of each task's episodes (the original demonstration first) executed by two "
-                       "parallel-jaw grippers with real contacts, friction and gravity; the robot replays what "
-                       "the ingest recovered from the video, not the script."))
-    md.append(_section("Why episodes failed in physics", "report_sim_failures", warehouse, reports, stamp))
+    md += sim_sections(warehouse, reports, stamp, params)
     md.append(_section("How stable the robot check's verdicts are", "report_sim_stability", warehouse, reports, stamp,
                        "Episodes of the sample executed again with the whole scene (objects and gripper poses) "
                        "shifted rigidly along the table by about 0.1 mm: physically nothing changes, only the "
                        "simulation's rounding. `flipping` episodes change outcome under that shift: their single "
                        "verdict is decided by numerical chaos, and `success_rate` over all repeats estimates "
                        "their success as a probability (`demoforge stability` for more episodes and repeats)."))
-    from demoforge.tasks.export import (  # per task: trajectories before/after, coverage, success map
-        report_plots,
-    )
+    from demoforge.tasks.export import report_plots  # per task: trajectories before/after, coverage, success map
 
     md += report_plots(str(warehouse), str(reports))
     bench = _view("report_benchmarks", warehouse)
@@ -284,15 +307,7 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                            "measured on this machine"))
     else:
         md += ["## Benchmarks", "", "_No benchmark run in this warehouse yet: `make bench`._", ""]
-    unused = set(REPORT_VIEWS) - {"report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks",
-                                  "report_ingest_by_task", "report_ingest_accuracy", "report_segmentation",
-                                  "report_ingested_demos",
-                                  "report_augmentation", "report_table1", "report_table2", "report_appendix_b",
-                                  "report_big_vs_small", "report_real_photos", "report_sim", "report_sim_failures",
-                                  "report_sim_stability",
-                                  "report_table3", "report_llm_failures", "report_table4", "report_table4_failures",
-                                  "report_policy", "report_policy_failures", "report_table3_grid",
-                                  "report_table3_intervals", "report_table3_failures"}
+    unused = set(REPORT_VIEWS) - SQL_ONLY_VIEWS - SHOWN_VIEWS
     assert not unused, f"report views not in the report: {unused}"
     out = reports / "REPORT.md"
     tmp = out.with_name(".REPORT.md.tmp")

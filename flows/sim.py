@@ -1,5 +1,6 @@
-"""Flows: execute a task's episodes with the dual-gripper robot in MuJoCo; check how stable the outcomes
-are under a rigid sub-millimetre shift of the scene; render one episode as a video."""
+"""Flows: execute a task's episodes with a robot (lib/sim/robots: the floating grippers or the ALOHA arms)
+in MuJoCo; check how stable the outcomes are under a rigid sub-millimetre shift of the scene; render one
+episode as a video."""
 
 from __future__ import annotations
 
@@ -69,23 +70,34 @@ def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str,
     return take, source
 
 
+def _robot_args(task: str, robot: str, gripper: str | None) -> tuple[dict, str]:
+    """The chunk stages' robot arguments with the scene fingerprint (an unknown robot or hand: RobotError),
+    and the robot's label for the progress bars."""
+    from demoforge.lib.sim import scene_fingerprint
+    from demoforge.tasks.sim import sim_options
+
+    opt = sim_options(robot, gripper)
+    return ({"robot": opt.robot.name, "gripper": opt.robot.gripper_name, "scene": scene_fingerprint(task, opt)},
+            opt.robot.label)
+
+
 @flow(name="simulate-episodes")
 def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
                       take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
-                      show_progress: bool = True) -> list[Manifest]:
-    """Execute episodes of a task's database in MuJoCo (results: `sim_results`), chunk by chunk.
+                      show_progress: bool = True, robot: str = "grippers", gripper: str | None = None) -> list[Manifest]:
+    """Execute episodes of a task's database in MuJoCo with `robot` (and hand `gripper`; default its own)
+    (results: `sim_results`), chunk by chunk.
 
     Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
-    the same episodes costs nothing. Its rows carry the run's selection (selection_name): a sample
-    and a whole-database run of the same task keep their own files."""
-    from demoforge.lib.sim import scene_fingerprint
-
+    the same episodes costs nothing. Its rows carry the run's selection (selection_name) and the robot:
+    a sample and a whole-database run of the same task, or two robots, keep their own files."""
+    robot_args, label = _robot_args(task, robot, gripper)
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     selection = selection_name(episodes, ids, seed)
     common = dict(task=task, take=take, selection=selection, warehouse=warehouse, source=source,
-                  scene=scene_fingerprint(task), workers=workers, show_progress=show_progress)
-    return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection}",
+                  workers=workers, show_progress=show_progress, **robot_args)
+    return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection} ({label})",
                        artifact=(f"simulate-{task}", f"{task}: chunks of {chunk_size} episodes executed in MuJoCo"))
 
 
@@ -126,28 +138,34 @@ def _run_bar(desc: str, total: int, show: bool):
 @flow(name="check-stability")
 def check_stability(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = 40, repeats: int = 5,
                     jitter_m: float = 1e-4, take: str | None = None, chunk_size: int = 20, workers: int = 2,
-                    seed: int = 0, show_progress: bool = True) -> list[Manifest]:
+                    seed: int = 0, show_progress: bool = True, robot: str = "grippers",
+                    gripper: str | None = None) -> list[Manifest]:
     """Execute each selected episode `repeats` times, the scene shifted rigidly along the table by
     `jitter_m` (standard deviation, metres) in every repeat but the first; rows in `sim_stability`, the
     summary in the `report_sim_stability` view. Chunks are cached stages, like simulate_episodes."""
-    from demoforge.lib.sim import scene_fingerprint
     from demoforge.lib.sim.stability import scene_offsets
 
     scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
+    robot_args, label = _robot_args(task, robot, gripper)
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     run = stability_run_name(selection_name(episodes, ids, seed), repeats, jitter_m, seed)
     common = dict(task=task, take=take, run=run, repeats=int(repeats), jitter_m=float(jitter_m), seed=int(seed),
-                  warehouse=warehouse, source=source, scene=scene_fingerprint(task), workers=workers,
-                  show_progress=show_progress)
-    return _run_chunks(stability_chunk, warehouse, common, ids, chunk_size, f"{task}: stability {run}")
+                  warehouse=warehouse, source=source, workers=workers, show_progress=show_progress, **robot_args)
+    return _run_chunks(stability_chunk, warehouse, common, ids, chunk_size, f"{task}: stability {run} ({label})")
 
 
-def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None) -> dict:
+def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None,
+                         robot: str = "grippers", gripper: str | None = None) -> dict:
     """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
+    from dataclasses import replace
+
     from demoforge.lib.sim.render import render_episode
     from demoforge.schemas.catalog import query
     from demoforge.tasks.augment import episode_actions
+    from demoforge.tasks.sim import sim_options
+
+    opt = replace(sim_options(robot, gripper), stop_on_hard_failure=False)  # the whole episode, past a failure
 
     t = query("SELECT take, object_keypoints FROM episodes WHERE task = ? AND episode_id = ? "
               "AND (? IS NULL OR take = ?) ORDER BY take LIMIT 1", warehouse, [task, int(episode_id), take, take])
@@ -157,4 +175,4 @@ def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | 
     kp = np.asarray(t.column("object_keypoints")[0].as_py(), float)
     actions = episode_actions(warehouse, task, take, [episode_id])[int(episode_id)]
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    return render_episode(task, kp, actions, str(out)).row()
+    return render_episode(task, kp, actions, str(out), options=opt).row()

@@ -45,6 +45,8 @@ def table3(
     number_format: str | None = None,
     take_dirs: Sequence[str] | None = None,
     show_progress: bool = True,
+    robot: str = "grippers",
+    gripper: str | None = None,
 ) -> list[Manifest]:
     """For each of `takes` synthetic takes of `task` (seeds seed, seed+1, ...; or the given take_dirs)
     and each protocol: the take's episode database (`episodes` episodes), `scenes` query scenes, and
@@ -54,8 +56,13 @@ def table3(
     from its own sampler with held-out seeds. novel: the task library's placements (objects placed and
     turned independently) against a second database of the take built to cover them (independent
     objects, translation and yaw ranges spanning the placement sampler, no mirrored episodes).
-    Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped."""
+    Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped. `robot`,
+    `gripper`: the robot that executes every prediction (lib/sim/robots; default the floating grippers).
+    """
     from tqdm import tqdm
+
+    from demoforge.lib.sim import scene_fingerprint
+    from demoforge.tasks.sim import sim_options
 
     from demoforge.flows.synth import synthesize_takes
     from demoforge.lib.task_library import TASK_NAMES, get_task
@@ -81,6 +88,9 @@ def table3(
         paths = [m.path for m in run_flow(synthesize_takes, warehouse, tasks=[task], takes=takes, seed=seed,
                                           mirror="no", show_progress=show_progress)]
     spec = get_task(task)
+    opt = sim_options(robot, gripper)  # an unknown robot or hand: RobotError, before any work
+    judge = {} if opt.robot.name == "grippers" else {  # the grippers' cells keep their cache keys
+        "robot": opt.robot.name, "gripper": opt.robot.gripper_name, "scene_key": scene_fingerprint(task, opt)}
     cells = [s for s in strategies if s not in LLM_STRATEGIES or llm_scenes > 0]
     out: list[Manifest] = []
     bar = tqdm(total=len(paths) * len(protocols) * len(cells), desc=f"table3 {task}", unit="cell",
@@ -102,7 +112,8 @@ def table3(
                                   structured=structured if llm else None,
                                   number_format=number_format if llm else None,
                                   keyframes=keyframe_key(task, n_waypoints) if llm else None,
-                                  policy_checkpoint=ck if strategy == POLICY else None, show_progress=show_progress)
+                                  policy_checkpoint=ck if strategy == POLICY else None, show_progress=show_progress,
+                                  **judge)
                     logger.info("%s %s take %d (%s) %s: %d trials", task, protocol, i, db["take"], strategy, m.rows)
                     out.append(m)
                     bar.update(1)

@@ -42,6 +42,7 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_DEBUG": "full tracebacks instead of one-line errors",
     "DEMOFORGE_NATIVE_LOGS": "1: MediaPipe's C++ warnings go to stderr (default: kept out of the terminal)",
     "DEMOFORGE_DETECTORS": "hand detectors `evaluate` ingests every take with",
+    "DEMOFORGE_ROBOTS": "robots `evaluate` executes every task's sample with (grippers, aloha, aloha+2f140)",
     # the LLM
     "DEMOFORGE_LLM_BACKEND": "local (embedded Gemma 3 270M) or openai",
     "DEMOFORGE_LLM_MODEL": "model name of the openai backend",

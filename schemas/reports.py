@@ -13,11 +13,12 @@ from demoforge.schemas.variations import REPORT_TABLE4_FAILURES_SQL, REPORT_TABL
 
 # Views over the tables that are not report sections (the report views may use them).
 TABLE_VIEWS: dict[str, str] = {
-    # One robot check per episode: an episode that several runs (selections) checked keeps the row of
-    # the whole-database run (`all`) if there is one, else of the first selection by name.
+    # One robot check per episode and robot: an episode that several runs (selections) checked with the
+    # same robot keeps the row of the whole-database run (`all`) if there is one, else of the first
+    # selection by name.
     "sim_outcomes": """
         SELECT * EXCLUDE (pick) FROM (
-            SELECT *, row_number() OVER (PARTITION BY task, take, episode_id
+            SELECT *, row_number() OVER (PARTITION BY task, take, robot, gripper, episode_id
                                          ORDER BY selection <> 'all', selection, chunk) AS pick
             FROM sim_results)
         WHERE pick = 1
@@ -217,33 +218,55 @@ REPORT_VIEWS: dict[str, str] = {
                count(*) AS trials
         FROM policy_trials GROUP BY ALL ORDER BY task, checkpoint_id, scene_kind, trials DESC, outcome
     """,
-    # Robot success checks of the augmented episodes, per task and kind.
+    # Robot success checks of the augmented episodes, per task, robot and kind; `reachable_fraction`:
+    # the share whose every step the arms' inverse kinematics reaches (empty for the floating grippers).
     "report_sim": """
-        SELECT task, take, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,
+        SELECT task, take, robot, gripper, kind, count(*) AS episodes, count(*) FILTER (WHERE success) AS successes,
                round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
+               round(avg(CASE WHEN reachable THEN 1.0 WHEN NOT reachable THEN 0.0 END), 3) AS reachable_fraction,
                round(avg(wall_s), 2) AS mean_wall_s
-        FROM sim_outcomes GROUP BY task, take, kind ORDER BY task, take, kind
+        FROM sim_outcomes GROUP BY task, take, robot, gripper, kind
+        ORDER BY task, take, robot <> 'grippers', robot, gripper, kind
+    """,
+    # The robots side by side, per task: success, reachable fraction, the arms' IK residual and time-scale
+    # (executed over demonstrated duration) and the failure classes with counts.
+    "report_sim_robots": """
+        WITH f AS (
+            SELECT task, robot, gripper, string_agg(failure || ' ' || n, ', ' ORDER BY n DESC, failure) AS failures
+            FROM (SELECT task, robot, gripper, failure, count(*) AS n FROM sim_outcomes WHERE NOT success
+                  GROUP BY ALL)
+            GROUP BY ALL)
+        SELECT task, robot, gripper, count(*) AS episodes,
+               round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
+               round(avg(CASE WHEN reachable THEN 1.0 WHEN NOT reachable THEN 0.0 END), 3) AS reachable_fraction,
+               round(1000 * median(ik_position_error_m), 1) AS median_ik_error_mm,
+               round(median(ik_rotation_error_deg), 1) AS median_ik_error_deg,
+               round(median(time_scale), 2) AS median_time_scale, round(max(time_scale), 2) AS max_time_scale,
+               any_value(f.failures) AS failures
+        FROM sim_outcomes LEFT JOIN f USING (task, robot, gripper)
+        GROUP BY task, robot, gripper ORDER BY task, robot <> 'grippers', robot, gripper
     """,
     # Why episodes failed in physics.
     "report_sim_failures": """
-        SELECT task, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
-        FROM sim_outcomes GROUP BY ALL ORDER BY task, episodes DESC, outcome
+        SELECT task, robot, gripper, CASE WHEN success THEN 'success' ELSE failure END AS outcome, count(*) AS episodes
+        FROM sim_outcomes GROUP BY task, robot, gripper, outcome
+        ORDER BY task, robot <> 'grippers', robot, gripper, episodes DESC, outcome
     """,
     # Outcome stability per task and stability run: how many episodes keep their verdict when the
     # scene is shifted by a fraction of a millimetre (always / never succeed) and how many flip. Repeats
     # are counted once each: the same run re-chunked leaves older chunk files holding the same rows.
     "report_sim_stability": """
-        SELECT task, take, run, count(*) AS episodes, max(repeats) AS repeats,
+        SELECT task, take, robot, gripper, run, count(*) AS episodes, max(repeats) AS repeats,
                count(*) FILTER (WHERE ok = repeats) AS always_succeed,
                count(*) FILTER (WHERE ok = 0) AS never_succeed,
                count(*) FILTER (WHERE ok > 0 AND ok < repeats) AS flipping,
                round(avg(first_ok), 3) AS first_run_success_rate,
                round(sum(ok) / sum(repeats), 3) AS success_rate
-        FROM (SELECT task, take, run, episode_id, count(DISTINCT repeat) AS repeats,
+        FROM (SELECT task, take, robot, gripper, run, episode_id, count(DISTINCT repeat) AS repeats,
                      count(DISTINCT repeat) FILTER (WHERE success) AS ok,
                      max(CASE WHEN repeat = 0 AND success THEN 1.0 ELSE 0.0 END) AS first_ok
               FROM sim_stability GROUP BY ALL)
-        GROUP BY task, take, run ORDER BY task, take, run
+        GROUP BY task, take, robot, gripper, run ORDER BY task, take, robot <> 'grippers', robot, gripper, run
     """,
     # Latest benchmark run, one row per case.
     "report_benchmarks": """

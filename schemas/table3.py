@@ -1,13 +1,17 @@
 """The `table3_trials` table: the thesis's Table 3 grid (takes x query scenes x strategies) under a
 named protocol, with the LLM-free baselines and the learned policy beside the three prompts."""
 
-import pyarrow as pa
+import os
+from pathlib import Path
 
-from demoforge.schemas.core import Column, keypoints3d, table
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from demoforge.schemas.core import DATA_FILE, Column, keypoints3d, register_migration, table, write_table
 
 TABLE3_TRIALS = table(
     "table3_trials",
-    version=1,
+    version=2,
     doc=("One prediction for one query scene of one take's database, judged by the MuJoCo success check. "
          "Protocol `thesis`: scenes drawn from the database's own augmentation sampler with held-out seeds; "
          "`novel`: the task library's independent placements with yaw, against a database built to cover them."),
@@ -22,6 +26,9 @@ TABLE3_TRIALS = table(
         Column("scene_mirrored", pa.bool_(), "The query scene is a mirror image of the demonstration's layout (`thesis` draws mirrored scenes at the database's rate)."),
         Column("nearest_mse", pa.float64(), "Keypoint MSE of the scene to its nearest database episode, m^2 (how far retrieval must reach)."),
         Column("query_keypoints", keypoints3d(11), "The query scene's 11 object keypoints, world frame, m."),
+        Column("robot", pa.string(), "The robot that executed the predictions (lib/sim/robots): `grippers` or `aloha`; "
+               "the rows of a robot other than `grippers` are kept under `table3_trials/gripper=.../robot=.../`."),
+        Column("gripper", pa.string(), "Its hands: `2f140` or `aloha` (ALOHA's fingers)."),
         Column("strategy", pa.string(), "Prompts `single`, `random`, `retrieval` (thesis: One Demo / 3 Random / 3 Retrieved); LLM-free `replay_original` (the demo replayed unchanged), `replay_top1` (the nearest episode replayed), `knn_blend` (the top-3 episodes carried to the scene in their objects' frames and averaged), `transform_demo` (the demo, or its mirror image, carried to the scene); `policy` (the learned policy trained on this database)."),
         Column("backend", pa.string(), "LLM backend (`local`, `openai`, ...), `torch` for the policy, `none` otherwise."),
         Column("model", pa.string(), "Model name, or the policy's checkpoint id; empty for `none`."),
@@ -59,49 +66,68 @@ _COLUMNS = (("single", "one_demo"), ("random", "random_3"), ("retrieval", "retri
 #: and an Average row (pooled success rate, %), per task and protocol; LLM-free columns after the prompts.
 REPORT_TABLE3_GRID_SQL = f"""
     WITH per AS (
-        SELECT task, protocol, take_index, 'Take' || CAST(take_index AS VARCHAR) AS row_label, strategy,
-               count(*) AS n, count(*) FILTER (WHERE success) AS k
-        FROM table3_trials GROUP BY task, protocol, take_index, strategy
+        SELECT task, protocol, robot, gripper, take_index, 'Take' || CAST(take_index AS VARCHAR) AS row_label,
+               strategy, count(*) AS n, count(*) FILTER (WHERE success) AS k
+        FROM table3_trials GROUP BY task, protocol, robot, gripper, take_index, strategy
     ), avg AS (
-        SELECT task, protocol, 1000 AS take_index, 'Average' AS row_label, strategy,
-               sum(n) AS n, sum(k) AS k FROM per GROUP BY task, protocol, strategy
+        SELECT task, protocol, robot, gripper, 1000 AS take_index, 'Average' AS row_label, strategy,
+               sum(n) AS n, sum(k) AS k FROM per GROUP BY task, protocol, robot, gripper, strategy
     )
     SELECT * EXCLUDE (take_index) FROM (
-        SELECT task, protocol, take_index, row_label AS take,
+        SELECT task, protocol, robot, gripper, take_index, row_label AS take,
                {", ".join(_cell(s, a) for s, a in _COLUMNS)}
-        FROM per GROUP BY task, protocol, take_index, row_label
+        FROM per GROUP BY task, protocol, robot, gripper, take_index, row_label
         UNION ALL
-        SELECT task, protocol, take_index, row_label AS take,
+        SELECT task, protocol, robot, gripper, take_index, row_label AS take,
                {", ".join(f"max(CASE WHEN strategy = '{s}' THEN CAST(round(100.0 * k / n) AS INTEGER) || ' %' END) AS {a}"
                           for s, a in _COLUMNS)}
-        FROM avg GROUP BY task, protocol, take_index, row_label)
-    ORDER BY task, protocol DESC, take_index
+        FROM avg GROUP BY task, protocol, robot, gripper, take_index, row_label)
+    ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, take_index
 """
 
 #: The `report_table3_intervals` view: per task, protocol and strategy the pooled successes with a
 #: Wilson 95 % score interval (z = 1.96), parse failures and latency.
 REPORT_TABLE3_INTERVALS_SQL = f"""
     WITH s AS (
-        SELECT task, protocol, strategy, any_value(backend) AS backend, count(*) AS n,
+        SELECT task, protocol, robot, gripper, strategy, any_value(backend) AS backend, count(*) AS n,
                count(*) FILTER (WHERE success) AS k, count(DISTINCT take) AS takes,
                count(*) FILTER (WHERE parse_status NOT IN ('ok', 'truncated')) AS unparsable,
                avg(latency_s) FILTER (WHERE NOT cached) AS latency_s,
                avg(sqrt(nearest_mse)) AS nearest_rms_m
-        FROM table3_trials GROUP BY task, protocol, strategy
+        FROM table3_trials GROUP BY task, protocol, robot, gripper, strategy
     ), w AS (
         SELECT *, k / n AS p, 1.96 AS z FROM s
     )
-    SELECT task, protocol, strategy, backend, takes, n AS trials, k AS successes, round(p, 3) AS success_rate,
+    SELECT task, protocol, robot, gripper, strategy, backend, takes, n AS trials, k AS successes, round(p, 3) AS success_rate,
            round(greatest(0.0, (p + z * z / (2 * n) - z * sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)), 3) AS wilson_low,
            round(least(1.0, (p + z * z / (2 * n) + z * sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)), 3) AS wilson_high,
            unparsable, round(latency_s, 2) AS mean_latency_s, round(1000 * nearest_rms_m, 1) AS nearest_episode_rms_mm
-    FROM w ORDER BY task, protocol DESC, {STRATEGY_ORDER}
+    FROM w ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, {STRATEGY_ORDER}
 """
 
 #: The `report_table3_failures` view: outcomes per task, protocol and strategy.
 REPORT_TABLE3_FAILURES_SQL = f"""
-    SELECT task, protocol, strategy, CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome,
-           count(*) AS trials
-    FROM table3_trials GROUP BY task, protocol, strategy, outcome
-    ORDER BY task, protocol DESC, {STRATEGY_ORDER}, trials DESC, outcome
+    SELECT task, protocol, robot, gripper, strategy,
+           CASE WHEN success THEN 'success' ELSE failure_reason END AS outcome, count(*) AS trials
+    FROM table3_trials GROUP BY task, protocol, robot, gripper, strategy, outcome
+    ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, {STRATEGY_ORDER}, trials DESC, outcome
 """
+
+
+def migrate_table3_v1(root: str | os.PathLike) -> int:
+    """Version 1 files (before robots had names: every prediction was executed by the floating grippers)
+    to version 2 in place: `robot` = grippers, `gripper` = 2f140. Returns how many were rewritten."""
+    base = Path(root) / TABLE3_TRIALS.name
+    moved = 0
+    for path in sorted(base.glob(f"task=*/protocol=*/take=*/strategy=*/{DATA_FILE}")):
+        if (pq.read_schema(path).metadata or {}).get(b"demoforge.schema_version") != b"1":
+            continue
+        t = pq.read_table(path)
+        for name, value in (("robot", "grippers"), ("gripper", "2f140")):
+            t = t.append_column(name, pa.array([value] * t.num_rows, pa.string()))
+        write_table(TABLE3_TRIALS, t.select(TABLE3_TRIALS.arrow.names), root)  # atomic, to the same file
+        moved += 1
+    return moved
+
+
+register_migration(TABLE3_TRIALS.name, migrate_table3_v1)

@@ -50,11 +50,16 @@ step "sample warehouse (pouring, 12 augmented episodes)" .venv/bin/python script
 step "demoforge export lerobot --limit 8" $DF export lerobot --task pouring --out "$WORK/lerobot" --limit 8
 step "demoforge export lerobot --limit 3 --with-images --image-size 160x120" \
     $DF export lerobot --task pouring --out "$WORK/lerobot_images" --limit 3 --with-images --image-size 160x120
+step "demoforge export lerobot --robot aloha --unchecked --limit 6 (joint space)" \
+    $DF export lerobot --task pouring --out "$WORK/lerobot_aloha" --robot aloha --unchecked --limit 6
 step "demoforge export robomimic --valid-fraction 0.25" \
     $DF export robomimic --task pouring --out "$WORK/pouring.hdf5" --valid-fraction 0.25
 
 .venv-lerobot/bin/python scripts/check_exports_lerobot.py "$WORK/lerobot" "$WORK/lerobot_images" "$WORK/lr" \
     > "$WORK/lerobot_checks.log" 2>&1
+.venv-lerobot/bin/python scripts/check_exports_lerobot.py --joint-space "$WORK/lerobot_aloha" \
+    > "$WORK/lerobot_aloha_checks.log" 2>&1
+grep '^CHECK ' "$WORK/lerobot_aloha_checks.log" | cut -c7- >> "$RESULTS"
 grep '^CHECK ' "$WORK/lerobot_checks.log" | cut -c7- >> "$RESULTS"
 TRAIN=(.venv-lerobot/bin/lerobot-train --dataset.repo_id=demoforge/pouring --dataset.video_backend=pyav
        --policy.device=cpu --policy.push_to_hub=false --steps=2 --batch_size=2 --num_workers=0 --log_freq=1
@@ -65,6 +70,9 @@ step "lerobot-train Diffusion Policy, 2 steps (state + environment_state)" "${TR
     --dataset.root="$WORK/lerobot" --policy.type=diffusion --output_dir="$WORK/train_diffusion"
 step "lerobot-train ACT, 2 steps (camera images)" "${TRAIN[@]}" --dataset.root="$WORK/lerobot_images" \
     --policy.type=act --policy.pretrained_backbone_weights=null --output_dir="$WORK/train_act_images"
+step "lerobot-train ACT, 2 steps (ALOHA joint space: 14 joints + environment_state)" "${TRAIN[@]}" \
+    --dataset.root="$WORK/lerobot_aloha" --policy.type=act --policy.pretrained_backbone_weights=null \
+    --output_dir="$WORK/train_act_aloha"
 .venv-robomimic/bin/python scripts/check_exports_robomimic.py "$WORK/pouring.hdf5" "$WORK/rm" \
     > "$WORK/robomimic_checks.log" 2>&1
 grep '^CHECK ' "$WORK/robomimic_checks.log" | cut -c7- >> "$RESULTS"

@@ -1,6 +1,7 @@
 """Checks of a demoforge LeRobot export with the real `lerobot` package (run in .venv-lerobot).
 
     .venv-lerobot/bin/python scripts/check_exports_lerobot.py EXPORT [IMAGE_EXPORT] WORKDIR
+    .venv-lerobot/bin/python scripts/check_exports_lerobot.py --joint-space ALOHA_EXPORT
 
 Prints one line per check: CHECK {"check", "ok", "detail"} (JSON).
 """
@@ -106,8 +107,23 @@ def check_delete(root, work):
             f"(meta/demoforge.json kept: {(Path(work) / 'deleted' / 'meta/demoforge.json').exists()})")
 
 
+def check_joint_space(root):
+    """The `--robot aloha` export: 14 joint values per step named as the ALOHA datasets name them."""
+    ds = load(root)
+    item = ds[3]
+    names = ds.meta.info["features"]["observation.state"]["names"]
+    assert item["observation.state"].shape == (14,) and item["action"].shape == (10, 14), item["action"].shape
+    assert names[:7] == ["left_waist", "left_shoulder", "left_elbow", "left_forearm_roll", "left_wrist_angle",
+                         "left_wrist_rotate", "left_gripper"] and names[7] == "right_waist", names
+    assert ds.meta.info["robot_type"] == "aloha"
+    return f"{ds.num_episodes} episodes, state {tuple(item['observation.state'].shape)}, robot_type aloha"
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
+    if args[0] == "--joint-space":
+        report("lerobot: LeRobotDataset loads the ALOHA joint-space export", lambda: check_joint_space(args[1]))
+        sys.exit(0)
     root, work = args[0], args[-1]
     report("lerobot: LeRobotDataset loads the export offline", lambda: check_load(root))
     report("lerobot: stats.json equals LeRobot's compute_episode_stats + aggregate_stats", lambda: check_stats(root))

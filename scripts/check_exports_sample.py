@@ -17,6 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 TASK, TAKE = "pouring", "synth_pouring_s0000"
+DEMO_SEED = 1  # the scripted demonstration the ALOHA arms reach at every step (seed 0's they do not)
 
 
 def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1) -> dict:
@@ -27,7 +28,7 @@ def build(warehouse: Path, takes_dir: Path, n: int = 12, n_mirrored: int = 6, se
     from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
-    demo = spec.scripted_demo(0)
+    demo = spec.scripted_demo(DEMO_SEED)
     src = DemoSource(task=TASK, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
                      keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
                      segments=demo.segments, object_arm=spec.object_arm(False))

@@ -19,7 +19,7 @@ from demoforge.lib.exports import ExportError, task_instruction
 from demoforge.tasks.common import Manifest, stage_task
 
 
-EXPORT_VERSION = "2"  # 2: environment state, per-row provenance, LeRobot-style stats, images
+EXPORT_VERSION = "3"  # 2: environment state, per-row provenance, LeRobot-style stats, images; 3: robots
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -80,8 +80,9 @@ def _read_steps(warehouse: str, task: str, take: str) -> tuple[np.ndarray, np.nd
 
 
 def load_episodes(warehouse: str, task: str, take: str | None = None, include_invalid: bool = False,
-                  limit: int | None = None) -> EpisodeSelection:
-    """A task's episodes (valid ones unless ``include_invalid``; the first ``limit`` by take and id)."""
+                  limit: int | None = None, only: set | None = None) -> EpisodeSelection:
+    """A task's episodes (valid ones unless ``include_invalid``; only the (take, episode_id) pairs in
+    ``only`` if given; the first ``limit`` by take and id)."""
     from demoforge.schemas.core import column_numpy, read_table
 
     if limit is not None and limit < 1:
@@ -94,8 +95,13 @@ def load_episodes(warehouse: str, task: str, take: str | None = None, include_in
     valid = np.asarray(eps.column("valid").to_numpy(zero_copy_only=False))
     order = np.lexsort((ids, takes))
     keep = order[valid[order]] if not include_invalid else order
+    if only is not None:
+        keep = keep[np.array([(t, int(i)) in only for t, i in zip(takes[keep], ids[keep])], bool)]
     if limit is not None:
         keep = keep[:limit]
+    if len(keep) == 0 and only is not None:
+        raise ExportError(f"task {task!r}: none of the episodes that passed the robot check is in the selection "
+                          "(--take, --include-invalid)")
     if len(keep) == 0:
         raise ExportError(f"task {task!r} has no valid episodes in {warehouse}; pass --include-invalid to "
                           "export the flagged ones")
@@ -128,6 +134,37 @@ def load_episodes(warehouse: str, task: str, take: str | None = None, include_in
         keypoints=column_numpy(eps, "object_keypoints")[keep], sources=files)
 
 
+def subset(sel: EpisodeSelection, keep: np.ndarray) -> EpisodeSelection:
+    """The selection's episodes where ``keep`` (N,) is true."""
+    starts = np.concatenate([[0], np.cumsum(sel.lengths)[:-1]])
+    rows = np.concatenate([np.arange(starts[i], starts[i] + sel.lengths[i]) for i in np.flatnonzero(keep)]) \
+        if keep.any() else np.zeros(0, np.int64)
+    return EpisodeSelection(task=sel.task, poses=sel.poses[rows], lengths=sel.lengths[keep], take=sel.take[keep],
+                            episode_id=sel.episode_id[keep], kind=sel.kind[keep], valid=sel.valid[keep],
+                            transform=sel.transform[keep], keypoints=sel.keypoints[keep], sources=sel.sources)
+
+
+def checked_episodes(warehouse: str, task: str, robot: str, gripper: str, take: str | None = None) -> set:
+    """(take, episode_id) of the episodes whose robot check with this robot and hand succeeded
+    (`sim_outcomes`); an ExportError saying how to run the check when there are none."""
+    from demoforge.schemas.catalog import query
+
+    rows = query("SELECT take, episode_id FROM sim_outcomes WHERE task = ? AND robot = ? AND gripper = ? "
+                 "AND success AND (? IS NULL OR take = ?)", warehouse, [task, robot, gripper, take, take]).to_pylist()
+    if not rows:
+        raise ExportError(f"no episode of task {task!r} passed the robot check with --robot {robot} --gripper "
+                          f"{gripper}: run `demoforge simulate --task {task} --robot {robot} --gripper {gripper}` "
+                          "first, or pass --unchecked to export every episode the arms can reach")
+    return {(r["take"], int(r["episode_id"])) for r in rows}
+
+
+def check_files(warehouse: str, task: str, robot: str, gripper: str) -> list[Path]:
+    """The `sim_results` files of a task and robot: the robot check an export's selection depends on."""
+    from demoforge.schemas.core import table_files
+
+    return table_files("sim_results", warehouse, task=task, robot=robot, gripper=gripper)
+
+
 def _export_manifest(kind: str, out: Path, rows: int) -> Manifest:
     from demoforge.schemas.core import WrittenFile, file_sha256
 
@@ -139,27 +176,49 @@ def _export_manifest(kind: str, out: Path, rows: int) -> Manifest:
 
 def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
                    limit: int | None = None, overwrite: bool = False, with_images: bool = False,
-                   image_size: tuple[int, int] | None = None, progress: bool = False) -> dict:
+                   image_size: tuple[int, int] | None = None, progress: bool = False, robot: str = "grippers",
+                   gripper: str | None = None, unchecked: bool = False) -> dict:
     """Write the export (no Prefect): returns the validator's summary plus the output path.
 
     with_images: render every episode in MuJoCo (lib/sim/render.py) from its take's camera, at
     the camera's resolution or ``image_size`` (width, height), as ``observation.images.<camera>``.
+    robot: `grippers` writes the two grippers' poses; an arm robot (`aloha`) writes its joint values
+    (lib/exports/joint_space.py) of the episodes whose robot check with it succeeded (every selected
+    one with ``unchecked``), leaving out any episode its IK cannot reach, and its images as `top`.
     """
     from demoforge.lib.exports.lerobot import (
-        keypoint_feature_names, validate_lerobot_dataset, write_lerobot_dataset,
+        ROBOT_TYPE, keypoint_feature_names, validate_lerobot_dataset, write_lerobot_dataset,
     )
     from demoforge.lib.exports.object_state import episode_object_keypoints
+    from demoforge.lib.sim.robots import get_robot
     from demoforge.lib.task_library import get_task
 
-    sel = load_episodes(warehouse, task, take, include_invalid, limit)
+    arm = get_robot(robot, gripper)
+    joints = arm.joint_names
+    only = None if not joints or unchecked else checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
+    sel = load_episodes(warehouse, task, take, include_invalid, limit, only=only)
+    joint_state, joint_source, dropped, demonstrated = None, {}, [], sel
+    if joints:
+        sel, joint_state, dropped, demonstrated, scale = _reachable_joint_space(arm, sel, progress)
+        joint_source = {"robot": arm.name, "gripper": arm.gripper_name, "state": list(joints),
+                        "check": "unchecked: every selected episode the arms reach" if unchecked else
+                                 f"sim_results success with robot {arm.name}, gripper {arm.gripper_name}",
+                        "trajectory": "as the arms run it, at the dataset's fps: from their ready pose, joint-space "
+                                      "transits into and out of each arm's skill segments, the segments through "
+                                      "inverse kinematics, slowed where a joint would exceed its servo's speed "
+                                      "(lib/sim/robots/arm_motion.py)",
+                        "time_scale": [round(float(x), 4) for x in scale],
+                        "left_out_unreachable": dropped}
     spec = get_task(task)
     env = episode_object_keypoints(sel.poses, sel.lengths, sel.keypoints, spec.keypoint_object)
-    videos = [episode_video_source(warehouse, sel, image_size)] if with_images else None
+    # the video: each episode executed again by the robot from its demonstrated poses (the frames it runs)
+    videos = [episode_video_source(warehouse, demonstrated, image_size, robot=arm)] if with_images else None
     write_lerobot_dataset(
         out, sel.poses, sel.lengths, tasks=[task_instruction(task)],
         provenance={"take": sel.take, "episode_id": sel.episode_id, "kind": sel.kind, "valid": sel.valid},
         environment_state=env.reshape(len(env), -1), environment_names=keypoint_feature_names(spec.keypoint_names),
-        videos=videos, progress=progress,
+        joint_state=joint_state, state_names=list(joints) if joints else None,
+        robot_type=arm.name if joints else ROBOT_TYPE, videos=videos, progress=progress,
         source={"generator": "demoforge", "task": task, "takes": sorted(set(sel.take.tolist())),
                 "include_invalid": include_invalid, "limit": limit, "with_images": with_images,
                 "pose": "[x, y, z, qx, qy, qz, qw, g] per arm, world (table) frame, m; g 1 = open",
@@ -167,9 +226,36 @@ def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None,
                                      "of the arm that handles the object while it is closed "
                                      "(lib/exports/object_state.py)",
                 "episode_index_to_source": "data columns demoforge.take, demoforge.episode_id, demoforge.kind; "
-                                           "meta/episodes columns demoforge/take, demoforge/episode_id"},
+                                           "meta/episodes columns demoforge/take, demoforge/episode_id",
+                **joint_source},
         overwrite=overwrite)
-    return {**validate_lerobot_dataset(out), "path": str(out)}
+    return {**validate_lerobot_dataset(out), "path": str(out), "left_out_unreachable": len(dropped)}
+
+
+def _reachable_joint_space(arm, sel: EpisodeSelection, progress: bool):
+    """(the episodes the arms reach as they execute them: executed poses and lengths, their joint values
+    (F', D), the left-out episodes as [take, id, worst position error m, worst rotation error deg], the
+    kept episodes as demonstrated, and each kept episode's time-scale)."""
+    from tqdm.auto import tqdm
+
+    from demoforge.lib.exports.joint_space import joint_episodes
+
+    with tqdm(total=len(sel.lengths), desc=f"{sel.task}: inverse kinematics ({arm.label})", unit="episode",
+              disable=not progress) as bar:
+        js = joint_episodes(arm, sel.task, sel.poses, sel.lengths, sel.keypoints,
+                            progress=lambda i: bar.update(i - bar.n))
+    dropped = [[str(t), int(e), round(float(p), 4), round(float(r), 2)]
+               for t, e, p, r, k in zip(sel.take, sel.episode_id, js.position_error, js.rotation_error, js.keep)
+               if not k]
+    if not js.keep.any():
+        raise ExportError(f"task {sel.task!r}: the {arm.label} arms cannot reach any of the {len(sel.lengths)} "
+                          f"selected episodes (the first's worst residual: {js.position_error[0] * 1000:.0f} mm, "
+                          f"{js.rotation_error[0]:.1f} deg); `demoforge simulate --robot {arm.name}` says why")
+    kept = subset(sel, js.keep)
+    executed = EpisodeSelection(task=kept.task, poses=js.poses, lengths=js.lengths, take=kept.take,
+                                episode_id=kept.episode_id, kind=kept.kind, valid=kept.valid, transform=kept.transform,
+                                keypoints=kept.keypoints, sources=kept.sources)
+    return executed, js.joints, dropped, kept, js.time_scale[js.keep]
 
 
 def take_cameras(warehouse: str, takes: list[str]) -> dict:
@@ -193,10 +279,12 @@ def take_cameras(warehouse: str, takes: list[str]) -> dict:
     return out
 
 
-def episode_video_source(warehouse: str, sel: EpisodeSelection, image_size: tuple[int, int] | None = None):
-    """The `camera` video of an export: each episode executed by the grippers in MuJoCo and drawn
-    from its take's camera (K scaled to ``image_size`` (width, height) when given; default the
-    first take's resolution)."""
+def episode_video_source(warehouse: str, sel: EpisodeSelection, image_size: tuple[int, int] | None = None,
+                         robot=None):
+    """The video of an export: each episode executed by the robot (default the grippers: key `camera`;
+    an arm robot: key `top`, the camera above and between the arms) in MuJoCo and drawn from its take's
+    camera (K scaled to ``image_size`` (width, height) when given; default the first take's resolution)."""
+    from demoforge.lib.sim import SimOptions
     from demoforge.lib.exports.lerobot import VideoSource
     from demoforge.lib.sim.render import episode_frames
 
@@ -212,11 +300,14 @@ def episode_video_source(warehouse: str, sel: EpisodeSelection, image_size: tupl
         K = np.diag([width / cam.width, height / cam.height, 1.0]) @ cam.K
         acts = sel.poses[starts[i]:starts[i] + sel.lengths[i]].astype(np.float64)
         try:
-            yield from episode_frames(sel.task, sel.keypoints[i], acts, K, cam.T_world_camera, width, height)
+            yield from episode_frames(sel.task, sel.keypoints[i], acts, K, cam.T_world_camera, width, height,
+                                      options=options)
         except ValueError as e:
             raise ExportError(f"episode {sel.episode_id[i]} of take {sel.take[i]}: {e}")
 
-    return VideoSource("camera", width, height, frames)
+    arms = robot is not None and bool(robot.joint_names)
+    options = SimOptions(robot=robot, stop_on_hard_failure=False, stop_when_settled=True) if robot is not None else None
+    return VideoSource("top" if arms else "camera", width, height, frames)
 
 
 def export_robomimic(warehouse: str, task: str, out: str, take: str | None = None, include_invalid: bool = False,
@@ -242,10 +333,13 @@ def export_robomimic(warehouse: str, task: str, out: str, take: str | None = Non
 @stage_task(name="export_lerobot", version=EXPORT_VERSION)
 def export_lerobot_stage(sources: list[Path], warehouse: str, task: str, out: str, take: str | None,
                          include_invalid: bool, limit: int | None, with_images: bool = False,
-                         image_size: tuple[int, int] | None = None) -> Manifest:
-    """Cached on the content of `sources` (the task's episode tables) and the options."""
+                         image_size: tuple[int, int] | None = None, robot: str = "grippers",
+                         gripper: str | None = None, unchecked: bool = False) -> Manifest:
+    """Cached on the content of `sources` (the task's episode tables, and for an arm robot its
+    `sim_results` files) and the options."""
     summary = export_lerobot(warehouse, task, out, take, include_invalid, limit, overwrite=True,
-                             with_images=with_images, image_size=image_size, progress=with_images)
+                             with_images=with_images, image_size=image_size, progress=with_images or robot != "grippers",
+                             robot=robot, gripper=gripper, unchecked=unchecked)
     return _export_manifest("export_lerobot", Path(out), summary["frames"])
 
 
@@ -272,9 +366,11 @@ def _refuse_foreign(out: Path, marker: str | None) -> None:
 
 
 def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None,
-                     with_images: bool = False) -> None:
+                     with_images: bool = False, robot: str = "grippers", gripper: str | None = None,
+                     unchecked: bool = False) -> None:
     """The checks that need no Prefect run: known task, episodes present, --out not someone else's,
-    and with images every source take's camera."""
+    with images every source take's camera, and for an arm robot's export (unless unchecked) episodes
+    whose check with it passed."""
     from demoforge.lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
@@ -283,6 +379,11 @@ def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | 
         raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
     _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
     files = episode_files(warehouse, task, take)
+    if robot != "grippers" and not unchecked:
+        from demoforge.lib.sim.robots import get_robot
+
+        arm = get_robot(robot, gripper)
+        checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
     if with_images:
         take_cameras(warehouse, [take] if take else sorted({f.parent.name.split("=", 1)[1] for f in files
                                                             if f.parent.name.startswith("take=")}))

@@ -14,7 +14,8 @@ from demoforge.tasks.common import Manifest, stage_task
 
 # 2: settle phase stopped at rest, constraint islands off (lib/sim)
 # 3: results per selection; the key holds the episode database's content and the scene fingerprint
-SIM_VERSION = "3"
+# 4: results per robot (lib/sim/robots), with the arms' IK residual
+SIM_VERSION = "4"
 
 
 def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
@@ -35,7 +36,15 @@ def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     return eids, kinds, kps, episode_actions(warehouse, task, take, eids)
 
 
-def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool) -> list:
+def sim_options(robot: str = "grippers", gripper: str | None = None):
+    """The simulator's options for a robot by name (lib/sim/robots; an unknown name is a RobotError)."""
+    from demoforge.lib.sim import SimOptions
+    from demoforge.lib.sim.robots import get_robot
+
+    return SimOptions(robot=get_robot(robot, gripper))
+
+
+def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool, options=None) -> list:
     """demoforge.lib.sim.execute_many with a progress bar (closed even when a worker fails)."""
     from demoforge.lib.sim import execute_many
 
@@ -50,7 +59,7 @@ def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progr
             bar.update(done - bar.n)
 
     try:
-        return execute_many(task, jobs, workers=workers, progress=progress)
+        return execute_many(task, jobs, workers=workers, progress=progress, options=options)
     finally:
         if bar is not None:
             bar.close()
@@ -62,23 +71,35 @@ def _outcome_columns(r) -> dict:
             "detail": str(r.detail or ""), "wall_s": float(r.wall_s or 0.0)}
 
 
+def _ik_columns(r) -> dict:
+    """The arms' IK residual and time-scale of a SimResult (null for a robot without arms, or an episode refused
+    before IK)."""
+    ik = r.robot or {}
+    return {"reachable": ik.get("reachable"), "ik_position_error_m": ik.get("ik_position_error_m"),
+            "ik_rotation_error_deg": ik.get("ik_rotation_error_deg"), "time_scale": ik.get("time_scale")}
+
+
 @stage_task(name="simulate_chunk", version=SIM_VERSION, key_ignore=("workers",))
 def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids: list[int], warehouse: str,
-                   source: list[Path], scene: str, workers: int = 2, show_progress: bool = True) -> Manifest:
-    """Execute the given episodes with the dual-gripper robot and write their `sim_results` rows.
+                   source: list[Path], scene: str, workers: int = 2, show_progress: bool = True,
+                   robot: str = "grippers", gripper: str | None = None) -> Manifest:
+    """Execute the given episodes with the robot (lib/sim/robots: `robot` with hand `gripper`) and write
+    their `sim_results` rows.
 
     `source`: the take's `episodes` and `episode_steps` files and `scene`: demoforge.lib.sim.scene_fingerprint,
     both only in the cache key, so re-augmenting a take or changing a task's objects or the robot makes
     the chunk run again instead of returning results of other episodes."""
+    opt = sim_options(robot, gripper)
     eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
     results = _execute_with_bar(task, [{"keypoints": kps[k], "actions": acts[e]} for k, e in enumerate(eids)],
-                                workers, f"{task} chunk {chunk}", show_progress)
+                                workers, f"{task} chunk {chunk} ({opt.robot.label})", show_progress, opt)
     rows = []
     for e, kind, r in zip(eids, kinds, results):
-        rows.append({"task": task, "take": take, "selection": selection, "chunk": int(chunk), "episode_id": e,
+        rows.append({"task": task, "take": take, "robot": opt.robot.name, "gripper": opt.robot.gripper_name,
+                     "selection": selection, "chunk": int(chunk), "episode_id": e,
                      "kind": kind, **_outcome_columns(r), "predicate_ok": r.predicate_ok,
-                     "predicate_detail": str(r.predicate_detail or ""), "duration_s": float(r.duration_s or 0.0),
-                     "physics_steps": int(r.physics_steps or 0)})
+                     "predicate_detail": str(r.predicate_detail or ""), **_ik_columns(r),
+                     "duration_s": float(r.duration_s or 0.0), "physics_steps": int(r.physics_steps or 0)})
     written = write_table("sim_results", pa.Table.from_pylist(rows), warehouse)
     return Manifest.from_written("sim_results", written)
 
@@ -86,12 +107,13 @@ def simulate_chunk(task: str, take: str, selection: str, chunk: int, episode_ids
 @stage_task(name="stability_chunk", version=SIM_VERSION, key_ignore=("workers",))
 def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: list[int], repeats: int,
                     jitter_m: float, seed: int, warehouse: str, source: list[Path], scene: str, workers: int = 2,
-                    show_progress: bool = True) -> Manifest:
+                    show_progress: bool = True, robot: str = "grippers", gripper: str | None = None) -> Manifest:
     """Execute each of the given episodes `repeats` times, repeat 0 as is and the others with the scene
     shifted rigidly by demoforge.lib.sim.stability.scene_offsets, and write their `sim_stability` rows.
     `source` and `scene` are in the cache key only, as for simulate_chunk."""
     from demoforge.lib.sim.stability import scene_offsets, shift_scene
 
+    opt = sim_options(robot, gripper)
     eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
     offsets = scene_offsets(eids, repeats, jitter_m, seed)
     jobs, keys = [], []
@@ -100,10 +122,12 @@ def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: lis
             kp, a = shift_scene(kps[k], acts[e], offsets[k, r])
             jobs.append({"keypoints": kp, "actions": a})
             keys.append((k, r))
-    results = _execute_with_bar(task, jobs, workers, f"{task} stability chunk {chunk}", show_progress)
+    results = _execute_with_bar(task, jobs, workers, f"{task} stability chunk {chunk} ({opt.robot.label})",
+                                show_progress, opt)
     rows = []
     for (k, r), res in zip(keys, results):
-        rows.append({"task": task, "take": take, "run": run, "chunk": int(chunk), "episode_id": eids[k],
+        rows.append({"task": task, "take": take, "robot": opt.robot.name, "gripper": opt.robot.gripper_name,
+                     "run": run, "chunk": int(chunk), "episode_id": eids[k],
                      "kind": kinds[k], "repeat": r, "jitter_m": float(jitter_m),
                      "offset_x": float(offsets[k, r, 0]), "offset_y": float(offsets[k, r, 1]),
                      **_outcome_columns(res)})

@@ -49,21 +49,28 @@ def nearest_source(source, query_keypoints: np.ndarray):
         else source
 
 
-@stage_task(name="table3_trials", version=TABLE3_VERSION, key_optional=("number_format", "keyframes"))
+@stage_task(name="table3_trials", version=TABLE3_VERSION,
+            key_optional=("number_format", "keyframes", "robot", "gripper", "scene_key"))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
                   backend_options: dict | None = None, n_waypoints: int | None = None, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
                   show_progress: bool = True, structured: bool | None = None,
-                  number_format: str | None = None, keyframes: tuple | None = None) -> Manifest:
+                  number_format: str | None = None, keyframes: tuple | None = None, robot: str | None = None,
+                  gripper: str | None = None, scene_key: str | None = None) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
     `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
-    are cached by the backend, so a re-run after an interruption pays only the robot checks."""
+    are cached by the backend, so a re-run after an interruption pays only the robot checks. `robot`,
+    `gripper`: the robot that judges (None: the floating grippers, whose cells keep their cache keys;
+    `scene_key`, another robot's scene fingerprint, is in the key only)."""
     from tqdm import tqdm
 
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
     from demoforge.tasks.augment import episode_actions, load_demo_source
+    from demoforge.tasks.sim import sim_options
+
+    opt = sim_options(robot or "grippers", gripper)
     from demoforge.tasks.llm_eval import keyframe_settings, llm_predict, upsample
 
     if strategy not in ALL_STRATEGIES:
@@ -149,10 +156,11 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
             row.update(success=False, failure_reason=row["parse_status"],
                        sim_detail=str(fields.get("parse_detail", ""))[:500])
         else:
-            result = execute(task, kp, actions)
+            result = execute(task, kp, actions, options=opt)
             row.update(success=bool(result.success), failure_reason="" if result.success else str(result.failure),
                        sim_detail=str(result.detail))
-        rows.append(row)
+        rows.append({**row, "robot": opt.robot.name, "gripper": opt.robot.gripper_name})
     schema = get_schema("table3_trials").arrow
-    written = write_table("table3_trials", pa.Table.from_pylist(rows, schema=schema), warehouse)
+    variant = None if opt.robot.name == "grippers" else {"robot": opt.robot.name, "gripper": opt.robot.gripper_name}
+    written = write_table("table3_trials", pa.Table.from_pylist(rows, schema=schema), warehouse, variant=variant)
     return Manifest.from_written("table3_trials", written)

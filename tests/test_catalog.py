@@ -188,22 +188,29 @@ def test_query_refused_is_raised_for_library_callers(warehouse):
         query("DELETE FROM benchmarks")
 
 
-def _v1_sim_file(root: Path, task: str, chunk: int, ids: list[int]) -> Path:
-    """A sim_results file as schema version 1 wrote it: no selection column, task=/take=/chunk= layout."""
+_SIM_V1_COLUMNS = {"task": "string", "take": "string", "chunk": "int32", "episode_id": "int64", "kind": "string",
+                   "success": "bool", "failure": "string", "detail": "string", "predicate_ok": "bool",
+                   "predicate_detail": "string", "duration_s": "float64", "physics_steps": "int64", "wall_s": "float64"}
+
+
+def _old_sim_file(root: Path, version: int, task: str, chunk: int, ids: list[int], selection: str = "all") -> Path:
+    """A sim_results file as an older contract wrote it: version 1 (no selection column, task=/take=/chunk=)
+    or version 2 (selection, task=/take=/selection=/chunk=; neither has a robot)."""
     import pyarrow as pa
 
-    from demoforge.schemas.core import get_schema
-
-    v2 = get_schema("sim_results").arrow
-    fields = [f for f in v2 if f.name != "selection"]
-    meta = dict(v2.metadata)
-    meta[b"demoforge.schema_version"] = b"1"
+    columns = dict(_SIM_V1_COLUMNS)
+    if version == 2:
+        columns = {**dict(list(columns.items())[:2]), "selection": "string", **dict(list(columns.items())[2:])}
     n = len(ids)
-    cols = {"task": [task] * n, "take": ["t0"] * n, "chunk": [chunk] * n, "episode_id": ids, "kind": ["translated"] * n,
-            "success": [True] * n, "failure": [""] * n, "detail": ["ok"] * n, "predicate_ok": [True] * n,
-            "predicate_detail": [""] * n, "duration_s": [1.0] * n, "physics_steps": [480] * n, "wall_s": [0.1] * n}
-    t = pa.table({f.name: pa.array(cols[f.name], f.type) for f in fields}, schema=pa.schema(fields, metadata=meta))
-    path = root / "sim_results" / f"task={task}" / "take=t0" / f"chunk={chunk}" / "data.parquet"
+    values = {"task": [task] * n, "take": ["t0"] * n, "selection": [selection] * n, "chunk": [chunk] * n,
+              "episode_id": ids, "kind": ["translated"] * n, "success": [True] * n, "failure": [""] * n,
+              "detail": ["ok"] * n, "predicate_ok": [True] * n, "predicate_detail": [""] * n, "duration_s": [1.0] * n,
+              "physics_steps": [480] * n, "wall_s": [0.1] * n}
+    schema = pa.schema([(k, getattr(pa, v)() if v != "bool" else pa.bool_()) for k, v in columns.items()],
+                       metadata={b"demoforge.schema_version": str(version).encode()})
+    t = pa.table({k: pa.array(values[k], schema.field(k).type) for k in columns}, schema=schema)
+    sel = f"selection={selection}/" if version == 2 else ""
+    path = root / "sim_results" / f"task={task}" / "take=t0" / f"{sel}chunk={chunk}" / "data.parquet"
     path.parent.mkdir(parents=True)
     pq.write_table(t, path)
     return path
@@ -212,28 +219,55 @@ def _v1_sim_file(root: Path, task: str, chunk: int, ids: list[int]) -> Path:
 def test_version_1_sim_results_are_moved_to_the_legacy_selection_without_losing_rows(warehouse):
     from demoforge.schemas.core import migrate_warehouse, read_table
 
-    old = [_v1_sim_file(warehouse, "pouring", 0, [0, 5, 9]), _v1_sim_file(warehouse, "pouring", 1, [12, 13])]
-    rows = query("SELECT selection, chunk, episode_id FROM sim_results ORDER BY episode_id", warehouse).to_pylist()
-    assert rows == [{"selection": "legacy", "chunk": c, "episode_id": e}
+    old = [_old_sim_file(warehouse, 1, "pouring", 0, [0, 5, 9]), _old_sim_file(warehouse, 1, "pouring", 1, [12, 13])]
+    rows = query("SELECT selection, robot, gripper, chunk, episode_id FROM sim_results ORDER BY episode_id",
+                 warehouse).to_pylist()
+    assert rows == [{"selection": "legacy", "robot": "grippers", "gripper": "2f140", "chunk": c, "episode_id": e}
                     for c, e in [(0, 0), (0, 5), (0, 9), (1, 12), (1, 13)]]
     assert not any(p.exists() or p.parent.exists() for p in old)
     assert read_table("sim_results", warehouse).num_rows == 5  # the reader finds them in the new layout
     assert migrate_warehouse(warehouse) == {}  # nothing left to move
 
     # a crash between writing the copy and removing the old file: the next migration finishes it
-    again = _v1_sim_file(warehouse, "pouring", 1, [12, 13])
+    again = _old_sim_file(warehouse, 1, "pouring", 1, [12, 13])
     assert migrate_warehouse(warehouse) == {"sim_results": 1} and not again.exists()
     assert read_table("sim_results", warehouse).num_rows == 5
     # an old process still running wrote chunk 1 again, with other episodes: both files' rows are kept
-    _v1_sim_file(warehouse, "pouring", 1, [13, 20, 21])
+    _old_sim_file(warehouse, 1, "pouring", 1, [13, 20, 21])
     assert migrate_warehouse(warehouse) == {"sim_results": 1}
     rows = query("SELECT chunk, episode_id FROM sim_results WHERE chunk = 1 ORDER BY 2", warehouse).to_pylist()
     assert [r["episode_id"] for r in rows] == [12, 13, 20, 21]
 
 
+def test_version_2_sim_results_become_the_grippers_rows(warehouse):
+    """Results written before robots had names were the floating grippers': they keep their selection
+    and every value, gain robot = grippers / gripper = 2f140 and null arm columns, and sit beside the
+    arms' rows of the same episodes."""
+    from demoforge.schemas.core import migrate_warehouse, read_table, table_files
+
+    old = _old_sim_file(warehouse, 2, "pouring", 0, [0, 4], selection="sample-2-seed0")
+    arms = {"task": ["pouring"], "take": ["t0"], "robot": ["aloha"], "gripper": ["aloha"],
+            "selection": ["sample-2-seed0"], "chunk": [0], "episode_id": [4], "kind": ["translated"],
+            "success": [False], "failure": ["unreachable"], "detail": ["arm 0 ends 30 mm ..."],
+            "predicate_ok": [None], "predicate_detail": [""], "reachable": [False], "ik_position_error_m": [0.03],
+            "ik_rotation_error_deg": [2.0], "time_scale": [1.1], "duration_s": [0.5], "physics_steps": [240], "wall_s": [0.2]}
+    write_table("sim_results", arms, warehouse)
+    rows = query("SELECT robot, gripper, selection, episode_id, success, reachable, ik_position_error_m "
+                 "FROM sim_outcomes ORDER BY robot, episode_id", warehouse).to_pylist()
+    assert rows == [{"robot": "aloha", "gripper": "aloha", "selection": "sample-2-seed0", "episode_id": 4,
+                     "success": False, "reachable": False, "ik_position_error_m": 0.03}] + [
+        {"robot": "grippers", "gripper": "2f140", "selection": "sample-2-seed0", "episode_id": e, "success": True,
+         "reachable": None, "ik_position_error_m": None} for e in (0, 4)]
+    assert not old.exists() and migrate_warehouse(warehouse) == {}
+    assert len(table_files("sim_results", warehouse, robot="grippers", gripper="2f140")) == 1
+    assert read_table("sim_results", warehouse).num_rows == 3
+
+
 def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_run(warehouse):
-    base = {"task": "pouring", "take": "t0", "kind": "translated", "failure": "", "detail": "", "predicate_ok": True,
-            "predicate_detail": "", "duration_s": 1.0, "physics_steps": 480, "wall_s": 0.1}
+    base = {"task": "pouring", "take": "t0", "robot": "grippers", "gripper": "2f140", "kind": "translated",
+            "failure": "", "detail": "", "predicate_ok": True, "predicate_detail": "", "reachable": None,
+            "ik_position_error_m": None, "ik_rotation_error_deg": None, "time_scale": None, "duration_s": 1.0, "physics_steps": 480,
+            "wall_s": 0.1}
     rows = [dict(base, selection="sample-2-seed0", chunk=0, episode_id=0, success=False),
             dict(base, selection="sample-2-seed0", chunk=0, episode_id=7, success=False),
             dict(base, selection="all", chunk=0, episode_id=0, success=True),
@@ -279,3 +313,23 @@ def test_no_query_splices_a_value_into_its_sql():
     files = [p for d in ("lib", "tasks", "flows", "schemas", "scripts") for p in sorted((PROJECT_ROOT / d).rglob("*.py"))]
     assert len(files) > 50
     assert [b for f in files for b in _spliced_values(f)] == []
+
+
+def test_version_3_sim_results_gain_a_null_time_scale_in_place(warehouse):
+    """Results written before the arms were retimed (no `time_scale`) keep their file, rows and values; the
+    column is null (not measured), and the migration runs once."""
+    from demoforge.schemas.core import migrate_warehouse, read_table, write_table
+
+    row = {"task": ["pouring"], "take": ["t0"], "robot": ["aloha"], "gripper": ["2f140"], "selection": ["all"],
+           "chunk": [0], "episode_id": [3], "kind": ["translated"], "success": [False], "failure": ["joint_limit"],
+           "detail": ["speed"], "predicate_ok": [None], "predicate_detail": [""], "reachable": [False],
+           "ik_position_error_m": [0.02], "ik_rotation_error_deg": [15.0], "time_scale": [None], "duration_s": [0.2],
+           "physics_steps": [100], "wall_s": [0.1]}
+    (written,) = write_table("sim_results", row, warehouse)
+    path = Path(written.path)
+    t = pq.read_table(path).drop(["time_scale"])
+    pq.write_table(t.replace_schema_metadata({**t.schema.metadata, b"demoforge.schema_version": b"3"}), path)
+    assert migrate_warehouse(warehouse) == {"sim_results": 1} and path.exists()
+    got = read_table("sim_results", warehouse).to_pylist()
+    assert len(got) == 1 and got[0]["time_scale"] is None and got[0]["failure"] == "joint_limit"
+    assert got[0]["ik_rotation_error_deg"] == 15.0 and migrate_warehouse(warehouse) == {}

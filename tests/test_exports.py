@@ -21,7 +21,7 @@ TAKE = "synth_pouring_s0000"
 
 # ------------------------------------------------------------------------------------------ fixtures
 
-def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1) -> dict:
+def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1, demo_seed: int = 0) -> dict:
     """episodes + episode_steps of a real augmentation of the scripted pouring demo, in ``root``."""
     from demoforge.lib.trajectories.augmentation import DemoSource, generate_episodes
     from demoforge.lib.task_library import get_task
@@ -29,7 +29,7 @@ def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: 
     from demoforge.tasks.augment import episode_steps_columns, episodes_columns
 
     spec = get_task(TASK)
-    demo = spec.scripted_demo(0)
+    demo = spec.scripted_demo(demo_seed)
     src = DemoSource(task=TASK, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
                      keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
                      segments=demo.segments, object_arm=spec.object_arm(False), workspace=spec.workspace)
@@ -426,7 +426,17 @@ def test_cli_refuses_bad_exports_with_one_line_and_exit_2(episode_wh, tmp_path, 
                       (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--with-images",
                         "--image-size", "33x20"], "--image-size"),
                       (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "i"), "--image-size", "64x48"],
-                       "needs --with-images")):
+                       "needs --with-images"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "aloha"],
+                       "demoforge simulate --task pouring --robot aloha --gripper aloha"),
+                      (["export", "robomimic", "--task", TASK, "--out", str(tmp_path / "a.hdf5"), "--robot", "aloha"],
+                       "is for `export lerobot`"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--unchecked"],
+                       "--unchecked is for"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "ur5"],
+                       "--robot must be one of grippers, aloha"),
+                      (["export", "lerobot", "--task", TASK, "--out", str(tmp_path / "a"), "--robot", "aloha",
+                        "--gripper", "robotiq"], "carries aloha or 2f140")):
         r = runner.invoke(app, args)
         assert r.exit_code == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.output)
     assert (foreign / "notes.txt").read_text() == "keep me" and not (tmp_path / "j").exists()
@@ -615,3 +625,98 @@ def test_carried_keypoints_vectorised_equal_the_per_episode_segmentation_rule(ep
         start += L
     mirrored = sel.kind == "mirrored"
     assert mirrored.any() and (arms[mirrored] == 1 - arms[~mirrored][0]).all()  # the roles swap
+
+
+# ------------------------------------------------------------------------------------------ joint space
+
+@pytest.fixture(scope="module")
+def arm_episode_wh(tmp_path_factory):
+    """A pouring database from the seed-1 demonstration, which the ALOHA arms reach (seed 0's they do not),
+    with one episode's right hand moved a metre to the right, beyond the arm's reach."""
+    from demoforge.schemas.core import column_numpy, read_table, write_table
+
+    root = tmp_path_factory.mktemp("wh_arm_exports") / "warehouse"
+    root.mkdir()
+    info = build_episode_warehouse(root, n=4, n_mirrored=2, demo_seed=1)
+    far = sorted(i for i, v in info["valid"].items() if v)[-1]
+    steps = read_table("episode_steps", root, task=TASK)
+    act = column_numpy(steps, "action").copy()
+    act[steps.column("episode_id").to_numpy() == far, 1, 0] += 1.0
+    write_table("episode_steps", {**{c: steps.column(c) for c in steps.column_names}, "action": act}, root)
+    info["actions"][far][:, 1, 0] += 1.0
+    return root, {**info, "far": far}
+
+
+def _sim_rows(ids: list[int], success: list[bool], robot: str = "aloha", gripper: str = "aloha") -> dict:
+    n = len(ids)
+    return {"task": [TASK] * n, "take": [TAKE] * n, "robot": [robot] * n, "gripper": [gripper] * n,
+            "selection": ["ids-test"] * n, "chunk": [0] * n, "episode_id": ids, "kind": ["translated"] * n,
+            "success": success, "failure": ["" if s else "unreachable" for s in success], "detail": [""] * n,
+            "predicate_ok": [None] * n, "predicate_detail": [""] * n, "reachable": success,
+            "ik_position_error_m": [0.001] * n, "ik_rotation_error_deg": [0.1] * n, "time_scale": [1.0] * n,
+            "duration_s": [1.0] * n,
+            "physics_steps": [480] * n, "wall_s": [0.1] * n}
+
+
+def test_joint_space_export_reproduces_the_poses_and_keeps_only_checked_reachable_episodes(arm_episode_wh, tmp_path):
+    """`export lerobot --robot aloha`: 14 joint values per step named as the ALOHA datasets name them; the
+    arms' FK of the exported joints is the episode's gripper poses (1 cm, 5 degrees, as the check), the
+    gripper columns are g; only episodes whose arm check passed (all it reaches with --unchecked), never
+    one the IK cannot reach. The exported trajectory is what the arms run (their ready-pose start and
+    time-scaling included), at the dataset's fps."""
+    from scipy.spatial.transform import Rotation
+
+    from demoforge.lib.exports.lerobot import read_lerobot_episode
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.sim import SimOptions, planned_execution
+    from demoforge.lib.sim.robots.aloha import JOINT_NAMES
+    from demoforge.lib.sim.robots.aloha.model import REST
+    from demoforge.lib.sim.robots.retiming import at
+    from demoforge.schemas.core import write_table
+    from demoforge.tasks.export import export_lerobot, load_episodes
+
+    wh, info = arm_episode_wh
+    with pytest.raises(ExportError, match="demoforge simulate --task pouring --robot aloha"):
+        export_lerobot(str(wh), TASK, str(tmp_path / "none"), robot="aloha")
+    s = export_lerobot(str(wh), TASK, str(tmp_path / "all"), robot="aloha", unchecked=True)
+    meta = json.loads((tmp_path / "all" / "meta" / "info.json").read_text())
+    source = json.loads((tmp_path / "all" / "meta" / "demoforge.json").read_text())
+    assert meta["robot_type"] == "aloha" and meta["features"]["observation.state"]["names"] == list(JOINT_NAMES)
+    assert meta["features"]["action"]["shape"] == [14] and JOINT_NAMES[:7] == (
+        "left_waist", "left_shoulder", "left_elbow", "left_forearm_roll", "left_wrist_angle", "left_wrist_rotate",
+        "left_gripper")
+    valid = sum(info["valid"].values())
+    assert s["episodes"] == valid - 1 and s["left_out_unreachable"] == 1, s
+    assert [r[1] for r in source["left_out_unreachable"]] == [info["far"]]
+    arms = get_robot("aloha")
+    ik = arms.ik(TASK)
+    sel = load_episodes(str(wh), TASK)
+    assert len(source["time_scale"]) == s["episodes"] and min(source["time_scale"]) > 1.0
+    for e in range(s["episodes"]):
+        ep = read_lerobot_episode(tmp_path / "all", e)
+        i = int(np.flatnonzero(sel.episode_id == int(ep["demoforge.episode_id"][0]))[0])
+        poses = info["actions"][int(ep["demoforge.episode_id"][0])]
+        # what the arms run: from their ready pose, slowed where a servo is too slow, at the dataset's fps
+        motion = planned_execution(TASK, sel.keypoints[i], poses, options=SimOptions(robot=arms)).state
+        state = ep["observation.state"].astype(np.float64)
+        assert state.shape == (len(motion.q), 14) and len(motion.q) > len(poses)
+        assert source["time_scale"][e] == pytest.approx(motion.time_scale, abs=1e-4)
+        np.testing.assert_allclose(state[0, [0, 1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]], REST * 2, atol=1e-6)
+        np.testing.assert_array_equal(ep["action"][:-1], ep["observation.state"][1:])
+        np.testing.assert_allclose(state[:, [6, 13]], np.clip(motion.poses[:, :, 7], 0, 1), atol=1e-6)
+        # inside each arm's window the FK of the exported joints is on the demonstrated path
+        for a in range(2):
+            w0, w1 = motion.windows[a]
+            for t in np.flatnonzero((motion.s >= w0) & (motion.s <= w1 - 1))[::17]:
+                ik.cfg.update(np.concatenate([state[t, :6], state[t, 7:13]]))
+                d = ik.cfg.data
+                target = at(poses[:, a, :3], motion.s[t:t + 1])[0]
+                assert np.linalg.norm(d.site_xpos[ik.sites[a]] - target) < 0.01
+    exported = [int(read_lerobot_episode(tmp_path / "all", e)["demoforge.episode_id"][0]) for e in range(s["episodes"])]
+    dropped = [r[1] for r in source["left_out_unreachable"]]
+    # the arm check: only the episodes whose check passed, less any the IK cannot reach
+    write_table("sim_results", _sim_rows([exported[0], exported[1], *dropped[:1], 10_000],
+                                         [True, False, True, True]), wh)
+    c = export_lerobot(str(wh), TASK, str(tmp_path / "checked"), robot="aloha")
+    got = [int(read_lerobot_episode(tmp_path / "checked", e)["demoforge.episode_id"][0]) for e in range(c["episodes"])]
+    assert got == [exported[0]] and c["left_out_unreachable"] == len(dropped[:1])

@@ -143,6 +143,21 @@ def test_simulate_flow_resumes_by_chunk_and_renders(prefect_api, ingested_wareho
     row = render_episode_video(str(warehouse), "trash_in_bin", 0, tmp_path / "ep0.mp4")
     assert (tmp_path / "ep0.mp4").stat().st_size > 10_000 and row["success"] == rows[0]["success"]
 
+    # the ALOHA arms on the same sample: their own rows (robot, gripper, the IK residual) beside the
+    # grippers', which stay as they were; sim_outcomes keeps one row per episode and robot
+    arms = simulate_episodes(str(warehouse), task="trash_in_bin", episodes=4, chunk_size=4, show_progress=False,
+                             robot="aloha", gripper="2f140")
+    assert [m.rows for m in arms] == [4] and "robot=aloha/gripper=2f140/" in arms[0].files[0]
+    assert all(m.is_intact() for m in again)
+    got = query("SELECT robot, gripper, episode_id, reachable, ik_position_error_m, failure FROM sim_outcomes "
+                "ORDER BY robot, episode_id", warehouse).to_pylist()
+    assert [(r["robot"], r["episode_id"]) for r in got] == [("aloha", r["episode_id"]) for r in rows] + [
+        ("grippers", r["episode_id"]) for r in rows]
+    for r in got:
+        arm = r["robot"] == "aloha"
+        assert (r["reachable"] is not None) == arm and (r["ik_position_error_m"] is not None) == arm
+        assert r["reachable"] is not True or r["failure"] not in ("unreachable", "joint_limit")
+
 
 def test_sample_and_whole_runs_keep_their_own_results_and_new_episodes_are_simulated_again(
         prefect_api, ingested_warehouse, take_dir, monkeypatch):

@@ -110,7 +110,9 @@ def test_report_plots_on_real_episodes(tmp_path):
     ids = sorted(info["actions"])[:5]
     ok = [True, False, True, False, False]
     write_table("sim_results", {
-        "task": [TASK] * 5, "take": [TAKE] * 5, "selection": ["sample-5-seed0"] * 5, "chunk": np.zeros(5, np.int32), "episode_id": np.array(ids, np.int64),
+        "task": [TASK] * 5, "take": [TAKE] * 5, "robot": ["grippers"] * 5, "gripper": ["2f140"] * 5,
+        "reachable": [None] * 5, "ik_position_error_m": [None] * 5, "ik_rotation_error_deg": [None] * 5, "time_scale": [None] * 5,
+        "selection": ["sample-5-seed0"] * 5, "chunk": np.zeros(5, np.int32), "episode_id": np.array(ids, np.int64),
         "kind": [info["kind"][i] for i in ids], "success": ok, "failure": ["" if s else "missed_grasp" for s in ok],
         "detail": [""] * 5, "predicate_ok": ok, "predicate_detail": [""] * 5, "duration_s": np.ones(5),
         "physics_steps": np.ones(5, np.int64), "wall_s": np.ones(5)}, wh)

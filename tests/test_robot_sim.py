@@ -1,4 +1,15 @@
-"""Robot execution with physical parallel-jaw grippers (lib/sim)."""
+"""Robot execution with physical parallel-jaw grippers (lib/sim).
+
+The `grippers` robot's verdicts are pinned: every episode these tests execute is compared with
+tests/golden/grippers_verdicts.json (failure, detail, predicate, physics steps), recorded with the code
+before the robots had an interface of their own (lib/sim/robots), so a refactor of the simulator that
+changes any outcome, any detail or a single physics step of these episodes fails here. Rewrite the file
+only for a deliberate change of the grippers' physics: `python tests/test_robot_sim.py --write-golden`.
+"""
+
+import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +20,24 @@ from demoforge.lib.task_library import get_task
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 SEEDS = (0, 1, 2, 3)
+GOLDEN = Path(__file__).parent / "golden" / "grippers_verdicts.json"
+_WRITE = os.environ.get("DEMOFORGE_WRITE_GOLDEN") == "1"  # set by `python tests/test_robot_sim.py --write-golden`
+
+
+def _verdict(r) -> dict:
+    return {"failure": r.failure, "detail": r.detail, "predicate_ok": r.predicate_ok,
+            "predicate_detail": r.predicate_detail, "physics_steps": int(r.physics_steps), "n_frames": int(r.n_frames)}
+
+
+def assert_pinned(key: str, r) -> None:
+    """The episode's verdict is exactly the one recorded in GOLDEN (see the module's docstring)."""
+    if _WRITE:
+        seen = json.loads(GOLDEN.read_text()) if GOLDEN.is_file() else {}
+        seen[key] = _verdict(r)
+        GOLDEN.write_text(json.dumps(dict(sorted(seen.items())), indent=1) + "\n")
+        return
+    want = json.loads(GOLDEN.read_text())[key]
+    assert _verdict(r) == want, f"{key}: the grippers' verdict changed"
 
 
 def _demo(task, seed=0, mirror=False):
@@ -25,8 +54,9 @@ def test_original_demos_succeed(task):
     res = execute_many(task, eps, workers=2)
     bad = [(s, m, r.failure, r.detail) for (s, m), r in zip(keys, res) if not r.success]
     assert not bad, bad
-    for r in res:
+    for (s, m), r in zip(keys, res):
         assert r.failure is None and r.predicate_ok
+        assert_pinned(f"demo/{task}/{s}/{int(m)}", r)
 
 
 def test_keypoints_input_matches_poses():
@@ -68,6 +98,7 @@ def test_never_closing_is_missed_grasp():
     act[:, 0, 7] = 1.0
     r = execute("open_container", obj, act)
     assert not r.success and r.failure == "missed_grasp", r.detail
+    assert_pinned("never_closing", r)
 
 
 def test_open_mid_transfer_is_object_dropped():
@@ -79,6 +110,7 @@ def test_open_mid_transfer_is_object_dropped():
     act[f:, 0, 7] = 1.0
     r = execute("paper_in_case", obj, act)
     assert not r.success and r.failure == "object_dropped", r.detail
+    assert_pinned("open_mid_transfer", r)
 
 
 def test_path_through_table_is_table_collision():
@@ -86,6 +118,7 @@ def test_path_through_table_is_table_collision():
     act[40:, 0, 2] -= 0.25
     r = execute("open_container", obj, act)
     assert not r.success and r.failure == "table_collision", r.detail
+    assert_pinned("path_through_table", r)
     # the simulation stops at the hard failure (default): same outcome as simulating to the end
     full = execute("open_container", obj, act, options=SimOptions(stop_on_hard_failure=False))
     assert full.failure == r.failure and full.detail.split(" (max")[0] == r.detail.split(" (max")[0]  # same first event
@@ -103,6 +136,7 @@ def test_arms_into_each_other_is_arm_collision():
     act[:, 1, :3] = (1 - w) * act[0, 1, :3] + w * (goal + [0.01, 0, 0])
     r = execute("open_container", obj, act)
     assert not r.success and r.failure == "arm_collision", r.detail
+    assert_pinned("arms_into_each_other", r)
 
 
 def test_gripper_lifted_out_of_the_workspace_is_left_workspace():
@@ -113,6 +147,7 @@ def test_gripper_lifted_out_of_the_workspace_is_left_workspace():
     r = execute("open_container", obj, act)
     assert not r.success and r.failure == "left_workspace", r.detail
     assert "gripper 1" in r.detail and r.predicate_ok is None  # a hard failure: simulation stopped there
+    assert_pinned("lifted_out_of_workspace", r)
     assert r.gripper_poses[:, 1, 2].max() > top
 
 
@@ -124,6 +159,7 @@ def test_clean_execution_that_misses_the_goal_is_predicate_not_met(task, fault):
     r = execute(task, d.placement.object_poses, d.gripper_actions())
     assert not r.success and r.failure == "predicate_not_met", (r.failure, r.detail)
     assert r.predicate_ok is False and r.detail == r.predicate_detail
+    assert_pinned(f"fault/{task}/{fault}", r)
 
 
 @pytest.mark.parametrize("kind", ["nan", "inf", "quat", "shape", "g"])
@@ -154,6 +190,7 @@ def test_bad_object_input_is_a_row_not_a_crash():
     d, obj, act = _lid_case()
     r = execute("open_container", np.zeros((3, 3)), act)
     assert r.failure == "invalid_action" and "object" in r.detail
+    assert_pinned("bad_object_input", r)
 
 
 def test_determinism_and_workers():
@@ -186,6 +223,8 @@ def test_settle_stop_keeps_the_outcome():
     short = execute("paper_in_case", obj, act)
     full = execute("paper_in_case", obj, act, options=SimOptions(stop_when_settled=False))
     assert short.success and full.success
+    assert_pinned("settle_stop/short", short)
+    assert_pinned("settle_stop/full", full)
     assert short.predicate_detail == full.predicate_detail
     assert short.physics_steps < full.physics_steps and len(short.object_poses) < len(full.object_poses)
     np.testing.assert_array_equal(short.object_poses, full.object_poses[:len(short.object_poses)])
@@ -199,3 +238,12 @@ def test_physics_options_are_checked():
 
     with pytest.raises(ValueError, match="integrator"):
         get_scene("open_container", physics=PhysicsOptions(integrator="leapfrog"))
+
+
+if __name__ == "__main__":  # python tests/test_robot_sim.py --write-golden: record the verdicts of today's code
+    import sys
+
+    if sys.argv[1:] != ["--write-golden"]:
+        sys.exit("usage: python tests/test_robot_sim.py --write-golden")
+    os.environ["DEMOFORGE_WRITE_GOLDEN"] = "1"
+    sys.exit(pytest.main([__file__, "-q", "-p", "no:cacheprovider", "-p", "no:xdist"]))

@@ -62,7 +62,7 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
 
     opt = sim_options or options()[0]
     eps = _episodes(task_name, episodes, frames)
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     execute(task_name, *eps[0], options=opt)  # warm caches outside the measurement
     T = mujoco.mjtTimer
     acc = dict.fromkeys(("wall", "physics", "collision", "constraint_make", "solver", "steps"), 0.0)
@@ -105,20 +105,27 @@ def format_breakdown(b: dict) -> str:
             f"{b['constraint_rows']:.0f} constraint rows")
 
 
+def timed_pair(task_name: str, eps: list, fast_opt, base_opt, workers: int):
+    """(fast, baseline): execute_many of the same episodes with two SimOptions, returning the failures."""
+    from demoforge.lib.sim import execute_many
+
+    def fast():
+        return [r.failure for r in execute_many(task_name, eps, workers=workers, options=fast_opt)]
+
+    def baseline():
+        return [r.failure for r in execute_many(task_name, eps, workers=workers, options=base_opt)]
+
+    return fast, baseline
+
+
+def scripted_episodes(task_name: str, n: int, frames: int | None = None):
+    """n (object poses, actions) of the task's scripted demonstrations: seeds 0, 0, 1, 1, ... (plain, mirrored)."""
+    return _episodes(task_name, n, frames)
+
+
 def _setup(task_name: str, frames: int | None):
     def setup(size: int):
-        from demoforge.lib.sim import execute_many
-
-        eps = _episodes(task_name, size, frames)
-        fast_opt, base_opt = options()
-
-        def fast():
-            return [r.failure for r in execute_many(task_name, eps, workers=2, options=fast_opt)]
-
-        def baseline():
-            return [r.failure for r in execute_many(task_name, eps, workers=2, options=base_opt)]
-
-        return fast, baseline
+        return timed_pair(task_name, _episodes(task_name, size, frames), *options(), workers=2)
 
     return setup
 

@@ -21,6 +21,7 @@ CASE_MODULES: dict[str, str] = {
     "augmentation": "cases_augmentation",
     "retrieval": "cases_augmentation",
     "sim": "cases_sim",
+    "arms": "cases_arms",
     "detection": "cases_detection",
     "hamer": "cases_hamer",
     "takes": "cases_takes",

@@ -11,7 +11,7 @@ from demoforge.cli.root import current_warehouse, fail
 app = typer.Typer()
 
 # the registered stages (demoforge.bench.registry.CASE_MODULES; tests/test_bench.py keeps the two equal)
-STAGES = ("warehouse", "geometry", "synth", "takes", "ingest", "augmentation", "retrieval", "sim", "detection", "hamer",
+STAGES = ("warehouse", "geometry", "synth", "takes", "ingest", "augmentation", "retrieval", "sim", "arms", "detection", "hamer",
           "exports", "policy", "llm")
 STAGE_HELP = f"Only these stages (repeatable): {', '.join(STAGES)}. The llm stage takes minutes."
 

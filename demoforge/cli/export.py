@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import current_warehouse, fail, gripper_option, robot_choice, robot_option
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -47,6 +47,11 @@ def export_cmd(
                                                         "(default: the take camera's resolution), e.g. 320x240."),
     valid_fraction: float = typer.Option(0.1, help="robomimic only: share of demos in the mask/valid split."),
     seed: int = typer.Option(0, help="robomimic only: seed of the train/valid split."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
+    unchecked: bool = typer.Option(False, "--unchecked", help="lerobot --robot aloha: export every selected episode "
+                                   "the arms can reach, not only those whose robot check (`demoforge simulate "
+                                   "--robot aloha`) succeeded."),
 ) -> None:
     """Export a task's episodes for robot-learning code: LeRobot v3.0 or robomimic hdf5.
 
@@ -55,6 +60,13 @@ def export_cmd(
     (table) frame, metres, g = 1 open / 0 closed, 30 steps per second, and the 11 object
     keypoints of the step (33 values: LeRobot's observation.environment_state, robomimic's
     obs/object). Every exported frame records its source take, episode id and kind.
+
+    `export lerobot --robot aloha` writes joint space instead: 14 float values per step, the two
+    ViperX arms' joints from inverse kinematics and their grippers' opening (left_waist ..
+    left_wrist_rotate, left_gripper, right_...: the ALOHA datasets' names; rad, gripper 1 open / 0
+    closed), of the episodes whose check with the arms succeeded (--unchecked: every episode they
+    reach; an episode they cannot reach within 1 cm and 5 degrees is never written), images as
+    observation.images.top.
     """
     from demoforge.flows.export import export_lerobot_flow, export_robomimic_flow
     from demoforge.tasks.export import preflight_export
@@ -64,6 +76,11 @@ def export_cmd(
         raise fail(f"--valid-fraction must be in [0, 1), got {valid_fraction}")
     if (with_images or image_size) and fmt is not ExportFormat.lerobot:
         raise fail("--with-images and --image-size are for `export lerobot` only")
+    robot, gripper = robot_choice(robot, gripper)
+    if fmt is not ExportFormat.lerobot and robot != "grippers":
+        raise fail(f"--robot {robot} (joint space) is for `export lerobot`; robomimic exports the grippers' poses")
+    if unchecked and robot == "grippers":
+        raise fail("--unchecked is for an arm robot's joint-space export (--robot aloha)")
     size = None
     if image_size is not None:
         try:
@@ -75,16 +92,24 @@ def export_cmd(
             raise fail("--image-size needs --with-images")
     wh = str(current_warehouse())
     try:
-        preflight_export(wh, task, str(out), fmt.value, take, with_images)  # user errors before a Prefect run starts
+        preflight_export(wh, task, str(out), fmt.value, take, with_images, robot, gripper, unchecked)  # before a Prefect run
         if fmt is ExportFormat.lerobot:
             m = run_flow(export_lerobot_flow, wh, task=task, out=str(out), take=take,
-                         include_invalid=include_invalid, limit=limit, with_images=with_images, image_size=size)
+                         include_invalid=include_invalid, limit=limit, with_images=with_images, image_size=size,
+                         robot=robot, gripper=gripper, unchecked=unchecked)
         else:
             m = run_flow(export_robomimic_flow, wh, task=task, out=str(out), take=take,
                          include_invalid=include_invalid, limit=limit, valid_fraction=valid_fraction, seed=seed)
     except ExportError as e:
         raise fail(str(e))
     typer.echo(f"{m.path}: {m.rows:,} frames of task {task} as {fmt.value} ({len(m.files)} files)")
+    if robot != "grippers":
+        import json
+
+        source = json.loads((Path(m.path) / "meta" / "demoforge.json").read_text())
+        left = source.get("left_out_unreachable", [])
+        typer.echo(f"joint space of the {robot} arms ({gripper}); {len(left)} selected episode(s) the arms cannot "
+                   "reach left out" + (" (meta/demoforge.json lists them)" if left else ""))
 
 
 @app.command("view")

@@ -13,7 +13,8 @@ from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
-from demoforge.cli.root import current_warehouse, fail, number_format_option, structured_option, warn
+from demoforge.cli.root import (current_warehouse, fail, gripper_option, number_format_option, robot_choice,
+                                robot_option, structured_option, warn)
 
 app = typer.Typer()
 
@@ -40,6 +41,7 @@ def evaluate(
     policy_epochs: int = typer.Option(6, envvar="DEMOFORGE_POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
+    robot: Optional[List[str]] = typer.Option(None, "--robot", envvar="DEMOFORGE_ROBOTS", help="Robots every task's sample is executed with, side by side (repeatable; `name` or `name+hand`; default: grippers, aloha and aloha+2f140: the floating grippers and the ViperX arms with ALOHA's fingers and with the 2F-140). The stability check and the Table 3 / Table 4 / policy evaluations use the first."),
     detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
@@ -58,7 +60,15 @@ def evaluate(
     if mirror not in MIRROR_CHOICES:
         raise fail(f"--mirror must be {', '.join(MIRROR_CHOICES[:-1])} or {MIRROR_CHOICES[-1]}, got {mirror!r}")
     from demoforge.flows.evaluate import detector_problem
-    from demoforge.lib.evaluation.config import DETECTORS, EvaluateConfig
+    from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot
+    from demoforge.lib.sim.robots import RobotError, get_robot
+
+    robots = [r for part in (robot or ROBOTS) for r in str(part).replace(",", " ").split()]
+    for label in robots:
+        try:
+            get_robot(*parse_robot(label))
+        except RobotError as e:
+            raise fail(f"--robot {label}: {e}")
 
     detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
     bad = [d for d in detectors if d not in DETECTORS]
@@ -74,7 +84,8 @@ def evaluate(
             llm_tasks=llm_task or ("pouring",), trials=trials, grid_scenes=grid_scenes, llm_backend=llm_backend,
             llm_options={"model": llm_model} if llm_model else {}, llm_structured=structured,
             llm_number_format=number_format, variation_trials=variation_trials, policy_epochs=policy_epochs,
-            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)))
+            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)),
+            robots=tuple(dict.fromkeys(robots)))
     except ValueError as e:
         raise fail(str(e))
     warehouse, reports_dir = current_warehouse(), reports.resolve()
@@ -206,24 +217,33 @@ def simulate(
     workers: int = typer.Option(2, min=1, help="Worker processes."),
     chunk_size: int = typer.Option(100, min=1, help="Episodes per cached chunk (a crash loses at most one chunk)."),
     seed: int = typer.Option(0, help="Seed of the episode sample."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
-    """Execute episodes with two parallel-jaw grippers in MuJoCo physics and record success and failure reasons."""
+    """Execute episodes with a robot in MuJoCo physics and record success and failure reasons.
+
+    --robot grippers (the default): two free-floating parallel-jaw grippers; --robot aloha: two ViperX
+    300 arms through inverse kinematics, which also fail episodes they cannot reach (`unreachable`,
+    `joint_limit`) or whose arm links hit the table, an object or the other arm (`link_collision`)."""
     from demoforge.flows.sim import simulate_episodes
 
+    robot, gripper = robot_choice(robot, gripper)
     n = _episodes_option(episodes)
     try:
         run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
-                          workers=workers, seed=seed)
+                 workers=workers, seed=seed, robot=robot, gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
 
     wh = current_warehouse()
-    result = query("SELECT * FROM report_sim WHERE task = ?", wh, [task])
+    result = query("SELECT * EXCLUDE (robot, gripper) FROM report_sim WHERE task = ? AND robot = ? AND gripper = ?",
+                   wh, [task, robot, gripper])
     _emit(result, OutputFormat.table, None, 40)
     if sum(result.column("successes").to_pylist()) < sum(result.column("episodes").to_pylist()):
-        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}'\". Whether a "
-                   f"failure is the trajectory's or chance: demoforge stability --task {task}")
+        typer.echo(f"Why: demoforge sql \"SELECT * FROM report_sim_failures WHERE task = '{task}' AND robot = '{robot}'\"."
+                   f" Whether a failure is the trajectory's or chance: demoforge stability --task {task}"
+                   + (f" --robot {robot} --gripper {gripper}" if robot != "grippers" else ""))
 
 
 @app.command()
@@ -237,21 +257,25 @@ def stability(
     workers: int = typer.Option(2, min=1, help="Worker processes."),
     chunk_size: int = typer.Option(20, min=1, help="Episodes per cached chunk (each executed `repeats` times)."),
     seed: int = typer.Option(0, help="Seed of the episode sample and of the shifts."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Check how stable the robot check's verdicts are: execute each episode several times with the whole
     scene shifted by a fraction of a millimetre. An episode whose outcome flips is decided by numerical chaos, not by its
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
     from demoforge.flows.sim import check_stability
 
+    robot, gripper = robot_choice(robot, gripper)
     n = _episodes_option(episodes)
     try:
         run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
-                 take=take, chunk_size=chunk_size, workers=workers, seed=seed)
+                 take=take, chunk_size=chunk_size, workers=workers, seed=seed, robot=robot, gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
 
-    _emit(query("SELECT * FROM report_sim_stability WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)
+    _emit(query("SELECT * FROM report_sim_stability WHERE task = ? AND robot = ? AND gripper = ?", current_warehouse(),
+                [task, robot, gripper]), OutputFormat.table, None, 40)
 
 
 @app.command("render-episode")
@@ -260,12 +284,16 @@ def render_episode_cmd(
     episode: int = typer.Option(..., "--episode", "-e", help="Episode id (see the `episodes` table)."),
     out: Path = typer.Option(Path("episode.mp4"), "--out", "-o", help="Output MP4."),
     take: Optional[str] = typer.Option(None, help="Episode database (source take)."),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Render an offscreen video of the robot executing one episode."""
     from demoforge.flows.sim import render_episode_video
 
+    robot, gripper = robot_choice(robot, gripper)
     try:
-        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take)
+        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take, robot=robot,
+                                   gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
     typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
@@ -284,8 +312,6 @@ def serve(
 
     Needs a Prefect server: `prefect server start` in another shell and PREFECT_API_URL pointing at it.
     Then trigger runs with `prefect deployment run 'evaluate/default' --watch`."""
-    import os
-
     from demoforge.flows.deployments import serve_deployments
 
     if not os.environ.get("PREFECT_API_URL"):

@@ -182,3 +182,42 @@ def base_url_option():
 
 def api_mode_option():
     return typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models).")
+
+
+# The robot options of every command that runs a robot (simulate, stability, render-episode, table3,
+# evaluate, export): declared once, checked while parsing.
+ROBOT_HELP = ("The robot that executes the episodes: grippers (two free-floating Robotiq 2F-140-class grippers "
+              "following the poses: every pose is reachable) or aloha (two ViperX 300 6-DOF arms driven in joint "
+              "space through inverse kinematics: unreachable poses, joint limits and arm-link collisions fail).")
+GRIPPER_HELP = ("The hands of --robot aloha: aloha (ALOHA's own fingers, 69 mm between the pads: the bottle (70 mm), "
+                "cup, container and vase are wider) or 2f140 (the Robotiq 2F-140 on the wrists, opening 110 mm). "
+                "Default: the robot's own.")
+
+
+def _check_robot(name: str) -> str:
+    from demoforge.lib.sim.robots import available_robots
+
+    if name not in available_robots():
+        raise fail(f"--robot must be one of {', '.join(available_robots())}, got {name!r}")
+    return name
+
+
+def robot_option(envvar: str | None = None):
+    return typer.Option("grippers", "--robot", envvar=envvar, callback=_check_robot, help=ROBOT_HELP)
+
+
+def gripper_option(envvar: str | None = None):
+    return typer.Option(None, "--gripper", envvar=envvar, help=GRIPPER_HELP)
+
+
+def robot_choice(robot: str, gripper: str | None) -> tuple[str, str]:
+    """(robot, hand) after checking that the robot carries that hand (one line naming the choices)."""
+    from demoforge.lib.sim.robots import RobotError, gripper_choices
+
+    try:
+        choices = gripper_choices(robot)
+    except RobotError as e:
+        raise fail(str(e))
+    if gripper is not None and gripper not in choices:
+        raise fail(f"--gripper {gripper!r}: the {robot} robot carries {' or '.join(choices)}")
+    return robot, gripper or choices[0]

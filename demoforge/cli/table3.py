@@ -7,8 +7,9 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
-                                number_format_option, structured_option, waypoints_option)
+from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, gripper_option,
+                                llm_backend_options, number_format_option, robot_choice, robot_option,
+                                structured_option, waypoints_option)
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -33,6 +34,8 @@ def table3_cmd(
     base_url: Optional[str] = base_url_option(),
     api_mode: str = api_mode_option(),
     number_format: Optional[str] = number_format_option(),
+    robot: str = robot_option(),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Run the thesis's Table 3 grid: takes x query scenes x strategies, judged in MuJoCo.
 
@@ -54,17 +57,19 @@ def table3_cmd(
                    f"strategies {', '.join(ALL_STRATEGIES)}")
     if llm_scenes is not None and llm_scenes > scenes:
         raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
+    robot, gripper = robot_choice(robot, gripper)
     try:
         run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, scenes=scenes,
                  takes=len(take_dir) if take_dir else takes, take_dirs=[str(p) for p in take_dir] if take_dir else None,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=llm_backend_options(backend, model, base_url, api_mode), seed=seed, episodes=episodes,
                  policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured,
-                 number_format=number_format)
+                 number_format=number_format, robot=robot, gripper=gripper)
     except ValueError as e:
         raise fail(str(e))
-    where = "WHERE task = ? AND list_contains(?, protocol)"
+    where = "WHERE task = ? AND list_contains(?, protocol) AND robot = ? AND gripper = ?"
     for title, view in (("Table 3", "report_table3_grid"), ("Wilson 95 % intervals", "report_table3_intervals"),
                         ("Outcomes", "report_table3_failures")):
-        t = query(f"SELECT * FROM {view} {where}", current_warehouse(), [task, list(protocols)])
+        t = query(f"SELECT * EXCLUDE (robot, gripper) FROM {view} {where}", current_warehouse(),
+                  [task, list(protocols), robot, gripper])
         typer.echo(f"\n{title}\n\n" + markdown_table(t.column_names, [list(r.values()) for r in t.to_pylist()]))

@@ -13,11 +13,20 @@ from typing import Any, Mapping, Sequence
 
 from demoforge.lib.synth import MIRROR_CHOICES, mirror_flags
 
-__all__ = ["DETECTORS", "EvaluateConfig", "MIRROR_CHOICES"]
+__all__ = ["DETECTORS", "ROBOTS", "EvaluateConfig", "MIRROR_CHOICES", "parse_robot"]
 
 # The hand detectors every take is ingested with, side by side: the simulated one (the ground truth
 # through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
 DETECTORS = ("simulated", "mediapipe")
+# The robots every task's sample is executed with, side by side (lib/sim/robots; `robot` or
+# `robot+hand`): the floating grippers, the ALOHA arms with their own fingers and with the 2F-140.
+ROBOTS = ("grippers", "aloha", "aloha+2f140")
+
+
+def parse_robot(label: str) -> tuple[str, str | None]:
+    """`aloha+2f140` -> ("aloha", "2f140"); `aloha` -> ("aloha", None: its own hand)."""
+    name, _, hand = str(label).partition("+")
+    return name, hand or None
 
 
 def _names(value: Sequence[str] | str | None) -> tuple[str, ...] | None:
@@ -38,7 +47,9 @@ class EvaluateConfig:
     llm_structured, llm_number_format: the LLM (demoforge.flows.table3); variation_trials: scenes per
     task and variation kind of the Table 4 analogue; policy_tasks, policy_epochs, policy_waypoints,
     policy_trials: the learned policy (0 trials skips it); detectors: the hand detectors each take is
-    ingested with, side by side (the simulated one always)."""
+    ingested with, side by side (the simulated one always); robots: the robots (`name` or `name+hand`)
+    each task's sample is executed with, side by side (the stability check and the other evaluations
+    use the first)."""
 
     tasks: tuple[str, ...] | None = None
     takes: int = 1
@@ -62,10 +73,13 @@ class EvaluateConfig:
     policy_waypoints: int = 40
     policy_trials: int = 5
     detectors: tuple[str, ...] = DETECTORS
+    robots: tuple[str, ...] = ROBOTS
 
     def __post_init__(self):
-        for name in ("tasks", "llm_tasks", "policy_tasks", "detectors"):  # lists from the CLI or JSON
+        for name in ("tasks", "llm_tasks", "policy_tasks", "detectors", "robots"):  # lists from the CLI or JSON
             object.__setattr__(self, name, _names(getattr(self, name)))
+        if not self.robots:
+            raise ValueError("robots must name at least one robot")
         mirror_flags(self.mirror)  # refuses an unknown choice
         if int(self.takes) < 1 or int(self.episodes) < 1:
             raise ValueError(f"need takes >= 1 and episodes >= 1, got {self.takes} and {self.episodes}")

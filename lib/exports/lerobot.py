@@ -18,6 +18,10 @@ one step later (the last step of an episode holds its pose), each a flat float32
 (2, 8) pose array of docs/architecture.md flattened arm-major, named ``left_x .. left_gripper, right_x ..
 right_gripper`` (policies read a 1-D state; the names keep the 2 x 8 structure recoverable).
 Quaternions are scalar-last ``qx, qy, qz, qw``; gripper 1 = open, 0 = closed; world (table) frame, m.
+In joint space (``joint_state`` given: an arm robot's export) both are instead the robot's joint values
+per step, named by ``state_names``: for the ALOHA arms 14 float32, ``left_waist .. left_wrist_rotate,
+left_gripper, right_...`` (rad; the gripper's normalized opening, 1 open, 0 closed), as the ALOHA
+datasets name them, with ``robot_type`` ``aloha``.
 ``observation.environment_state`` (when given) = the 11 object keypoints of the step, flattened to
 33 float32 named ``<keypoint>_x, _y, _z`` (lib/exports/object_state.py says how they move).
 ``observation.images.<camera>`` (when given) = a video feature: RGB frames in mp4 files.
@@ -92,10 +96,12 @@ class VideoSource:
 
 
 def features(environment_names: list[str] | None = None, provenance: bool = False,
-             videos: dict[str, dict] | None = None) -> dict:
+             videos: dict[str, dict] | None = None, state_names: list[str] | None = None) -> dict:
     """The `features` of info.json: dtype, shape and names of every column of the data files (and
-    of every video, whose ``info`` holds the stream's codec, size and rate)."""
-    vec = {"dtype": "float32", "shape": [len(POSE16_NAMES)], "names": list(POSE16_NAMES)}
+    of every video, whose ``info`` holds the stream's codec, size and rate). ``state_names``: the
+    state's and action's names (default: the two grippers' 16 pose values)."""
+    names = list(state_names) if state_names is not None else list(POSE16_NAMES)
+    vec = {"dtype": "float32", "shape": [len(names)], "names": names}
     out = {"observation.state": dict(vec), "action": dict(vec)}
     if environment_names is not None:
         out[ENV_STATE] = {"dtype": "float32", "shape": [len(environment_names)], "names": list(environment_names)}
@@ -114,14 +120,16 @@ def keypoint_feature_names(keypoint_names: Iterable[str]) -> list[str]:
 
 
 def _frame_columns(poses: np.ndarray, lengths: np.ndarray, task_of_episode: np.ndarray, fps: float,
-                   environment_state: np.ndarray | None, provenance: dict | None) -> dict:
+                   environment_state: np.ndarray | None, provenance: dict | None,
+                   joint_state: np.ndarray | None = None) -> dict:
     """Every frame's columns as numpy arrays: state, action, (environment state,) index columns and
-    (the per-frame provenance)."""
+    (the per-frame provenance). The state is the poses flattened, or ``joint_state`` (F, D) if given."""
     frame_index = frame_in_episode(lengths)
     episode_index = np.repeat(np.arange(len(lengths), dtype=np.int64), lengths)
+    state = poses.reshape(len(poses), 16) if joint_state is None else joint_state
     cols = {
-        "observation.state": poses.reshape(len(poses), 16).astype(np.float32),
-        "action": next_poses(poses, lengths).reshape(len(poses), 16).astype(np.float32),
+        "observation.state": state.astype(np.float32),
+        "action": next_poses(state, lengths).astype(np.float32),
     }
     if environment_state is not None:
         cols[ENV_STATE] = environment_state.reshape(len(poses), -1).astype(np.float32)
@@ -225,6 +233,43 @@ def _write_videos(root: Path, src: VideoSource, lengths: np.ndarray, fps: int, f
     return cols, {k: np.stack(v) for k, v in stats.items()}, info
 
 
+def _per_frame(values, names, frames: int, what: str, names_what: str) -> np.ndarray | None:
+    """A per-frame feature (frames, len(names)) checked (one finite row of len(names) values per frame)."""
+    if values is None:
+        return None
+    values = np.asarray(values)
+    if values.shape[0] != frames or names is None or values.reshape(frames, -1).shape[1] != len(names):
+        raise ExportError(f"{what} must have one row of len({names_what}) values per frame ({frames}), "
+                          f"got {values.shape}")
+    if not np.isfinite(values).all():
+        raise ExportError(f"{what} contains NaN or inf")
+    return values.reshape(frames, -1)
+
+
+def _write_data_files(root: Path, cols: dict, feats: dict, file_of: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                      chunks_size: int) -> None:
+    """data/chunk-*/file-*.parquet: each file the frames of its episodes (file_of: the file of each episode)."""
+    for f in np.unique(file_of):
+        eps = np.flatnonzero(file_of == f)
+        lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
+        tbl = pa.table({
+            name: (_fixed_list(v[lo:hi]) if v.ndim == 2 else pa.array(v[lo:hi], type=_ARROW[feats[name]["dtype"]]))
+            for name, v in cols.items()
+        })
+        path = root / DATA_PATH.format(chunk_index=int(f // chunks_size), file_index=int(f % chunks_size))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(tbl, path)
+
+
+def _row_provenance(provenance: dict | None, n: int) -> dict | None:
+    """The provenance written into every data row (take, episode_id and kind all given), else None;
+    every given per-episode array checked to hold n values."""
+    for k, vals in (provenance or {}).items():
+        if k in _PROVENANCE_COLUMNS and len(vals) != n:
+            raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
+    return provenance if provenance and all(k in provenance for k in ("take", "episode_id", "kind")) else None
+
+
 def write_lerobot_dataset(
     out: str | os.PathLike,
     poses: np.ndarray,
@@ -238,6 +283,8 @@ def write_lerobot_dataset(
     source: dict | None = None,
     environment_state: np.ndarray | None = None,
     environment_names: list[str] | None = None,
+    joint_state: np.ndarray | None = None,
+    state_names: list[str] | None = None,
     videos: list[VideoSource] | None = None,
     data_files_size_in_mb: float = DEFAULT_DATA_FILE_SIZE_IN_MB,
     video_files_size_in_mb: float = DEFAULT_VIDEO_FILE_SIZE_IN_MB,
@@ -251,11 +298,13 @@ def write_lerobot_dataset(
     task_of_episode: (N,) index into ``tasks`` (default all 0). provenance: per-episode arrays
     ``take``, ``episode_id``, ``kind`` (and ``valid``): ``demoforge/*`` columns of the episodes
     table, and ``demoforge.take / .episode_id / .kind`` in every data row when all three are given.
-    environment_state: (F, E) per frame, named by ``environment_names`` (E); videos: cameras whose
-    frames become ``observation.images.<key>``. source: JSON-able description of the export,
-    written to meta/demoforge.json.
+    environment_state: (F, E) per frame, named by ``environment_names`` (E); joint_state: (F, D) the
+    robot's joint values per frame, named by ``state_names`` (D), which then are the state and action
+    instead of the poses; videos: cameras whose frames become ``observation.images.<key>``. source:
+    JSON-able description of the export, written to meta/demoforge.json.
     """
     poses, lengths = check_episodes(poses, lengths)
+    joint_state = _per_frame(joint_state, state_names, len(poses), "joint_state", "state_names")
     n = len(lengths)
     if not tasks or len(set(tasks)) != len(tasks):
         raise ExportError(f"tasks must be a non-empty list of distinct task texts, got {tasks!r}")
@@ -264,25 +313,17 @@ def write_lerobot_dataset(
         raise ExportError(f"task_of_episode must give one index into the {len(tasks)} tasks per episode")
     if fps <= 0:
         raise ExportError(f"fps must be positive, got {fps}")
-    for k, vals in (provenance or {}).items():
-        if k in _PROVENANCE_COLUMNS and len(vals) != n:
-            raise ExportError(f"provenance {k!r} has {len(vals)} values for {n} episodes")
-    row_provenance = provenance if provenance and all(k in provenance for k in ("take", "episode_id", "kind")) \
-        else None
-    if environment_state is not None:
-        environment_state = np.asarray(environment_state)
-        if environment_state.shape[0] != len(poses) or environment_names is None or \
-                environment_state.reshape(len(poses), -1).shape[1] != len(environment_names):
-            raise ExportError(f"environment_state must have one row of len(environment_names) values per frame "
-                              f"({len(poses)}), got {environment_state.shape}")
-        if not np.isfinite(environment_state).all():
-            raise ExportError("environment_state contains NaN or inf")
+    row_provenance = _row_provenance(provenance, n)
+    environment_state = _per_frame(environment_state, environment_names, len(poses), "environment_state",
+                                   "environment_names")
     videos = list(videos or [])
     if len({v.key for v in videos}) != len(videos):
         raise ExportError("video keys must be distinct")
 
-    cols = _frame_columns(poses, lengths, task_of_episode, fps, environment_state, row_provenance)
-    feats = features(environment_names if environment_state is not None else None, row_provenance is not None)
+    cols = _frame_columns(poses, lengths, task_of_episode, fps, environment_state, row_provenance, joint_state)
+    names = state_names if joint_state is not None else None
+    feats = features(environment_names if environment_state is not None else None, row_provenance is not None,
+                     state_names=names)
     bytes_per_frame = sum(np.asarray(v[:1]).nbytes if v.dtype != object and v.dtype.kind != "U" else 32
                           for v in cols.values())
     file_of = _file_plan(lengths, data_files_size_in_mb, chunks_size, bytes_per_frame)
@@ -291,16 +332,7 @@ def write_lerobot_dataset(
     ends = starts + lengths
 
     with atomic_dir(out, overwrite=overwrite) as root:
-        for f in np.unique(file_of):
-            eps = np.flatnonzero(file_of == f)
-            lo, hi = int(starts[eps[0]]), int(ends[eps[-1]])
-            tbl = pa.table({
-                name: (_fixed_list(v[lo:hi]) if v.ndim == 2 else pa.array(v[lo:hi], type=_ARROW[feats[name]["dtype"]]))
-                for name, v in cols.items()
-            })
-            path = root / DATA_PATH.format(chunk_index=int(chunk_idx[eps[0]]), file_index=int(file_idx[eps[0]]))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            pq.write_table(tbl, path)
+        _write_data_files(root, cols, feats, file_of, starts, ends, chunks_size)
 
         ep_cols: dict[str, pa.Array] = {
             "episode_index": pa.array(np.arange(n, dtype=np.int64)),
@@ -319,7 +351,7 @@ def write_lerobot_dataset(
             video_feats[IMAGE_PREFIX + src.key] = vinfo
         if video_feats:  # video features go before the index columns, as LeRobot lists them
             feats = features(environment_names if environment_state is not None else None,
-                             row_provenance is not None, video_feats)
+                             row_provenance is not None, video_feats, state_names=names)
         for name, st in ep_stats.items():
             for k in STAT_KEYS:
                 v = st[k].astype(np.int64) if k == "count" else st[k]
@@ -342,21 +374,11 @@ def write_lerobot_dataset(
 
         stats = {name: aggregate_stats(st) for name, st in ep_stats.items()}
         _write_json(stats, root / STATS_PATH)
-        info = {
-            "codebase_version": CODEBASE_VERSION,
-            "robot_type": robot_type,
-            "total_episodes": n,
-            "total_frames": int(len(poses)),
-            "total_tasks": len(tasks),
-            "chunks_size": chunks_size,
-            "data_files_size_in_mb": data_files_size_in_mb,
-            "video_files_size_in_mb": video_files_size_in_mb,
-            "fps": fps,
-            "splits": {"train": f"0:{n}"},
-            "data_path": DATA_PATH,
-            "video_path": VIDEO_PATH if videos else None,
-            "features": feats,
-        }
+        info = {"codebase_version": CODEBASE_VERSION, "robot_type": robot_type, "total_episodes": n,
+                "total_frames": int(len(poses)), "total_tasks": len(tasks), "chunks_size": chunks_size,
+                "data_files_size_in_mb": data_files_size_in_mb, "video_files_size_in_mb": video_files_size_in_mb,
+                "fps": fps, "splits": {"train": f"0:{n}"}, "data_path": DATA_PATH,
+                "video_path": VIDEO_PATH if videos else None, "features": feats}
         _write_json(info, root / INFO_PATH)
         if source is not None:
             _write_json(source, root / PROVENANCE_FILE)

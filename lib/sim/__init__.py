@@ -10,8 +10,8 @@ stability.py: verdicts under micrometre shifts; variations.py, variation_scene.p
 analogue's varied scenes.
 """
 
-from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_many, scene_fingerprint,
-                       validate_actions)
+from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_many, planned_execution,
+                       scene_fingerprint, validate_actions)
 from .failures import FAILURES
 from .gripper import GripperSpec
 from .scene import PhysicsOptions, get_scene
@@ -22,5 +22,5 @@ def render_episode(*args, **kwargs):
     return _r(*args, **kwargs)
 
 
-__all__ = ["execute", "execute_many", "render_episode", "SimOptions", "SimResult", "GripperSpec",
-           "PhysicsOptions", "FAILURES", "as_object_poses", "validate_actions", "get_scene", "scene_fingerprint"]
+__all__ = ["execute", "execute_many", "render_episode", "SimOptions", "SimResult", "GripperSpec", "PhysicsOptions",
+           "FAILURES", "as_object_poses", "planned_execution", "validate_actions", "get_scene", "scene_fingerprint"]

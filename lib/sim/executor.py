@@ -40,13 +40,15 @@ import demoforge.lib  # noqa: F401
 from demoforge.lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
 
 from .failures import FAILURES, classify
-from .gripper import GripperSpec
-from .scene import PAIR_ARMS, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
+from .robots import PlanEvent, Robot
+from .robots.base import as_index as _as_index
+from .robots.grippers import GrippersRobot
+from .scene import PAIR_ARMS, PAIR_LINK, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
 
 
 @dataclass(frozen=True)
 class SimOptions:
-    gripper: GripperSpec = GripperSpec()
+    robot: Robot = GrippersRobot()  # lib/sim/robots: the floating grippers, or the ALOHA arms (get_robot)
     physics: PhysicsOptions = PhysicsOptions()
     ctrl_per_frame: int = 4  # control (mocap / finger command) updates per action frame: 120 Hz at 30 fps
     position_interp: str = "linear"  # "linear" | "cubic"
@@ -92,13 +94,14 @@ class SimResult:
     arm_contact: np.ndarray | None = None  # (T,) bool
     table_force: np.ndarray | None = None  # (T, 2) max gripper-table normal force, N
     command_g: np.ndarray | None = None  # (T, 2) commanded g per frame
+    robot: dict = field(default_factory=dict)  # the robot's per-episode figures (arms: the IK residual)
 
     def row(self) -> dict:
         """Flat summary (no arrays), e.g. for a table."""
         return {"task": self.task, "success": self.success, "failure": self.failure, "detail": self.detail,
                 "predicate_ok": self.predicate_ok, "predicate_detail": self.predicate_detail,
                 "duration_s": self.duration_s, "physics_steps": self.physics_steps, "wall_s": self.wall_s,
-                "n_frames": self.n_frames}
+                "n_frames": self.n_frames, **self.robot}
 
     def strip(self) -> "SimResult":
         return replace(self, gripper_poses=None, object_poses=None, touch=None, arm_contact=None,
@@ -223,7 +226,7 @@ def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.
     reason = validate_actions(actions, opt.quat_tol)
     if reason is None and not (np.isfinite(fps) and fps > 0):
         reason = f"fps must be positive, got {fps}"
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     if reason is None:
         try:
             obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
@@ -236,18 +239,27 @@ def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.
     return _run(sc, obj0, np.asarray(actions, float), float(fps), opt, t_wall, on_frame)
 
 
-def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float,
-         on_frame: Callable[[Any], None] | None = None) -> SimResult:
-    mj, m, d = sc.mj, sc.model, sc.data
-    spec = sc.spec
+@dataclass
+class _Schedule:
+    """An episode's timing and targets at control rate (shared by every robot)."""
+    steps_per_frame: int
+    cpf: int  # control steps per action frame
+    sub: list  # physics steps of each control step of a frame
+    dt_ctrl: float
+    pos: np.ndarray  # (n, 2, 3) pinch targets per action frame
+    quat: np.ndarray  # (n, 2, 4) unit xyzw
+    closed_cmd: np.ndarray  # (n, 2) close commands, issued close_lead_s early
+    targets_pos: np.ndarray  # ((n - 1) * cpf, 2, 3) interpolated at control rate
+    targets_wxyz: np.ndarray  # ((n - 1) * cpf, 2, 4)
+    frame_of_ctrl: np.ndarray  # action frame each control step drives to
+    settle_frames: int
+
+
+def _schedule(actions: np.ndarray, fps: float, opt: SimOptions, spec, timestep: float) -> _Schedule:
     n = actions.shape[0]
-    steps_per_frame = max(1, int(round(1.0 / (fps * opt.physics.timestep))))
-    m.opt.timestep = 1.0 / (fps * steps_per_frame)
+    steps_per_frame = max(1, int(round(1.0 / (fps * timestep))))
     cpf = max(1, min(opt.ctrl_per_frame, steps_per_frame))
     sub = np.diff(np.round(np.linspace(0, steps_per_frame, cpf + 1)).astype(int))
-    dt_ctrl = 1.0 / (fps * cpf)
-
-    # ---- targets at control rate
     pos = actions[..., :3]
     quat = actions[..., 3:7] / np.linalg.norm(actions[..., 3:7], axis=-1, keepdims=True)
     closed_cmd = actions[..., 7] < 0.5  # (n, 2)
@@ -266,51 +278,65 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
                                     position=opt.position_interp)
     else:
         tp, tqu = pos[:0], quat[:0]
-    tqu_wxyz = xyzw_to_wxyz(tqu)
     # finger command: g of the frame being driven to; see _FingerCommand
     frame_of_ctrl = np.minimum(np.ceil(np.arange(1, K + 1) / cpf).astype(int), n - 1)
-    settle_frames = int(round(opt.settle_s * fps))
-    fc = _FingerCommand(spec, closed_cmd[0], dt_ctrl)
+    return _Schedule(steps_per_frame, cpf, [int(x) for x in sub], 1.0 / (fps * cpf), pos, quat, closed_cmd, tp,
+                     xyzw_to_wxyz(tqu), frame_of_ctrl, int(round(opt.settle_s * fps)))
 
-    pose0 = np.concatenate([pos[0], quat[0]], axis=-1)
-    sc.reset(obj0, pose0, np.where(closed_cmd[0], 0.0, spec.opening))
-    steps = 0
-    pre = int(round(opt.preroll_s / m.opt.timestep))
-    if pre:
-        mj.mj_step(m, d, nstep=pre)
-        steps += pre
 
-    T = n + settle_frames
-    n_obj = sc.n_obj
-    hist = np.zeros((T, n_obj, 4, 4))
-    hist[:, :, 3, 3] = 1.0
-    gp = np.zeros((T, 2, 8))
-    touch = np.zeros((T, 2, 3, n_obj), bool)
-    arm_contact = np.zeros(T, bool)
-    table_force = np.zeros((T, 2))
-    code = sc.geom_code
-    obj_body, base_body = sc.obj_body, sc.base_body
-    fq = sc.finger_qadr
-    force6 = np.zeros(6)
-    diag = {"arm_pair": []}
-    mocap = _as_index(sc.mocap)
-    act = _as_index(sc.act)
+class _Records:
+    """Per recorded frame: object poses, actual pinch poses, contacts; and the per-frame checks."""
 
-    def record(i):
-        if on_frame is not None:
-            on_frame(d)
-        hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
-        hist[i, :, :3, 3] = d.xpos[obj_body]
-        gp[i, :, :3] = d.xpos[base_body]
-        gp[i, :, 3:7] = d.xquat[base_body][:, [1, 2, 3, 0]]
-        gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
+    def __init__(self, sc: SimScene, T: int, opt: SimOptions, stop_frame: int | None):
+        n_obj = sc.n_obj
+        self.hist = np.zeros((T, n_obj, 4, 4))
+        self.hist[:, :, 3, 3] = 1.0
+        self.gp = np.zeros((T, 2, 8))
+        self.touch = np.zeros((T, 2, 3, n_obj), bool)
+        self.arm_contact = np.zeros(T, bool)
+        self.link_contact = np.zeros(T, bool)
+        self.table_force = np.zeros((T, 2))
+        self.diag = {"arm_pair": [], "link_pair": []}
+        self.T = T
+        self.limit = opt.table_force_limit
+        self.lo = sc.workspace[0] - opt.workspace_margin
+        self.hi = sc.workspace[1] + opt.workspace_margin
+        self.stop_frame = stop_frame  # a hard failure known before physics (the plan's): stop there
 
+    def truncate(self, last: int) -> None:
+        for k in ("hist", "gp", "touch", "arm_contact", "link_contact", "table_force"):
+            setattr(self, k, getattr(self, k)[:last + 1])
+
+    def hard_failure(self, i) -> bool:
+        """The outcome is decided (failures.py: a hard failure fails the episode whatever follows).
+        Collisions are checked every frame, the workspace every 6th frame (0.2 s at 30 fps) and at
+        the last: classify() finds the first offending frame in the records."""
+        tf = self.table_force
+        if self.arm_contact[i] or tf[i, 0] > self.limit or tf[i, 1] > self.limit or self.link_contact[i]:
+            return True
+        if self.stop_frame is not None and i >= self.stop_frame:
+            return True
+        if i % 6 and i != self.T - 1:
+            return False
+        p = np.concatenate([self.gp[i - 5:i + 1, :, :3], self.hist[i - 5:i + 1, :, :3, 3]], axis=1)
+        return bool(((p < self.lo) | (p > self.hi)).any())
+
+
+def _contact_scan(sc: SimScene, rec: _Records):
+    """contacts(i): the current contacts into frame i's records (called every control step)."""
+    mj, m, d = sc.mj, sc.model, sc.data
     ng = m.ngeom
     pk, pa, pp, po = sc.pair_lists
+    force6 = np.zeros(6)
+    touch, table_force, arm_contact, link_contact, diag = (rec.touch, rec.table_force, rec.arm_contact,
+                                                           rec.link_contact, rec.diag)
+
+    def names(j):
+        return [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in d.contact.geom[j]]
 
     def contacts(i):
-        # called every control step: one table look-up per contact (scene.py pair tables), plain Python
-        # on the few relevant contacts (numpy calls on arrays of ~10 elements cost more than the work)
+        # one table look-up per contact (scene.py pair tables), plain Python on the few relevant contacts
+        # (numpy calls on arrays of ~10 elements cost more than the work)
         nc = d.ncon
         if nc == 0:
             return
@@ -329,41 +355,72 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
                     table_force[i, arm] = abs(force6[0])
             elif k == PAIR_ARMS:
                 if not diag["arm_pair"]:
-                    diag["arm_pair"] = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in geom[j]]
+                    diag["arm_pair"] = names(j)
                 arm_contact[i] = True
+            elif k == PAIR_LINK:
+                if not diag["link_pair"]:
+                    diag["link_pair"] = names(j)
+                    diag["link_time_frame"] = i
+                link_contact[i] = True
 
-    lo = sc.workspace[0] - opt.workspace_margin
-    hi = sc.workspace[1] + opt.workspace_margin
+    return contacts
 
-    def hard_failure(i) -> bool:
-        """The outcome is decided (failures.py: a hard failure fails the episode whatever follows).
-        Collisions are checked every frame, the workspace every 6th frame (0.2 s at 30 fps) and at
-        the last: classify() finds the first offending frame in the records."""
-        if arm_contact[i] or table_force[i, 0] > opt.table_force_limit or table_force[i, 1] > opt.table_force_limit:
-            return True
-        if i % 6 and i != T - 1:
-            return False
-        p = np.concatenate([gp[i - 5:i + 1, :, :3], hist[i - 5:i + 1, :, :3, 3]], axis=1)
-        return bool(((p < lo) | (p > hi)).any())
 
-    sub_l = [int(x) for x in sub]
-    closed_ctrl = [tuple(r) for r in closed_cmd[frame_of_ctrl].tolist()]  # per control step, Python bools
-    closed_last = tuple(closed_cmd[-1].tolist())
+def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float,
+         on_frame: Callable[[Any], None] | None = None) -> SimResult:
+    mj, m, d = sc.mj, sc.model, sc.data
+    spec = sc.spec
+    execution = sc.binding.prepare(sc, obj0, actions, fps, until_failure=opt.stop_on_hard_failure)  # robots/base.py
+    actions = execution.actions
+    n = actions.shape[0]
+    sch = _schedule(actions, fps, opt, spec, opt.physics.timestep)
+    m.opt.timestep = 1.0 / (fps * sch.steps_per_frame)
+    cpf, steps_per_frame, sub_l = sch.cpf, sch.steps_per_frame, sch.sub
+    plan = sc.binding.plan(sc, execution, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps)
+    plan_events = sorted(plan.events + _stroke_events(sc, obj0, sch, fps), key=lambda e: e.frame)
+    fc = _FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
+    pose0 = np.concatenate([sch.pos[0], sch.quat[0]], axis=-1)
+    sc.reset(obj0, pose0, np.where(sch.closed_cmd[0], 0.0, spec.opening), plan)
+    steps = 0
+    pre = int(round(opt.preroll_s / m.opt.timestep))
+    if pre:
+        mj.mj_step(m, d, nstep=pre)
+        steps += pre
+
+    T = n + sch.settle_frames
+    rec = _Records(sc, T, opt, min((e.frame for e in plan_events), default=None))
+    hist, gp = rec.hist, rec.gp
+    obj_body = sc.obj_body
+    fq = sc.finger_qadr
+    act = _as_index(sc.act)
+    record_pose = sc.binding.record
+    contacts = _contact_scan(sc, rec)
+
+    def record(i):
+        if on_frame is not None:
+            on_frame(d)
+        hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
+        hist[i, :, :3, 3] = d.xpos[obj_body]
+        record_pose(d, gp[i])
+        gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
+
+    tp, apply = sch.targets_pos, plan.apply
+    closed_ctrl = [tuple(r) for r in sch.closed_cmd[sch.frame_of_ctrl].tolist()]  # per control step, Python bools
+    closed_last = tuple(sch.closed_cmd[-1].tolist())
     hard_stop = opt.stop_on_hard_failure
     record(0)
     k = 0
     stop = None  # frame after which the simulation was stopped (stop_on_hard_failure)
     for i in range(1, n):
         for c in range(cpf):
-            d.mocap_pos[mocap] = tp[k]
-            d.mocap_quat[mocap] = tqu_wxyz[k]
+            apply(d, k)
             d.ctrl[act] = fc.update(closed_ctrl[k], tp[k], d.qpos, fq)
             mj.mj_step(m, d, nstep=sub_l[c])
             contacts(i)
             k += 1
         steps += steps_per_frame
         record(i)
-        if hard_stop and hard_failure(i):
+        if hard_stop and rec.hard_failure(i):
             stop = i
             break
     settled = None  # frame at which the settle phase ended early (stop_when_settled)
@@ -372,12 +429,12 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
         rest = 0
         for i in range(n, T):
             for c in range(cpf):
-                d.ctrl[act] = fc.update(closed_last, pos[-1], d.qpos, fq)
+                d.ctrl[act] = fc.update(closed_last, sch.pos[-1], d.qpos, fq)
                 mj.mj_step(m, d, nstep=sub_l[c])
                 contacts(i)
             steps += steps_per_frame
             record(i)
-            if hard_stop and hard_failure(i):
+            if hard_stop and rec.hard_failure(i):
                 stop = i
                 break
             if opt.stop_when_settled:
@@ -388,44 +445,85 @@ def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: S
                 if rest >= opt.rest_frames and i < T - 1:
                     settled = i
                     break
+    return _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, t_wall)
 
-    g_cmd = np.concatenate([(~closed_cmd).astype(float), np.repeat((~closed_cmd[-1:]).astype(float), settle_frames, 0)])
+
+def _stroke_events(sc: SimScene, obj0: np.ndarray, sch: _Schedule, fps: float) -> list[PlanEvent]:
+    """`wider_than_stroke` where a hand closes on an object it cannot open around: the object nearest
+    (by its keypoints at the episode's start) to where the hand closes, whose grasp width is not less
+    than the hand's opening. Objects narrower than the opening (every object for the 2F-140): none."""
+    opening = sc.spec.opening
+    widths = sc.task.grasp_widths
+    if (widths < opening).all():
+        return []
+    kp = sc.task.keypoints_world(obj0)
+    owner = sc.task.keypoint_object
+    closed = sch.closed_cmd
+    n = len(closed)
+    lead = int(round(sc.spec.close_lead_s * fps))
+    events = []
+    for arm in range(2):
+        onsets = np.flatnonzero(np.concatenate([closed[:1, arm], closed[1:, arm] & ~closed[:-1, arm]]))
+        for o in onsets.tolist():
+            at = sch.pos[min(o + lead, n - 1), arm]  # where the hand is when g switches to closed
+            k = int(owner[np.argmin(np.linalg.norm(kp - at, axis=1))])
+            if widths[k] >= opening:
+                events.append(PlanEvent(o, "wider_than_stroke",
+                                        f"arm {arm} closes on the {sc.task.object_names[k]} at t = {o / fps:.2f} s: "
+                                        f"it is {widths[k] * 1000:.0f} mm wide where grasped, the hand opens "
+                                        f"{opening * 1000:.0f} mm"))
+    return events
+
+
+def _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, t_wall) -> SimResult:
+    """The predicate (unless a hard failure stopped the simulation) and the verdict."""
+    m, d = sc.model, sc.data
+    closed_cmd = sch.closed_cmd
+    g_cmd = np.concatenate([(~closed_cmd).astype(float),
+                            np.repeat((~closed_cmd[-1:]).astype(float), sch.settle_frames, 0)])
     last = stop if stop is not None else settled
     if last is not None:  # truncate the per-frame records where the simulation stopped
-        hist, gp, touch, arm_contact, table_force, g_cmd = (
-            x[:last + 1] for x in (hist, gp, touch, arm_contact, table_force, g_cmd))
+        rec.truncate(last)
+        g_cmd = g_cmd[:last + 1]
     if stop is None:
-        ok, pdetail = sc.task.success(m, d, hist)
+        ok, pdetail = sc.task.success(m, d, rec.hist)
         ok = bool(ok)
     else:  # the predicate is not evaluated after a hard failure
         ok, pdetail = None, f"not evaluated: simulation stopped at t = {stop / fps:.2f} s after a hard failure"
-    failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), hist, gp, touch, arm_contact,
-                                       table_force, g_cmd, n, diag)
+    failure, detail, events = classify(sc, opt, fps, bool(ok), str(pdetail), rec.hist, rec.gp, rec.touch,
+                                       rec.arm_contact, rec.table_force, g_cmd, n, rec.diag,
+                                       link_contact=rec.link_contact, plan_events=plan_events)
     res = SimResult(sc.task.name, failure is None, failure, detail, ok, str(pdetail),
                     steps * m.opt.timestep, steps, time.perf_counter() - t_wall, n, events,
-                    gp, hist, touch, arm_contact, table_force, g_cmd)
+                    rec.gp, rec.hist, rec.touch, rec.arm_contact, rec.table_force, g_cmd, dict(plan.summary))
     return res if opt.keep_trajectory else res.strip()
 
 
-def _as_index(ids):
-    """A slice for contiguous ids (cheaper MjData writes than fancy indexing), else the array."""
-    ids = np.asarray(ids)
-    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
-        return slice(int(ids[0]), int(ids[0]) + len(ids))
-    return ids
+def planned_execution(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
+                      options: SimOptions | None = None):
+    """What the robot executes of an episode (robots/base.py Execution), as execute() plans it, without physics."""
+    opt = options or SimOptions()
+    sc = get_scene(task_name, opt.robot, opt.physics)
+    obj0 = as_object_poses(sc.task, object_poses_or_keypoints)
+    return sc.binding.prepare(sc, obj0, np.asarray(actions, float), float(fps), until_failure=False)
 
 
 def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
     """sha256 of what a task's simulation depends on besides the episode and the executor's code: the
-    scene MJCF with the grippers, and every simulation option (gripper, physics, control). A cache of
-    results keyed by it goes stale by itself when a task's objects or the robot change."""
+    scene MJCF with the robot and the files it names (meshes), and every simulation option (robot,
+    physics, control). A cache of results keyed by it goes stale by itself when a task's objects or the
+    robot change."""
     import hashlib
 
-    from .scene import robot_scene_xml
+    from .scene import robot_scene
 
     opt = options or SimOptions()
-    h = hashlib.sha256(robot_scene_xml(task_name, opt.gripper).encode())
+    xml, assets = robot_scene(task_name, opt.robot)
+    h = hashlib.sha256(xml.encode())
+    for name in sorted(assets):
+        h.update(name.encode() + hashlib.sha256(assets[name]).digest())
     h.update(repr(replace(opt, keep_trajectory=False)).encode())
+    h.update(opt.robot.settings(task_name).encode())
     return h.hexdigest()
 
 
@@ -465,7 +563,7 @@ def _init_worker(task_name, opt, in_pool: bool = False):
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_STATE["task"] = task_name
     _WORKER_STATE["opt"] = opt
-    get_scene(task_name, opt.gripper, opt.physics)  # compile once per process
+    get_scene(task_name, opt.robot, opt.physics)  # compile once per process
 
 
 def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
@@ -498,5 +596,5 @@ def execute_many(task_name: str, episodes: Sequence, workers: int = 2,
     return out  # type: ignore[return-value]
 
 
-__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "scene_fingerprint", "validate_actions", "as_object_poses",
-           "object_poses_from_keypoints", "FAILURES"]
+__all__ = ["SimOptions", "SimResult", "execute", "execute_many", "planned_execution", "scene_fingerprint",
+           "validate_actions", "as_object_poses", "object_poses_from_keypoints", "FAILURES"]

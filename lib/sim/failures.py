@@ -5,13 +5,23 @@ Outcome = success, or exactly one failure reason (FAILURES).  Rules, in this ord
 1. "invalid_action" (executor, before simulating): NaN / inf values, wrong shape, quaternion norm off
    by more than `quat_tol`, g outside [0, 1], bad object input.
 2. Hard failures, which fail an episode even if the task predicate holds (a robot dataset must not
-   contain them); the earliest in time wins:
+   contain them); the earliest in time wins. Planned before physics, for a robot with arms
+   (lib/sim/robots; the simulation runs up to that frame, so an earlier collision still wins):
+   * "unreachable"     after inverse kinematics a pinch pose is more than 1 cm or 5 degrees off its
+     target at some step (the pose lies outside what the arm can reach with that orientation);
+   * "joint_limit"     the same, with a joint held at its position limit or moving at its velocity
+     limit at that step (the arm could reach the pose but its joint range or speed cannot follow);
+   * "wider_than_stroke" a hand closes on an object whose grasp width is not less than the hand's
+     opening (it cannot get its fingers around it);
+   and found in physics:
    * "arm_collision"   any contact between a geom of the left gripper and one of the right gripper;
    * "table_collision" a gripper pushes on the table (or floor) with a normal force above
      `table_force_limit` (15 N): a path through the table is stopped by the table, the soft drive
      weld then presses the gripper onto it;
    * "left_workspace"  a gripper's pinch point or an object's origin leaves task.workspace grown by
-     `workspace_margin` (5 cm), e.g. an object knocked off the table.
+     `workspace_margin` (5 cm), e.g. an object knocked off the table;
+   * "link_collision"  an arm link (not the hand: its fingers and housing keep the rules above) touches
+     the table, an object or the other arm.
 3. If the task predicate holds: success.
 4. Otherwise the earliest explanation found; else "predicate_not_met":
    * "missed_grasp"   an arm closed (g < 0.5) and moved >= 3 cm while closed, but no object was ever
@@ -28,8 +38,12 @@ from __future__ import annotations
 import numpy as np
 
 FAILURES = ("invalid_action", "missed_grasp", "object_dropped", "arm_collision", "table_collision",
-            "left_workspace", "predicate_not_met")
-HARD = ("arm_collision", "table_collision", "left_workspace")
+            "left_workspace", "predicate_not_met", "unreachable", "joint_limit", "link_collision",
+            "wider_than_stroke")
+HARD = ("arm_collision", "table_collision", "left_workspace", "unreachable", "joint_limit", "link_collision",
+        "wider_than_stroke")
+
+PLANNED = ("unreachable", "joint_limit", "wider_than_stroke")  # found before physics (lib/sim/robots)
 
 MOVE_MIN = 0.03  # m the gripper must travel while closed for a missed grasp to matter
 DRIFT_MAX = 0.03  # m object drift in the gripper frame -> lost
@@ -51,9 +65,15 @@ def _quat_to_mat(q):  # xyzw (..., 4)
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
-def classify(sc, opt, fps, pred_ok, pred_detail, hist, gp, touch, arm_contact, table_force, g_cmd, n_action, diag=None):
+def classify(sc, opt, fps, pred_ok, pred_detail, hist, gp, touch, arm_contact, table_force, g_cmd, n_action, diag=None,
+             link_contact=None, plan_events=()):
     names = sc.task.object_names
-    events: list[tuple[float, str, str]] = []
+    events: list[tuple[float, str, str]] = [(e.frame / fps, e.failure, e.detail) for e in plan_events]
+    if link_contact is not None and link_contact.any():
+        f = int(np.argmax(link_contact))
+        pair = (diag or {}).get("link_pair")
+        events.append((f / fps, "link_collision", f"an arm link touches {'/'.join(pair) if pair else 'something'} "
+                       f"at t = {f / fps:.2f} s"))
 
     # ---- hard failures
     if arm_contact.any():
@@ -84,7 +104,9 @@ def classify(sc, opt, fps, pred_ok, pred_detail, hist, gp, touch, arm_contact, t
             k = int(np.argmax(out_o[fo]))
             events.append((fo / fps, "left_workspace",
                            f"{names[k]} at {np.round(opos[fo, k], 3).tolist()} outside the workspace at t = {fo / fps:.2f} s"))
-    hard = sorted(e for e in events if e[1] in HARD)
+    # earliest first; at the same instant a failure found while planning (the cause: an unreachable
+    # pose, a too wide object) before what physics then shows (e.g. the stretched arm leaving the workspace)
+    hard = sorted((e for e in events if e[1] in HARD), key=lambda e: (e[0], e[1] not in PLANNED, e[1], e[2]))
     if hard:
         return hard[0][1], hard[0][2], sorted(events)
     if pred_ok:

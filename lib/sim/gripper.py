@@ -95,27 +95,28 @@ BITS = 'contype="3" conaffinity="3"'
 PAD_SOL = 'priority="1" solref="0.005 1" solimp="0.99 0.999 0.0005 0.5 2"'
 
 
-def _f(*v) -> str:
+def mjcf_numbers(*v) -> str:
+    """Numbers as an MJCF attribute value (6 significant digits)."""
     return " ".join(f"{float(x):.6g}" for x in v)
 
 
-def gripper_sections(spec: GripperSpec) -> dict[str, str]:
-    """MJCF fragments for both grippers: keys worldbody, equality, tendon, actuator, contact."""
+_f = mjcf_numbers
+
+
+def hand_body(spec: GripperSpec, p: str, col: str, wrist: bool = True) -> str:
+    """The inside of one 2F-140 body in the gripper frame (pinch point at the origin, z = approach):
+    palm, (the wrist coupling of a free-floating gripper,) the pinch site and the two fingers."""
     px, py, pz = spec.pad_half
     half_open = spec.stroke / 2
     tip = spec.tip_offset
     palm_face = tip - spec.finger_len
     th = spec.finger_thick
     link_hz = spec.finger_len / 2
-    wb, eq, tn, ac, ct = [], [], [], [], []
     fr = _f(*spec.pad_friction)
-    for a in range(2):
-        p = f"g{a}"
-        col = COLORS[a]
-        fingers = []
-        for side, sgn in (("l", -1), ("r", 1)):
-            # finger body origin = pad inner face centre line at full opening; travel along -sgn * x
-            fingers.append(f"""
+    fingers = []
+    for side, sgn in (("l", -1), ("r", 1)):
+        # finger body origin = pad inner face centre line at full opening; travel along -sgn * x
+        fingers.append(f"""
 <body name="{p}_finger_{side}" pos="{_f(sgn * half_open, 0, 0)}" gravcomp="1">
   <joint name="{p}_{side}" type="slide" axis="{_f(-sgn, 0, 0)}" range="0 {half_open:.6g}" armature="0.01" damping="0.5" solreflimit="0.004 1"/>
   <geom name="{p}_pad_{side}" type="box" size="{_f(px, py, pz)}" pos="{_f(sgn * px, 0, tip - pz)}" {BITS} {PAD_SOL}
@@ -124,26 +125,48 @@ def gripper_sections(spec: GripperSpec) -> dict[str, str]:
         pos="{_f(sgn * (2 * px + th / 2), 0, tip - link_hz)}" {BITS} {PAD_SOL} friction="{fr}" condim="4"
         mass="{spec.finger_mass * 0.8:.6g}" rgba="{col}"/>
 </body>""")
-        palm_hx = spec.palm_half[0]
+    palm_hx = spec.palm_half[0]
+    coupling = (f"""
+  <geom name="{p}_wrist" type="cylinder" size="0.035 0.025" pos="{_f(0, 0, palm_face - 2 * spec.palm_half[2] - 0.025)}" {BITS}
+        mass="{spec.base_mass * 0.4:.6g}" rgba="{col}"/>""" if wrist else "")
+    return f"""
+  <geom name="{p}_palm" type="box" size="{_f(palm_hx, spec.palm_half[1], spec.palm_half[2])}" pos="{_f(0, 0, palm_face - spec.palm_half[2])}" {BITS}
+        mass="{spec.base_mass * 0.6:.6g}" rgba="0.3 0.3 0.32 1"/>{coupling}
+  <site name="{p}_pinch" pos="0 0 0" size="0.004" rgba="1 1 0 1" group="3"/>
+  {''.join(fingers)}"""
+
+
+def finger_drive(spec: GripperSpec, p: str) -> dict[str, str]:
+    """One hand's finger coupling, tendon, force-limited actuator and finger-finger contact exclusion
+    (MJCF fragments: keys equality, tendon, actuator, contact). The fingers of any hand driven this
+    way (joints `<p>_l`, `<p>_r`: travel from fully open, 0, to closed) follow the executor's
+    finger command (`ctrl` = total travel = stroke - width)."""
+    return {"equality": f'<joint name="{p}_couple" joint1="{p}_r" joint2="{p}_l" polycoef="0 1 0 0 0" solref="0.005 1"/>',
+            "tendon": f'<fixed name="{p}_grip"><joint joint="{p}_l" coef="1"/><joint joint="{p}_r" coef="1"/></fixed>',
+            "actuator": (f'<position name="{p}_grip" tendon="{p}_grip" kp="{spec.kp:.6g}" kv="{spec.kv:.6g}" '
+                         f'forcerange="{_f(-spec.grip_force, spec.grip_force)}" ctrlrange="{_f(-0.05, spec.stroke + spec.squeeze + 0.05)}"/>'),
+            "contact": f'<exclude body1="{p}_finger_l" body2="{p}_finger_r"/>'}
+
+
+def gripper_sections(spec: GripperSpec) -> dict[str, str]:
+    """MJCF fragments for both free-floating grippers: keys worldbody, equality, tendon, actuator, contact."""
+    wb, eq, tn, ac, ct = [], [], [], [], []
+    for a in range(2):
+        p = f"g{a}"
+        col = COLORS[a]
         wb.append(f"""
 <body name="{p}_target" mocap="true" pos="{_f(-0.3 + 0.6 * a, -0.15, 0.2)}">
   <geom type="sphere" size="0.006" rgba="{col[:-1]}0.3" contype="0" conaffinity="0" group="3"/>
 </body>
 <body name="{p}_base" pos="{_f(-0.3 + 0.6 * a, -0.15, 0.2)}" gravcomp="1">
-  <freejoint name="{p}_free"/>
-  <geom name="{p}_palm" type="box" size="{_f(palm_hx, spec.palm_half[1], spec.palm_half[2])}" pos="{_f(0, 0, palm_face - spec.palm_half[2])}" {BITS}
-        mass="{spec.base_mass * 0.6:.6g}" rgba="0.3 0.3 0.32 1"/>
-  <geom name="{p}_wrist" type="cylinder" size="0.035 0.025" pos="{_f(0, 0, palm_face - 2 * spec.palm_half[2] - 0.025)}" {BITS}
-        mass="{spec.base_mass * 0.4:.6g}" rgba="{col}"/>
-  <site name="{p}_pinch" pos="0 0 0" size="0.004" rgba="1 1 0 1" group="3"/>
-  {''.join(fingers)}
+  <freejoint name="{p}_free"/>{hand_body(spec, p, col)}
 </body>""")
         eq.append(f'<weld name="{p}_drive" body1="{p}_target" body2="{p}_base" relpose="0 0 0 1 0 0 0" '
                   f'solref="{_f(*spec.weld_solref)}"/>')
-        eq.append(f'<joint name="{p}_couple" joint1="{p}_r" joint2="{p}_l" polycoef="0 1 0 0 0" solref="0.005 1"/>')
-        tn.append(f'<fixed name="{p}_grip"><joint joint="{p}_l" coef="1"/><joint joint="{p}_r" coef="1"/></fixed>')
-        ac.append(f'<position name="{p}_grip" tendon="{p}_grip" kp="{spec.kp:.6g}" kv="{spec.kv:.6g}" '
-                  f'forcerange="{_f(-spec.grip_force, spec.grip_force)}" ctrlrange="{_f(-0.05, spec.stroke + spec.squeeze + 0.05)}"/>')
-        ct.append(f'<exclude body1="{p}_finger_l" body2="{p}_finger_r"/>')
+        drive = finger_drive(spec, p)
+        eq.append(drive["equality"])
+        tn.append(drive["tendon"])
+        ac.append(drive["actuator"])
+        ct.append(drive["contact"])
     return {"worldbody": "\n".join(wb), "equality": "\n".join(eq), "tendon": "\n".join(tn),
             "actuator": "\n".join(ac), "contact": "\n".join(ct)}

@@ -1,4 +1,4 @@
-"""Offscreen MP4 of the grippers executing an episode (mujoco.Renderer, shadows off, cv2 'mp4v')."""
+"""Offscreen MP4 of a robot executing an episode (mujoco.Renderer, shadows off, cv2 'mp4v')."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def render_episode(task_name: str, object_poses, actions, out_mp4, fps: float = 
         writer.write(frame)
         writer.release()
         return res
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     m = sc.model
     d = mujoco.MjData(m)  # separate data: the scene's own data belongs to the executor
     cam = mujoco.MjvCamera()
@@ -82,10 +82,11 @@ def pinhole_gl_camera(glcam, K: np.ndarray, T_world_camera: np.ndarray, width: i
 
 def episode_frames(task_name: str, object_keypoints, actions, K: np.ndarray, T_world_camera: np.ndarray,
                    width: int, height: int, fps: float = 30.0, options: SimOptions | None = None):
-    """Yield one RGB uint8 (height, width, 3) image per action frame of the episode: the grippers
-    execute it in MuJoCo (past any failure, as render_episode) and each recorded frame's state is
-    drawn from the given pinhole camera (shadows off). An episode the executor refuses
-    (invalid actions) raises ValueError with its reason."""
+    """Yield one RGB uint8 (height, width, 3) image per executed action frame of the episode (for an arm
+    robot the frames it runs: its ready-pose start and time-scaling included, as its joint-space export
+    writes them): the robot executes it in MuJoCo (past any failure, as render_episode) and each
+    recorded frame's state is drawn from the given pinhole camera (shadows off). An episode the
+    executor refuses (invalid actions) raises ValueError with its reason."""
     import mujoco
 
     opt = options or SimOptions(stop_on_hard_failure=False, stop_when_settled=True)
@@ -93,13 +94,15 @@ def episode_frames(task_name: str, object_keypoints, actions, K: np.ndarray, T_w
     states, res = _resimulate_states(task_name, object_keypoints, actions, fps, opt)
     if res.failure == "invalid_action" or not states:
         raise ValueError(f"cannot render the episode: {res.detail}")
-    sc = get_scene(task_name, opt.gripper, opt.physics)
+    sc = get_scene(task_name, opt.robot, opt.physics)
     m = sc.model
     d = mujoco.MjData(m)
     with mujoco.Renderer(m, height=height, width=width) as r:
         r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        for i in range(len(actions)):  # the action frames; the settle frames after them are not steps
+        # the executed action frames (an arm robot's own start and time-scaling included); the settle frames
+        # after them are not steps
+        for i in range(res.n_frames):
             d.qpos[:] = states[min(i, len(states) - 1)]
             mujoco.mj_forward(m, d)
             r.update_scene(d)

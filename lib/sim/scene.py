@@ -1,7 +1,7 @@
-"""Compiled robot scenes: a task library scene plus the two grippers, compiled once per process.
+"""Compiled robot scenes: a task library scene plus a robot (lib/sim/robots), compiled once per process.
 
-`get_scene(task_name, spec, physics)` returns a cached `SimScene` (MjModel + MjData + index tables);
-episodes only reset the MjData and write object / gripper placements into qpos, so thousands of
+`get_scene(task_name, robot, physics)` returns a cached `SimScene` (MjModel + MjData + index tables);
+episodes only reset the MjData and write object / robot placements into qpos, so thousands of
 episodes never recompile XML.
 """
 
@@ -16,15 +16,18 @@ import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 from demoforge.lib.geometry import matrix_to_quat, xyzw_to_wxyz
 from demoforge.lib.task_library import Placement, get_task
 
-from .gripper import GripperSpec, gripper_sections
+from .gripper import GripperSpec
+from .robots import NO_ARM, PART_LINK, Robot
+from .robots.grippers import GrippersRobot
 
 # geom owner codes (SimScene.geom_code)
 CODE_OTHER = 0
 CODE_TABLE = 1  # table top and floor
 CODE_OBJECT = 10  # + object index
-CODE_GRIPPER = 100  # + 10 * arm + part (0 left finger, 1 right finger, 2 palm / wrist)
+CODE_GRIPPER = 100  # + 10 * arm + part (0 left finger, 1 right finger, 2 palm / wrist, 3 arm link)
 # geom pair kinds (SimScene.pair_kind)
-PAIR_NONE, PAIR_ARMS, PAIR_TOUCH, PAIR_TABLE = 0, 1, 2, 3  # -, left-right gripper, gripper-object, gripper-table
+# -, left-right gripper, gripper-object, gripper-table, arm link-(table, object, other arm)
+PAIR_NONE, PAIR_ARMS, PAIR_TOUCH, PAIR_TABLE, PAIR_LINK = 0, 1, 2, 3, 4
 
 
 @dataclass(frozen=True)
@@ -62,30 +65,92 @@ class PhysicsOptions:
 LEGACY_PHYSICS = PhysicsOptions(islands=True)  # before the speed work (benchmark baseline)
 
 
-def robot_scene_xml(task_name: str, spec: GripperSpec) -> str:
-    """The MJCF of a task's scene (its reference placement; episodes move the free bodies) with the two
-    grippers added."""
+def as_robot(robot: Robot | GripperSpec | None) -> Robot:
+    """A robot (a bare GripperSpec means the floating grippers with that hand; None the default robot)."""
+    if robot is None:
+        return GrippersRobot()
+    if isinstance(robot, GripperSpec):
+        return GrippersRobot(robot)
+    return robot
+
+
+def robot_scene(task_name: str, robot: Robot | GripperSpec | None = None) -> tuple[str, dict]:
+    """(MJCF, assets) of a task's scene (its reference placement; episodes move the free bodies) with the
+    robot added; assets: the files the MJCF names (meshes), for MuJoCo's compiler."""
+    robot = as_robot(robot)
     task = get_task(task_name)
     ref = task.sample_placement(np.random.default_rng(0))
-    sec = gripper_sections(spec)
-    xml = task.scene_xml(ref, extra_worldbody=sec["worldbody"], extra_equality=sec["equality"])
-    tail = (f"<tendon>\n{sec['tendon']}\n</tendon>\n<actuator>\n{sec['actuator']}\n</actuator>\n"
-            f"<contact>\n{sec['contact']}\n</contact>\n</mujoco>")
+    sec = robot.scene_parts(task_name)
+    xml = task.scene_xml(ref, extra_worldbody=sec.worldbody, extra_equality=sec.equality,
+                         extra_assets=sec.asset_xml)
+    tail = (f"<tendon>\n{sec.tendon}\n</tendon>\n<actuator>\n{sec.actuator}\n</actuator>\n"
+            f"<contact>\n{sec.contact}\n</contact>\n</mujoco>")
     i = xml.rstrip().rfind("</mujoco>")
-    return xml[:i] + tail
+    return xml[:i] + tail, dict(sec.assets)
+
+
+def robot_scene_xml(task_name: str, robot: Robot | GripperSpec | None = None) -> str:
+    """The MJCF of a task's scene with the robot added (robot_scene without the asset files)."""
+    return robot_scene(task_name, robot)[0]
 
 
 class SimScene:
-    def __init__(self, task_name: str, spec: GripperSpec, physics: PhysicsOptions):
+    def __init__(self, task_name: str, robot: Robot, physics: PhysicsOptions):
         import mujoco
 
         self.mj = mujoco
         self.task = get_task(task_name)
-        self.spec = spec
+        self.robot = robot
+        self.spec = robot.gripper
         self.physics = physics
         task = self.task
-        self.xml = xml = robot_scene_xml(task_name, spec)
-        m = mujoco.MjModel.from_xml_string(xml)
+        self.xml, assets = robot_scene(task_name, robot)
+        m = mujoco.MjModel.from_xml_string(self.xml, assets) if assets else mujoco.MjModel.from_xml_string(self.xml)
+        self._apply_physics(m, physics)
+        self.model = m
+        self.data = mujoco.MjData(m)
+        self.binding = rb = robot.bind(m, task_name)
+
+        def bid(name):
+            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+
+        def free_adr(body):
+            j = m.body_jntadr[body]
+            return int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+
+        self.n_obj = len(task.objects)
+        self.obj_body = np.array([bid(n) for n in task.object_names])
+        self.obj_qadr = np.array([free_adr(b)[0] for b in self.obj_body])
+        self.obj_vadr = np.array([free_adr(b)[1] for b in self.obj_body])
+        self.finger_qadr = rb.finger_qadr
+        self.act = rb.grip_act
+        # free bodies that are neither task objects nor the robot's (e.g. the pouring liquid)
+        known = set(task.object_names) | set(rb.bodies)
+        self.extra_names = []
+        self.extra_qadr = []
+        self.extra_vadr = []
+        for b in range(1, m.nbody):
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)
+            j = m.body_jntadr[b]
+            if name in known or j < 0 or m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE:
+                continue
+            self.extra_names.append(name)
+            self.extra_qadr.append(int(m.jnt_qposadr[j]))
+            self.extra_vadr.append(int(m.jnt_dofadr[j]))
+        # dofs of the executor's "scene at rest" test (one gather each): linear = translations of every
+        # free body (objects, extras) and the robot's (its free bases, finger slides); angular = rotations
+        # of the objects and the robot's (gripper bases, arm joints). The extras' (liquid spheres') spin is
+        # left out: packed spheres keep spinning in place in contact jitter, and only their positions matter.
+        free = np.concatenate([self.obj_vadr, np.asarray(self.extra_vadr, np.int64)]).astype(np.int64)
+        self.rest_lin = np.concatenate([(free[:, None] + np.arange(3)).ravel(), rb.rest_lin]).astype(np.int64)
+        self.rest_ang = np.concatenate([(self.obj_vadr[:, None] + np.arange(3, 6)).ravel(), rb.rest_ang]).astype(np.int64)
+        self._contact_tables(m, mujoco)
+        self.workspace = np.asarray(task.workspace, float)
+
+    @staticmethod
+    def _apply_physics(m, physics: PhysicsOptions) -> None:
+        import mujoco
+
         m.opt.timestep = physics.timestep
         m.opt.iterations = physics.iterations
         m.opt.ls_iterations = physics.ls_iterations
@@ -104,50 +169,10 @@ class SimScene:
         if physics.sleep_tolerance > 0:
             m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
             m.opt.sleep_tolerance = physics.sleep_tolerance
-        self.model = m
-        self.data = mujoco.MjData(m)
 
-        def bid(name):
-            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
-
-        def free_adr(body):
-            j = m.body_jntadr[body]
-            return int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
-
-        self.n_obj = len(task.objects)
-        self.obj_body = np.array([bid(n) for n in task.object_names])
-        self.obj_qadr = np.array([free_adr(b)[0] for b in self.obj_body])
-        self.obj_vadr = np.array([free_adr(b)[1] for b in self.obj_body])
-        self.base_body = np.array([bid(f"g{a}_base") for a in range(2)])
-        self.base_qadr = np.array([free_adr(b)[0] for b in self.base_body])
-        self.base_vadr = np.array([free_adr(b)[1] for b in self.base_body])
-        self.mocap = np.array([m.body_mocapid[bid(f"g{a}_target")] for a in range(2)])
-        jid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)  # noqa: E731
-        self.finger_qadr = np.array([[m.jnt_qposadr[jid(f"g{a}_{s}")] for s in "lr"] for a in range(2)])
-        self.act = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"g{a}_grip") for a in range(2)])
-        # free bodies that are neither task objects nor grippers (e.g. the pouring liquid)
-        known = set(task.object_names) | {f"g{a}_base" for a in range(2)}
-        self.extra_names = []
-        self.extra_qadr = []
-        self.extra_vadr = []
-        for b in range(1, m.nbody):
-            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)
-            j = m.body_jntadr[b]
-            if name in known or j < 0 or m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE:
-                continue
-            self.extra_names.append(name)
-            self.extra_qadr.append(int(m.jnt_qposadr[j]))
-            self.extra_vadr.append(int(m.jnt_dofadr[j]))
-        # dofs of the executor's "scene at rest" test (one gather each): linear = translations of every
-        # free body (objects, extras, gripper bases) and the finger slides; angular = rotations of the
-        # objects and gripper bases. The extras' (liquid spheres') spin is left out: packed spheres keep
-        # spinning in place in contact jitter, and only their positions matter to a predicate.
-        free = np.concatenate([self.obj_vadr, np.asarray(self.extra_vadr, np.int64), self.base_vadr]).astype(np.int64)
-        fing = np.array([m.jnt_dofadr[jid(f"g{a}_{s}")] for a in range(2) for s in "lr"], np.int64)
-        self.rest_lin = np.concatenate([(free[:, None] + np.arange(3)).ravel(), fing])
-        spin = np.concatenate([self.obj_vadr, self.base_vadr]).astype(np.int64)
-        self.rest_ang = (spin[:, None] + np.arange(3, 6)).ravel()
-        # geom owner codes
+    def _contact_tables(self, m, mujoco) -> None:
+        """Geom owner codes and, per geom pair, what a contact between them means for the executor."""
+        rb = self.binding
         code = np.zeros(m.ngeom, np.int64)
         obj_of_body = {int(b): k for k, b in enumerate(self.obj_body)}
         for g in range(m.ngeom):
@@ -157,10 +182,8 @@ class SimScene:
                 code[g] = CODE_TABLE
             elif b in obj_of_body:
                 code[g] = CODE_OBJECT + obj_of_body[b]
-            elif name.startswith("g0_") or name.startswith("g1_"):
-                a = int(name[1])
-                part = 0 if name.endswith("_l") else 1 if name.endswith("_r") else 2
-                code[g] = CODE_GRIPPER + 10 * a + part
+            elif rb.geom_arm[g] != NO_ARM:
+                code[g] = CODE_GRIPPER + 10 * rb.geom_arm[g] + rb.geom_part[g]
         self.geom_code = code
         # per geom pair (symmetric): what a contact between them means for the executor's bookkeeping,
         # so that the per-control-step contact scan is one table look-up (executor.contacts)
@@ -173,18 +196,24 @@ class SimScene:
             kind[np.ix_(a_, b_)] = PAIR_TOUCH
         for a_, b_ in ((g, code == CODE_TABLE), (code == CODE_TABLE, g)):
             kind[np.ix_(a_, b_)] = PAIR_TABLE
+        # an arm link (not a hand) touching the table, an object or any geom of the other arm
+        link = g & ((code - CODE_GRIPPER) % 10 == PART_LINK)
+        hit = (code == CODE_TABLE) | (obj >= 0)
+        for a_, b_ in ((link, hit), (hit, link)):
+            kind[np.ix_(a_, b_)] = PAIR_LINK
+        other = g[None, :] & (arm[:, None] != arm[None, :])
+        kind[(link[:, None] & other) | (link[None, :] & other.T)] = PAIR_LINK
         gi, gj = np.meshgrid(np.arange(m.ngeom), np.arange(m.ngeom), indexing="ij")
-        grip_geom = np.where(g[gi], gi, gj)  # the gripper geom of a gripper-x pair
-        other = np.where(g[gi], gj, gi)
+        grip_geom = np.where(g[gi], gi, gj)  # the robot geom of a robot-x pair (the first of two robot geoms)
+        other_geom = np.where(g[gi], gj, gi)
         self.pair_kind = kind
         self.pair_arm = arm[grip_geom].astype(np.int64)
         self.pair_part = np.where(g[grip_geom], (code[grip_geom] - CODE_GRIPPER) % 10, 0).astype(np.int64)
-        self.pair_obj = np.maximum(obj[other], 0).astype(np.int64)
+        self.pair_obj = np.maximum(obj[other_geom], 0).astype(np.int64)
         # the same tables as flat Python lists: the per-contact look-up in the executor's hot loop is a
         # list index (~30 ns) instead of a NumPy scalar index (~100 ns plus a boxed scalar)
         self.pair_lists = tuple(x.ravel().tolist() for x in (self.pair_kind, self.pair_arm, self.pair_part,
                                                              self.pair_obj))
-        self.workspace = np.asarray(task.workspace, float)
 
     # ------------------------------------------------------------------ placement
     def extra_poses(self, object_poses: np.ndarray) -> np.ndarray:
@@ -201,11 +230,17 @@ class SimScene:
             found[el.get("name")] = np.concatenate([pos, quat])
         return np.stack([found[n] for n in self.extra_names])
 
-    def reset(self, object_poses: np.ndarray, pose0: np.ndarray, width0: np.ndarray) -> None:
-        """Reset MjData: objects at object_poses (n_obj, 4, 4), grippers at pose0 (2, 7 xyzw) with
-        aperture width0 (2,); mocap targets at pose0."""
+    def reset(self, object_poses: np.ndarray, pose0: np.ndarray, width0: np.ndarray, plan=None) -> None:
+        """Reset MjData: objects at object_poses (n_obj, 4, 4), the robot in its plan's first state with
+        its pinch points at pose0 (2, 7 xyzw) and apertures width0 (2,)."""
         mj, m, d = self.mj, self.model, self.data
         mj.mj_resetData(m, d)
+        self.place_objects(d, object_poses)
+        self.binding.reset(d, plan, pose0, width0)
+        mj.mj_forward(m, d)
+
+    def place_objects(self, d, object_poses: np.ndarray) -> None:
+        """The objects (n_obj, 4, 4) and the extra free bodies of that placement into MjData d's qpos."""
         q = xyzw_to_wxyz(matrix_to_quat(object_poses[:, :3, :3]))
         for k in range(self.n_obj):
             a = self.obj_qadr[k]
@@ -213,24 +248,14 @@ class SimScene:
             d.qpos[a + 3:a + 7] = q[k]
         for a, pq in zip(self.extra_qadr, self.extra_poses(object_poses)):
             d.qpos[a:a + 7] = pq
-        for arm in range(2):
-            a = self.base_qadr[arm]
-            d.qpos[a:a + 3] = pose0[arm, :3]
-            d.qpos[a + 3:a + 7] = xyzw_to_wxyz(pose0[arm, 3:7])
-            d.mocap_pos[self.mocap[arm]] = pose0[arm, :3]
-            d.mocap_quat[self.mocap[arm]] = xyzw_to_wxyz(pose0[arm, 3:7])
-            travel = (self.spec.stroke - width0[arm]) / 2
-            d.qpos[self.finger_qadr[arm]] = travel
-            d.ctrl[self.act[arm]] = self.spec.ctrl_for_width(width0[arm])
-        mj.mj_forward(m, d)
 
 
 _CACHE: dict = {}
 
 
-def get_scene(task_name: str, spec: GripperSpec | None = None, physics: PhysicsOptions | None = None) -> SimScene:
-    """Per-process cache of compiled scenes keyed by (task, gripper spec, physics options)."""
-    key = (task_name, spec or GripperSpec(), physics or PhysicsOptions())
+def get_scene(task_name: str, robot: Robot | GripperSpec | None = None, physics: PhysicsOptions | None = None) -> SimScene:
+    """Per-process cache of compiled scenes keyed by (task, robot, physics options)."""
+    key = (task_name, as_robot(robot), physics or PhysicsOptions())
     sc = _CACHE.get(key)
     if sc is None:
         sc = _CACHE[key] = SimScene(*key)

@@ -31,7 +31,7 @@ class VariationScene:
         self.variation = variation
         self.options = options or SimOptions()
         self.task_key = variation.register()
-        self.scene: SimScene = get_scene(self.task_key, self.options.gripper, self.options.physics)
+        self.scene: SimScene = get_scene(self.task_key, self.options.robot, self.options.physics)
         self.task = self.scene.task
         m, mj = self.scene.model, self.scene.mj
         self.distractor_body = np.array([mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, d.name)

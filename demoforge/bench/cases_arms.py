@@ -1,0 +1,92 @@
+"""Benchmark cases of the ALOHA arms (lib/sim/robots): inverse kinematics and physics, stage `arms`.
+
+ik_warm_started_100_steps   fast = ArmsIK.solve along each 100-step episode, warm-started (each step
+                            from the last one's joints, one QP iteration most of the time); baseline =
+                            the same poses solved step by step from scratch (the geometric seeds, then
+                            mink until converged), as one would solve isolated poses. Both on one core
+                            (one process); the check: every step of both within 1 cm and 5 degrees.
+                            Episodes: 100-step windows of the six tasks' scripted demonstrations (seeds
+                            0-1, plain and mirrored) that the arms reach at every step.
+physics_aloha_<task>        fast = execute_many(workers=1) with the `aloha` robot carrying the 2F-140
+                            (IK, joint position actuators, arm links in the scene); baseline = the
+                            floating `grippers` on the same episodes: ratio < 1 is what the arms cost
+                            more per episode. Episodes: the task's scripted demonstrations (seeds 0-1,
+                            plain and mirrored); outcomes differ (the arms fail what they cannot reach
+                            and stop there), so both run to the end of the episode
+                            (stop_on_hard_failure off) and there is no outcome check.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demoforge.bench.timing import BenchCase
+
+TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
+WINDOW = 100
+
+
+def reachable_windows(n: int, hand: str = "2f140") -> list[tuple[str, np.ndarray]]:
+    """Up to n (task, (100, 2, 8) poses) windows of scripted demonstrations that the arms reach throughout."""
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.task_library import get_task
+
+    robot = get_robot("aloha", hand)
+    out = []
+    for seed in (0, 1):
+        for task in TASKS:
+            for mirror in (False, True):
+                acts = get_task(task).scripted_demo(seed, mirror).gripper_actions()
+                ok = ~robot.ik(task).solve(acts).failed_steps().any(axis=1)
+                good = np.convolve(ok.astype(int), np.ones(WINDOW, int), "valid") == WINDOW
+                if good.any():
+                    s = int(np.flatnonzero(good)[len(np.flatnonzero(good)) // 2])
+                    out.append((task, acts[s:s + WINDOW]))
+                if len(out) >= n:
+                    return out
+    return out
+
+
+def _ik_setup(n: int):
+    from demoforge.lib.sim.robots import get_robot
+
+    robot = get_robot("aloha", "2f140")
+    windows = reachable_windows(n)
+
+    def fast():
+        return [robot.ik(task).solve(w) for task, w in windows]
+
+    def baseline():
+        return [[robot.ik(task).solve(w[t:t + 1]) for t in range(len(w))] for task, w in windows]
+
+    return fast, baseline
+
+
+def _ik_check(fast, baseline) -> None:
+    assert not any(s.failed_steps().any() for s in fast), "a warm-started step off its target"
+    assert not any(s.failed_steps().any() for ep in baseline for s in ep), "a cold-started step off its target"
+
+
+def _physics_setup(task: str, frames: int | None):
+    def setup(n: int):
+        from demoforge.bench.cases_sim import scripted_episodes, timed_pair
+        from demoforge.lib.sim import SimOptions
+        from demoforge.lib.sim.robots import get_robot
+
+        arms = SimOptions(robot=get_robot("aloha", "2f140"), stop_on_hard_failure=False)
+        return timed_pair(task, scripted_episodes(task, n, frames), arms, SimOptions(stop_on_hard_failure=False),
+                          workers=1)
+
+    return setup
+
+
+def cases(quick: bool) -> list[BenchCase]:
+    ik = BenchCase("arms", "ik_warm_started_100_steps", 4 if quick else 12, "episodes",
+                   "the same poses solved step by step from scratch (seeds, then mink to convergence), one core",
+                   _ik_setup, check=_ik_check, repeats=1 if quick else 3)
+    base = "the floating grippers on the same episodes (ratio < 1: what the arms cost more), one process"
+    if quick:
+        return [ik, BenchCase("arms", "physics_aloha_pouring_2s", 2, "episodes", base, _physics_setup("pouring", 60),
+                              repeats=1)]
+    return [ik] + [BenchCase("arms", f"physics_aloha_{task}", 4, "episodes", base, _physics_setup(task, None),
+                             repeats=1) for task in TASKS]
