@@ -9,7 +9,7 @@ from prefect import flow
 import demoforge.lib  # noqa: F401
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.export import (
-    _refuse_foreign, check_files, episode_files, export_lerobot_stage, export_robomimic_stage, write_view,
+    refuse_to_replace_foreign_output, check_files, episode_files, export_lerobot_stage, export_robomimic_stage, write_view,
 )
 
 
@@ -25,7 +25,7 @@ def export_lerobot_flow(warehouse: str, task: str, out: str, take: str | None = 
 
     arm = get_robot(robot, gripper)
     out_p = Path(out).resolve()
-    _refuse_foreign(out_p, "meta/info.json")
+    refuse_to_replace_foreign_output(out_p, "meta/info.json")
     sources = episode_files(warehouse, task, take)
     if arm.joint_names and not unchecked:
         sources += check_files(warehouse, task, arm.name, arm.gripper_name)
@@ -41,7 +41,7 @@ def export_robomimic_flow(warehouse: str, task: str, out: str, take: str | None 
                           seed: int = 0) -> Manifest:
     """A task's episodes as one robomimic hdf5 file at ``out``."""
     out_p = Path(out).resolve()
-    _refuse_foreign(out_p, None)
+    refuse_to_replace_foreign_output(out_p, None)
     return run_stage(export_robomimic_stage, warehouse, sources=episode_files(warehouse, task, take),
                      warehouse=warehouse, task=task, out=str(out_p), take=take, include_invalid=include_invalid,
                      limit=limit, valid_fraction=valid_fraction, seed=seed)

@@ -351,7 +351,7 @@ def export_robomimic_stage(sources: list[Path], warehouse: str, task: str, out: 
     return _export_manifest("export_robomimic", Path(out), summary["samples"])
 
 
-def _refuse_foreign(out: Path, marker: str | None) -> None:
+def refuse_to_replace_foreign_output(out: Path, marker: str | None) -> None:
     """An existing --out is only replaced when it is an export of the same kind (never a random folder)."""
     if not out.exists():
         return
@@ -377,7 +377,7 @@ def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | 
         raise ExportError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     if fmt == "robomimic" and Path(out).suffix not in (".hdf5", ".h5"):
         raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
-    _refuse_foreign(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
+    refuse_to_replace_foreign_output(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
     files = episode_files(warehouse, task, take)
     if robot != "grippers" and not unchecked:
         from demoforge.lib.sim.robots import get_robot
