@@ -1,23 +1,14 @@
-"""Packaging: one package, `demoforge`, whose subpackages are the design card's top-level folders.
+"""Packaging: one package, `demoforge`, with the design card's folders as its subpackages.
 
-setuptools' ``package_dir`` maps ``demoforge.lib`` -> ``lib/`` (and tasks, flows, schemas), so the
-folders stay where the design card puts them while nothing named ``lib``, ``tasks``, ``flows`` or
-``schemas`` is installed at the top level. pyproject.toml cannot list the mapped subpackages by
-pattern, hence this file; the metadata stays in pyproject.toml.
+The code lives in ``demoforge/lib``, ``demoforge/tasks``, ``demoforge/flows`` and ``demoforge/schemas``
+(the repository's top-level folders of those names are symbolic links to them), so nothing named
+``lib``, ``tasks``, ``flows`` or ``schemas`` is installed at the top level. The metadata stays in
+pyproject.toml; this file lists the packages and the data files that are not Python.
 """
 
 from setuptools import find_packages, setup
 
-MAPPED = ("lib", "tasks", "flows", "schemas")
-
-packages = ["demoforge", *(f"demoforge.{p}" for p in find_packages("demoforge"))]
-for top in MAPPED:
-    packages += [f"demoforge.{top}", *(f"demoforge.{top}.{p}" for p in find_packages(top))]
-
 setup(
-    packages=packages,
-    package_dir={"demoforge": "demoforge", **{f"demoforge.{top}": top for top in MAPPED}},
-    package_data={"demoforge.lib.annotate": ["page.html"],
-                  # the ViperX arms' MJCF and meshes (gym-aloha 0.1.5, Apache-2.0) with their licence
-                  "demoforge.lib.sim.robots.aloha": ["assets/*"]},
+    packages=find_packages(include=["demoforge", "demoforge.*"]),
+    package_data={"demoforge.lib.annotate": ["page.html"]},
 )

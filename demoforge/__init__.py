@@ -4,18 +4,10 @@ The design card's folders are this package's subpackages: ``demoforge.lib`` (pur
 pipeline stage), ``demoforge.schemas`` (table contracts, the warehouse, the catalog),
 ``demoforge.tasks`` (cached Prefect tasks) and ``demoforge.flows`` (Prefect flows). The application
 shell lives here: ``demoforge.cli`` (the command line), ``demoforge.runtime`` (task runners, the
-whole-run cache, Prefect artifacts) and ``demoforge.bench`` (every benchmark). Installed, the
-subpackages sit inside this folder (the wheel maps them, see setup.py); in a checkout they stay at
-the top of the repository, found through this package's search path.
+whole-run cache, Prefect artifacts) and ``demoforge.bench`` (every benchmark). The four folders live
+in this one (plain subpackages: every import resolves statically, in a checkout and in the wheel); the
+repository's top-level ``lib``, ``tasks``, ``flows`` and ``schemas`` are symbolic links to them.
 """
-
-from pathlib import Path as _Path
-
-# A checkout: lib/, tasks/, flows/, schemas/ beside this folder are demoforge.lib, ... (an installed
-# wheel has them inside this folder, and no pyproject.toml beside it).
-_checkout = _Path(__file__).resolve().parent.parent
-if (_checkout / "pyproject.toml").is_file() and (_checkout / "lib" / "__init__.py").is_file():
-    __path__.append(str(_checkout))  # noqa: F821 (a package's __path__)
 
 # Other libraries' settings (Prefect: no telemetry, quiet logs; MuJoCo: EGL) before any module imports them; the
 # user's environment wins (demoforge.lib.settings.LIBRARY_DEFAULTS).

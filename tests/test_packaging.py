@@ -29,8 +29,7 @@ def test_wheel_installs_one_package_that_runs_outside_the_checkout(tmp_path, pre
     dist, venv, work, src = tmp_path / "dist", tmp_path / "venv", tmp_path / "elsewhere", tmp_path / "src"
     work.mkdir()
     # built from a copy of what the wheel is made of (setuptools writes build/ beside the sources)
-    for part in ("demoforge", "lib", "tasks", "flows", "schemas"):
-        shutil.copytree(ROOT / part, src / part, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "demoforge", src / "demoforge", ignore=shutil.ignore_patterns("__pycache__"))
     for part in ("setup.py", "pyproject.toml", "README.md"):
         shutil.copy2(ROOT / part, src / part)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(dist),
@@ -84,7 +83,8 @@ def test_checkout_packages_are_reached_only_through_demoforge():
     # in this (editable) environment too: the checkout's folders are demoforge's subpackages
     import demoforge.lib
 
-    assert Path(demoforge.lib.__file__) == ROOT / "lib" / "__init__.py"
+    assert Path(demoforge.lib.__file__) == ROOT / "demoforge" / "lib" / "__init__.py"
+    assert (ROOT / "lib").resolve() == ROOT / "demoforge" / "lib"  # the design card's folder, a link to it
     outside = subprocess.run([sys.executable, "-c", "import importlib.util as u; "
                               "print([u.find_spec(n) is not None for n in ('tasks', 'flows', 'schemas')])"],
                              cwd="/", capture_output=True, text=True, timeout=120,

@@ -47,14 +47,15 @@ def code_fingerprint(dirs: dict[str, Path] | None = None) -> str:
     n = 0
     for name, root in sorted(dirs.items()):
         for p in sorted(root.rglob("*.py")):
-            if any(parent in own and parent != root for parent in p.parents):
-                continue  # hashed under the package that owns that folder
+            # a folder inside root that is a package of its own (demoforge/lib): hashed under its name
+            if any(root / sub in own for sub in p.relative_to(root).parents if sub != Path(".")):
+                continue
             h.update(f"{name}/{p.relative_to(root)}".encode())
             h.update(file_sha256(p).encode())
             n += 1
     if n == 0:
         raise RuntimeError(f"no source files found under {sorted(map(str, own))}: the run cache cannot see the code")
-    checkout = dirs.get("demoforge.lib", Path("/nonexistent")).parent
+    checkout = dirs.get("demoforge", Path("/nonexistent")).parent
     for p in sorted((checkout / "requirements").glob("*.txt")) + [checkout / "pyproject.toml"]:
         if p.is_file():
             h.update(p.name.encode())

@@ -16,4 +16,4 @@
 from pathlib import Path
 
 # ../shared/data beside the checkout: the real third-party data (hand photos, an RGB-D frame).
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"

@@ -30,7 +30,7 @@ from demoforge.schemas.reports import REPORT_VIEWS, TABLE_VIEWS
 
 CATALOG_FILE = "catalog.duckdb"
 ENV_WAREHOUSE = "DEMOFORGE_WAREHOUSE"
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 # Statement types a query through `demoforge sql` may contain. DESCRIBE/SHOW parse as SELECT.
 _READ_ONLY_TYPES = {duckdb.StatementType.SELECT}

@@ -14,7 +14,7 @@ from demoforge.lib.evaluation.markdown import markdown_table
 from demoforge.schemas.catalog import build_catalog, query
 from demoforge.schemas.reports import REPORT_VIEWS
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 
 # Views for SQL that the report does not show: `demoforge llm-eval`'s prompting trials on placement scenes

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
-_ORCHESTRATION_DIRS = tuple(str(PROJECT_ROOT / d) + "/" for d in ("flows", "tasks"))
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+_ORCHESTRATION_DIRS = tuple(str(PACKAGE_ROOT / d) + "/" for d in ("flows", "tasks"))
 # RuntimeError-based error classes of lib/ that are about the user's environment, by module and name
 # (imported lazily: demoforge.lib.llm and demoforge.lib.perception.detectors pull in heavy modules).
 _ENVIRONMENT_ERRORS = (("demoforge.lib.llm", "LLMError"), ("demoforge.lib.perception.detectors", "DetectorError"), ("demoforge.lib.evaluation.arctic", "ArcticError"))
