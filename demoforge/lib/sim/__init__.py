@@ -1,10 +1,12 @@
-"""Robot execution of gripper action sequences: two physical parallel-jaw grippers in MuJoCo.
+"""Robot execution of gripper action sequences in MuJoCo physics, by a robot of lib/sim/robots: two
+floating parallel-jaw grippers, or ALOHA's two ViperX 300 arms (inverse kinematics, retiming, transits).
 
     from demoforge.lib.sim import execute, execute_many, render_episode, SimOptions, GripperSpec
     r = execute("pouring", object_poses_or_keypoints, actions)   # actions (n, 2, 8), 30 fps
     r.success, r.failure, r.detail
 
-gripper.py: the embodiment (MJCF, parameters, g -> finger command mapping); scene.py: compiled scene
+robots/: the robot interface and registry (grippers, aloha); gripper.py: the parallel gripper (MJCF,
+parameters, g -> finger command mapping); scene.py: compiled scene
 cache; executor.py: execute / execute_many; failures.py: failure classification; render.py: MP4;
 stability.py: verdicts under micrometre shifts; variations.py, variation_scene.py: the Table 4
 analogue's varied scenes.
