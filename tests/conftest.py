@@ -8,8 +8,14 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import pytest
-from hypothesis import settings
+# Test workers share the cores: one compute thread per process (BLAS, OpenMP/torch, llama.cpp), not one
+# per core in each, whose spinning threads would wait for each other (the user's setting wins).
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "DEMOFORGE_LLM_THREADS"):
+        os.environ.setdefault(_name, "1")
+
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
 
 import demoforge.lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
 

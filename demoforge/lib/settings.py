@@ -49,6 +49,7 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_LLM_NUMBER_FORMAT": "thesis (metres, Appendix A) or compact (integers in mm and hundredths)",
     "DEMOFORGE_LLM_STRUCTURED": "1/0: grammar / JSON-schema constrained answers (default: on for local, off for openai)",
     "DEMOFORGE_LLM_TASKS": "tasks of the prompting evaluation in `evaluate`",
+    "DEMOFORGE_LLM_THREADS": "threads of the local model (default: every core; 1 where several processes share the cores, e.g. the test workers)",
     # `demoforge evaluate`'s sizes
     "DEMOFORGE_TAKES": "synthetic takes per task and mirror flag",
     "DEMOFORGE_SEED": "first seed of the synthetic takes",
@@ -126,6 +127,17 @@ def apply_library_defaults(environ: MutableMapping[str, str] | None = None) -> N
     env.setdefault("PYOPENGL_PLATFORM", env["MUJOCO_GL"])
 
 
+def _positive_int(env: Mapping[str, str], name: str) -> int | None:
+    raw = (env.get(name) or "").strip()
+    if not raw:
+        return None
+    if not raw.isdigit() or int(raw) < 1:
+        from demoforge.lib.errors import UserError
+
+        raise UserError(f"{name}={raw!r}: give a whole number of at least 1, or unset it")
+    return int(raw)
+
+
 def _path(env: Mapping[str, str], name: str) -> Path | None:
     raw = env.get(name)
     return Path(raw).expanduser() if raw else None
@@ -149,6 +161,7 @@ class Settings:
     openai_base_url: str | None = None
     openai_api_key: str | None = None
     cache_home: Path | None = None
+    llm_threads: int | None = None
 
     def __repr__(self) -> str:  # never print a key
         key = "set" if self.openai_api_key else None
@@ -189,6 +202,7 @@ def read_settings(environ: Mapping[str, str] | None = None) -> Settings:
         openai_base_url=env.get("OPENAI_BASE_URL") or None,
         openai_api_key=env.get("OPENAI_API_KEY") or None,
         cache_home=_path(env, "XDG_CACHE_HOME"),
+        llm_threads=_positive_int(env, "DEMOFORGE_LLM_THREADS"),
     )
 
 

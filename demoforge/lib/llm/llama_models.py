@@ -60,6 +60,12 @@ def ensure_gguf(path: str | os.PathLike | None = None) -> Path:
 
 
 def cpu_threads() -> int:
+    """Threads of a model: $DEMOFORGE_LLM_THREADS, else one per core this process may run on."""
+    from demoforge.lib.settings import read_settings
+
+    configured = read_settings().llm_threads
+    if configured:
+        return configured
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:
