@@ -4,6 +4,7 @@ no import back up a layer, Prefect stages only in tasks/, no module over 600 lin
 every demoforge import resolvable by static tools."""
 
 import ast
+import functools
 from pathlib import Path
 
 from tests.import_graph import cycles, find_modules, import_nodes, imported, room
@@ -12,16 +13,14 @@ ROOT = Path(__file__).resolve().parents[1]
 MODULES = find_modules(ROOT)
 
 
+@functools.cache  # every rule reads the same imports: each file is parsed once per session
 def _imported(name: str, path: Path) -> list[tuple[str, str | None, int]]:
     return imported(name, path, MODULES)
 
 
-def _imports(name: str, path: Path, module_level_only: bool = False) -> set[str]:
-    """Modules of the package that ``name`` imports (anywhere in the file, or at module level only)."""
-    if not module_level_only:
-        return {t for t, _, _ in _imported(name, path)}
-    top = {n.lineno for n in ast.parse(path.read_text()).body if isinstance(n, (ast.Import, ast.ImportFrom))}
-    return {t for t, _, line in _imported(name, path) if line in top}
+def _imports(name: str, path: Path) -> set[str]:
+    """Modules of the package that ``name`` imports, anywhere in its file."""
+    return {t for t, _, _ in _imported(name, path)}
 
 
 def _module_edges() -> dict[str, set[str]]:
@@ -70,7 +69,7 @@ def test_no_import_runs_back_up_a_layer():
         layer = _layer(m)
         if layer not in ALLOWED:
             continue
-        for t in _imports(m, p, module_level_only=False):
+        for t in _imports(m, p):
             if _layer(t) not in ALLOWED[layer] and t != "demoforge" and (m, _layer(t)) not in EXCEPTIONS:
                 wrong.append(f"{m} imports {t}")
     assert wrong == []

@@ -34,9 +34,6 @@ import numpy as np
 from demoforge.lib.takes.metadata import parse_annotations
 from demoforge.lib.takes.task_definition import SIDES, TaskDefinition
 from demoforge.lib.takes.types import TakeError
-from demoforge.lib.takes.task_definition import (  # noqa: F401  (re-exported: the page's task choices)
-    custom_task, library_task, load_task_file, parse_task_section, task_for_take,
-)
 
 RANGE_CONVENTION = "[start, end) 0-based frame indices, end exclusive"
 #: The one-line state of a take whose object keypoints are not annotated (printed by ingest, augment).

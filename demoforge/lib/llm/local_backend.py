@@ -38,9 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from demoforge.lib.llm.base import Completion, LLMBackend, LLMError, Sampling
-from demoforge.lib.llm.llama_models import (  # noqa: F401  (ensure_gguf, load_model: the backend's public helpers)
-    GGUF_NAME, LOAD_TIMES, MODEL_LOCK, default_gguf_path, ensure_gguf, load_model, load_time_s,
-)
+from demoforge.lib.llm.llama_models import GGUF_NAME, MODEL_LOCK, ensure_gguf, load_model, load_time_s
 
 # greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding on the reduced-vocabulary model,
 # the same tokens), "fast-full" (the same decoder on the full model) or "gbnf" (llama.cpp's grammar
