@@ -18,7 +18,6 @@ from typing import Any
 
 from demoforge.lib.llm.base import (Completion, FakeBackend, LLMBackend, LLMBudgetExceeded, LLMError,
                                     LLMRequestError, LLMTimeoutError, Sampling)
-from demoforge.lib.llm.cache import CachedBackend
 
 __all__ = [
     "Sampling",
@@ -53,5 +52,7 @@ def get_backend(name: str = DEFAULT_BACKEND, cache_dir: Any = None, **options: A
     cls = getattr(importlib.import_module(mod_name), cls_name)
     backend = cls(**options)
     if cache_dir is not None:
+        from demoforge.lib.llm.cache import CachedBackend  # lazy: the package's import stays free of numpy
+
         backend = CachedBackend(backend, cache_dir)
     return backend
