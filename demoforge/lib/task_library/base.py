@@ -161,6 +161,11 @@ class TaskObject:
     grasp_width: float  # thumb-index distance when holding, metres
     keypoints: tuple  # ((name, (x, y, z)), ...) in the object's frame
     build: object  # callable(pose) -> MJCF body string
+    # turns about the object's local z axis (through its frame's origin) that map it onto itself, so that a
+    # robot may grasp it turned by any of them and the object still moves as demonstrated
+    # (lib/sim/robots/retarget.py): 0 = any turn (a bottle, cup, whisk handle), n >= 1 = the n turns of
+    # 360 / n degrees (2: a box's half-turn, 4: a square bin), 1 = none (the default: today's behaviour)
+    symmetry: int = 1
 
 
 # ------------------------------------------------------------------ keyframe tracks
@@ -299,6 +304,11 @@ class Task:
         return np.array([o.grasp_width for o in self.objects])
 
     @property
+    def symmetries(self) -> np.ndarray:
+        """(n_obj,) each object's symmetry about its local z (TaskObject.symmetry: 0 any turn, n the n-fold turns)."""
+        return np.array([o.symmetry for o in self.objects], int)
+
+    @property
     def roles(self) -> tuple[str, ...]:
         return tuple(o.role for o in self.objects)
 
@@ -346,7 +356,8 @@ class Task:
             if min(d.values()) <= 0:
                 raise ValueError(f"{self.name}/{o.name}: dimensions must be positive, got {d}")
             setattr(t, attr, d)
-            objs.append(TaskObject(o.name, o.role, float(width_fn(d)), kp_fn(d), functools.partial(o.build, dims=d)))
+            objs.append(TaskObject(o.name, o.role, float(width_fn(d)), kp_fn(d), functools.partial(o.build, dims=d),
+                                   o.symmetry))
         t.objects = tuple(objs)
         if extra_bodies:
             base_extra = t._extra_bodies  # bound to the copy: resized objects' extras (liquid) follow

@@ -29,8 +29,8 @@ class Pouring(Task):
     faults = ("no_tilt",)
     B, C = ob.BOTTLE, ob.CUP
     objects = (
-        TaskObject("bottle", "manipulated", 2 * ob.BOTTLE["R"], _bottle_kp(ob.BOTTLE), ob.bottle),
-        TaskObject("cup", "receiving", 2 * ob.CUP["R"], _cup_kp(ob.CUP), ob.cup),
+        TaskObject("bottle", "manipulated", 2 * ob.BOTTLE["R"], _bottle_kp(ob.BOTTLE), ob.bottle, symmetry=0),
+        TaskObject("cup", "receiving", 2 * ob.CUP["R"], _cup_kp(ob.CUP), ob.cup, symmetry=0),
     )
     resizable = {"bottle": ("B", _bottle_kp, lambda d: 2 * d["R"]), "cup": ("C", _cup_kp, lambda d: 2 * d["R"])}
 
@@ -115,8 +115,8 @@ class TrashInBin(Task):
     faults = ("release_far",)
     A, CN = ob.BIN, ob.CAN
     objects = (
-        TaskObject("can", "manipulated", 2 * ob.CAN["R"], _can_kp(ob.CAN), ob.can),
-        TaskObject("bin", "receiving", ob.BIN["t"], _bin_kp(ob.BIN), ob.bin_),
+        TaskObject("can", "manipulated", 2 * ob.CAN["R"], _can_kp(ob.CAN), ob.can, symmetry=0),
+        TaskObject("bin", "receiving", ob.BIN["t"], _bin_kp(ob.BIN), ob.bin_, symmetry=4),
     )
     resizable = {"can": ("CN", _can_kp, lambda d: 2 * d["R"]), "bin": ("A", _bin_kp, lambda d: d["t"])}
 
@@ -175,7 +175,7 @@ class PaperInCase(Task):
         TaskObject("paper_ball", "manipulated", 2 * ob.BALL["r"], _kp(
             ("ball_bottom", (0, 0, 0)), ("ball_center", (0, 0, ob.BALL["r"])), ("ball_top", (0, 0, 2 * ob.BALL["r"])),
             ("ball_left", (-ob.BALL["r"], 0, ob.BALL["r"])), ("ball_right", (ob.BALL["r"], 0, ob.BALL["r"]))),
-            ob.paper_ball),
+            ob.paper_ball, symmetry=0),
         TaskObject("case", "receiving", ob.CASE["t"], _kp(
             ("case_base", (0, 0, 0)),
             ("case_front_left", (-ob.CASE["hx"], -ob.CASE["hy"], ob.CASE["h"])),
@@ -236,8 +236,8 @@ class MixBowl(Task):
     faults = ("no_circle",)
     W, BW = ob.WHISK, ob.BOWL
     objects = (
-        TaskObject("whisk", "manipulated", 2 * ob.WHISK["handle_r"], _whisk_kp(ob.WHISK), ob.whisk),
-        TaskObject("bowl", "receiving", ob.BOWL["t"], _bowl_kp(ob.BOWL), ob.bowl),
+        TaskObject("whisk", "manipulated", 2 * ob.WHISK["handle_r"], _whisk_kp(ob.WHISK), ob.whisk, symmetry=0),
+        TaskObject("bowl", "receiving", ob.BOWL["t"], _bowl_kp(ob.BOWL), ob.bowl, symmetry=0),
     )
     resizable = {"whisk": ("W", _whisk_kp, lambda d: 2 * d["handle_r"]), "bowl": ("BW", _bowl_kp, lambda d: d["t"])}
     HANDLE_GRASP = ob.WHISK["grasp_z"]
@@ -354,13 +354,13 @@ class OpenContainer(Task):
         TaskObject("lid", "manipulated", 2 * ob.LID["knob"][1], _kp(
             ("lid_center", (0, 0, ob.LID["t"] / 2)), ("lid_knob", (0, 0, ob.LID["t"] + 2 * ob.LID["knob"][2])),
             ("lid_front", (0, -ob.LID["hy"], ob.LID["t"] / 2)), ("lid_left", (-ob.LID["hx"], 0, ob.LID["t"] / 2)),
-            ("lid_right", (ob.LID["hx"], 0, ob.LID["t"] / 2))), ob.lid),
+            ("lid_right", (ob.LID["hx"], 0, ob.LID["t"] / 2))), ob.lid, symmetry=2),
         TaskObject("container", "receiving", 2 * ob.CONTAINER["hy"], _kp(
             ("container_base", (0, 0, 0)), ("container_center", (0, 0, ob.CONTAINER["h"] / 2)),
             ("container_front_left", (-ob.CONTAINER["hx"], -ob.CONTAINER["hy"], ob.CONTAINER["h"])),
             ("container_front_right", (ob.CONTAINER["hx"], -ob.CONTAINER["hy"], ob.CONTAINER["h"])),
             ("container_back_left", (-ob.CONTAINER["hx"], ob.CONTAINER["hy"], ob.CONTAINER["h"])),
-            ("container_back_right", (ob.CONTAINER["hx"], ob.CONTAINER["hy"], ob.CONTAINER["h"]))), ob.container),
+            ("container_back_right", (ob.CONTAINER["hx"], ob.CONTAINER["hy"], ob.CONTAINER["h"]))), ob.container, symmetry=2),
     )
 
     def _sample_poses(self, rng):
@@ -419,10 +419,10 @@ class EmptyVase(Task):
         TaskObject("flowers", "manipulated", 0.03, _kp(
             ("flowers_base", (0, 0, 0)), ("flowers_stem", (0, 0, 0.15)), ("flowers_top", (0, 0, ob.FLOWERS["top"])),
             ("blossom_left", (-ob.FLOWERS["side"], 0, ob.FLOWERS["side_top"])),
-            ("blossom_right", (ob.FLOWERS["side"], 0, ob.FLOWERS["side_top"]))), ob.flowers),
+            ("blossom_right", (ob.FLOWERS["side"], 0, ob.FLOWERS["side_top"]))), ob.flowers, symmetry=0),
         TaskObject("vase", "receiving", 2 * ob.VASE["R"], _kp(
             ("vase_base", (0, 0, 0)), ("vase_center", (0, 0, ob.VASE["h"] / 2)),
-            *_rim4("vase", ob.VASE["R"], ob.VASE["h"])), ob.vase),
+            *_rim4("vase", ob.VASE["R"], ob.VASE["h"])), ob.vase, symmetry=0),
     )
     STEM_GRASP = 0.21
 

@@ -42,7 +42,7 @@ reaches it; the speed limits never fail one (they slow it down).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -70,6 +70,8 @@ class ArmMotion:
     sample_position_error: float = 0.0
     sample_rotation_error: float = 0.0
     sample_failure: tuple[int, int, str, str] | None = None  # (executed frame, arm, failure, detail)
+    targets: np.ndarray | None = None  # (n, 2, 8) the demonstrated poses the windows follow (after retargeting)
+    grasps: Any = None  # what the retargeting chose (e.g. aloha/grasp_choice.py GraspChoice per arm)
 
     def first_failure(self) -> tuple[int, int, str, str] | None:
         """(executed frame, arm, failure, detail): the first followed step (or sample between steps) off
@@ -220,15 +222,24 @@ def _on_path(ik: ArmsIK, q: np.ndarray, s_demo: np.ndarray, poses: np.ndarray, s
 
 def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
                     fps: float = 30.0, ready: np.ndarray | None = None, until_failure: bool = False,
-                    collides: Callable[[np.ndarray], np.ndarray] | None = None) -> ArmMotion:
+                    collides: Callable[[np.ndarray], np.ndarray] | None = None,
+                    retarget: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, Any]] | None = None) -> ArmMotion:
     """The arms' motion for an episode's (n, 2, 8) actions (see the module docstring). until_failure: the
     IK stops at the first step off its target (the simulation stops there); collides: the transits'
-    check against the scene at its start (joints (k, nq) -> (k, 2) bool per arm), None: no check."""
+    check against the scene at its start (joints (k, nq) -> (k, 2) bool per arm), None: no check;
+    retarget: (actions, windows) -> (the (n, 2, 8) poses the arms follow instead, what it chose), e.g. each
+    window's grasp turned about the held object's axis (retarget.py); what it chose may carry `joints`
+    ((n, nq) the IK's starting point at each step); None: the gripper's half-turn where that is nearer, as
+    the IK finds it."""
     actions = np.asarray(actions, float)
     n = len(actions)
     ready = ik.rest if ready is None else np.asarray(ready, float)
     windows = follow_windows(actions, keypoints0, keypoint_object)
-    sol = ik.follow(actions, windows, fps, until_failure, reference=ready, symmetric=True)
+    grasps = None
+    if retarget is not None:
+        actions, grasps = retarget(actions, windows)
+    sol = ik.follow(actions, windows, fps, until_failure, reference=ready, symmetric=retarget is None,
+                    guess=getattr(grasps, "joints", None))
     Q = _with_transits(ik, sol, windows, ready, collides)
     r = velocity_limited(Q, fps, ik.speed)
     s_demo = r.s - 1.0
@@ -256,4 +267,4 @@ def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, key
     g = actions[np.clip(step_of(s_demo), 0, n - 1), :, 7]
     poses = np.concatenate([pos, matrix_to_quat(R), g[..., None]], axis=-1)
     scale = (len(q) - 1) / max(n - 1, 1)
-    return ArmMotion(q, poses, s_demo, sol, windows, float(scale), spe, sre, sample_failure)
+    return ArmMotion(q, poses, s_demo, sol, windows, float(scale), spe, sre, sample_failure, actions, grasps)

@@ -51,6 +51,7 @@ CONVERGED_ROTATION = np.radians(0.5)  # ... and this (half the accuracy the test
 ROTATION_TOL = np.radians(ROTATION_TOL_DEG)
 AT_LIMIT = 0.02  # rad from a range's end counts as at the limit (mink approaches it geometrically)
 TRIES = 4  # candidates tried per arm and window
+ANALYTIC_NEAR = 1.5  # rad: a closed-form answer farther than this from the interpolated joints is another branch
 
 
 @dataclass
@@ -135,7 +136,8 @@ class ArmsIK:
                  speed: Sequence[float], arm_seeds: Callable[[int, np.ndarray], list[np.ndarray]], rest: np.ndarray,
                  out_of_reach: Callable[[np.ndarray], np.ndarray] | None = None, iterations: int = 8,
                  first_iterations: int = 60, position_cost: float = 1.0, orientation_cost: float = 0.15,
-                 lm_damping: float = 1e-4):
+                 lm_damping: float = 1e-4,
+                 analytic: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None):
         import mink
         import mujoco
         import qpsolvers
@@ -153,6 +155,9 @@ class ArmsIK:
         self.rest = np.asarray(rest, float)
         self.lower, self.upper = self.model.jnt_range[:, 0].copy(), self.model.jnt_range[:, 1].copy()
         self.arm_seeds, self.out_of_reach = arm_seeds, out_of_reach
+        # (arm, pos (m, 3), R (m, 3, 3), near (m, 6)) -> (m, 6): the arm's exact solution nearest `near`, where
+        # the robot has a closed form: refine() starts from it instead of the joints interpolated between steps
+        self.analytic = analytic
         self.iterations, self.first_iterations = int(iterations), int(first_iterations)
 
     # ------------------------------------------------------------------ poses
@@ -279,13 +284,17 @@ class ArmsIK:
         return self.follow(poses, np.array([[0, n], [0, n]]), fps, until_failure, self.rest, symmetric=False)
 
     def follow(self, poses: np.ndarray, windows: np.ndarray, fps: float = 30.0, until_failure: bool = False,
-               reference: np.ndarray | None = None, symmetric: bool = True) -> IKSolution:
+               reference: np.ndarray | None = None, symmetric: bool = True,
+               guess: np.ndarray | None = None) -> IKSolution:
         """Joints for (n, 2, >= 7) poses, arm a following its poses over steps windows[a] = [start, end)
         (see the module docstring); before its window an arm is at `reference` (default: the rest
         configuration), after it it holds its last step's joints.
 
         until_failure: stop tracking at the first step off its target (the simulator, which stops there
-        anyway, needs no more): the later steps hold that step's joints and residuals."""
+        anyway, needs no more): the later steps hold that step's joints and residuals.guess: (n, nq) joints to start each step of a window from (e.g. the arm's closed-form solution on the
+        branch a grasp choice tracked) instead of the last step's moved on with its velocity; the window's
+        first step starts from it too, before any other candidate.
+        """
         poses = np.asarray(poses, float)
         n = len(poses)
         targets = self.targets(poses)
@@ -297,8 +306,12 @@ class ArmsIK:
             return IKSolution(np.tile(ref, (n, 1)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2), bool), 0,
                               followed=np.zeros((n, 2), bool))
         gens = {a: self.candidates(a, poses[windows[a, 0], a, :7], ref[self.arm_dofs[a]], symmetric) for a in arms}
-        cands = {a: next(gens[a]) for a in arms}
-        res = self._track(ref, targets, arms, windows, cands, fps, until_failure, n)
+        if guess is not None:
+            guess = np.clip(np.asarray(guess, float), self.lower, self.upper)
+            cands = {a: (guess[windows[a, 0], self.arm_dofs[a]], False, True) for a in arms}
+        else:
+            cands = {a: next(gens[a]) for a in arms}
+        res = self._track(ref, targets, arms, windows, cands, fps, until_failure, n, guess)
         iterations = res.pop("iterations")
         tries = {a: 1 for a in arms}
         while arms:
@@ -313,7 +326,7 @@ class ArmsIK:
                     tries[a] = TRIES
                     break
                 tries[a] += 1
-                run = self._track(ref, targets, [a], windows, {a: cand}, fps, until_failure, n)
+                run = self._track(ref, targets, [a], windows, {a: cand}, fps, until_failure, n)  # no guess: its own seed
                 iterations += run["iterations"]
                 if (run[a]["first_bad"] > res[a]["first_bad"]) if until_failure else run[a]["bad"] < res[a]["bad"]:
                     res[a], cands[a] = run[a], cand
@@ -325,7 +338,8 @@ class ArmsIK:
                 continue
             for b in arms:  # an arm tracked only up to the old stop: on to the new one
                 if b != a and res[b]["until"] <= min(res[a]["first_bad"], windows[b, 1] - 1):
-                    run = self._track(ref, targets, [b], windows, {b: cands[b]}, fps, until_failure, res[a]["first_bad"] + 1)
+                    run = self._track(ref, targets, [b], windows, {b: cands[b]}, fps, until_failure, res[a]["first_bad"] + 1,
+                                      guess)
                     iterations += run["iterations"]
                     res[b] = run[b]
         sol = IKSolution(np.tile(ref, (n, 1)), np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2), bool), iterations,
@@ -340,7 +354,7 @@ class ArmsIK:
             sol.out_of_reach = np.asarray(self.out_of_reach(poses), bool)
         return sol
 
-    def _track(self, ref, targets, arms, windows, cands, fps, until_failure, limit) -> dict:
+    def _track(self, ref, targets, arms, windows, cands, fps, until_failure, limit, guess=None) -> dict:
         """Warm-started IK of the given arms (the other held at `ref`) along their windows' steps, both in one
         QP where both follow: arm a enters at windows[a, 0] with its candidate cands[a] = (joints, flipped, ok)
         and follows its poses (turned half a turn if flipped) to windows[a, 1] or `limit`; with until_failure
@@ -371,6 +385,8 @@ class ArmsIK:
                 dofs = self.arm_dofs[a]
                 if t == lo[a]:
                     cur[dofs] = cands[a][0]
+                elif guess is not None:
+                    cur[dofs] = guess[t, dofs]
                 elif t >= lo[a] + 2:  # predict: the joints keep their last step's velocity (within range)
                     cur[dofs] = np.clip(2 * q[t - 1, dofs] - q[t - 2, dofs], self.lower[dofs], self.upper[dofs])
             self.cfg.update(cur)
@@ -416,6 +432,17 @@ class ArmsIK:
         out = np.array(q, float)
         pe_all, re_all = np.zeros(active.shape), np.zeros(active.shape)
         dt = 1.0 / fps
+        if self.analytic is not None:
+            for a, dofs in enumerate(self.arm_dofs):
+                rows = np.flatnonzero(active[:, a])
+                if not len(rows):
+                    continue
+                near = out[rows[:, None], dofs]
+                exact = self.analytic(a, pos[rows, a], R[rows, a], near)
+                # only the same branch, inside the ranges: elsewhere the interpolated joints are the better start
+                use = ((exact >= self.lower[dofs]) & (exact <= self.upper[dofs])).all(axis=1) & \
+                    (np.abs(exact - near).max(axis=1) < ANALYTIC_NEAR)
+                out[rows[use][:, None], dofs] = exact[use]
         for i in np.flatnonzero(active.any(axis=1)):
             self.cfg.update(out[i])
             pe, re, _ = self._iterate(pos[i], R[i], wxyz[i], self.iterations, dt, active[i])

@@ -28,15 +28,23 @@ from demoforge.lib.sim.gripper import GripperSpec
 from demoforge.lib.sim.robots.base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, Execution,
                                            MotionPlan, PlanEvent, Robot, RobotBinding, SceneParts, as_index)
 
+from demoforge.lib.sim.robots.arm_motion import plan_arm_motion
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.keyframes import smooth_actions
+
+from .closed_form import ViperXBatchIK
 from .model import JOINTS, KP, KV, REST, SIDES, SPEED, BasePose, arms_parts, hand_spec, kinematic_model_xml, mesh_assets
 from .placement import bases_for
+from .retargeting import ArmsRetargeting
 from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
 # 2: the simulator's IK stops at the first failing step; 3: ready-pose start, transits, symmetric orientation,
-# time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving.
+# time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving; 5: smoothed
+# poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table.
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "4"
+IK_VERSION = "5"
+SMOOTH_SIGMA = 2.0  # steps: the Gaussian the demonstrated poses are smoothed with before the arms follow them
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
 JOINT_NAMES = tuple(f"{side}_{j}" for side in SIDES for j in (*JOINTS, "gripper"))
@@ -68,8 +76,6 @@ class AlohaRobot(Robot):
         return self.name if self.hand == "aloha" else f"{self.name}+{self.hand}"
 
     def bases_for(self, task_name: str) -> tuple[BasePose, BasePose]:
-        from demoforge.lib.task_library import get_task
-
         return self.bases if self.bases is not None else bases_for(get_task(task_name).name)
 
     def scene_parts(self, task_name: str) -> SceneParts:
@@ -96,16 +102,28 @@ class AlohaRobot(Robot):
             solver = _IK_CACHE[key] = _make_ik(self.bases_for(task_name), self.hand, self.gripper)
         return solver
 
+    def retargeting(self, task_name: str) -> ArmsRetargeting:
+        """The task's retargeting (aloha/retargeting.py: each window's grasp, the table clearance)."""
+        key = (self.hand, self.bases_for(task_name), task_name)
+        r = _RETARGET_CACHE.get(key)
+        if r is None:
+            solver = self.ik(task_name)
+            batch = ViperXBatchIK(ViperXGeometry(solver.model), solver.lower[:6], solver.upper[:6])
+            r = _RETARGET_CACHE[key] = ArmsRetargeting(batch, self.bases_for(task_name), np.array(REST * 2),
+                                                       solver.speed, get_task(task_name), self.gripper)
+        return r
+
     def motion(self, task_name: str, actions: np.ndarray, object_keypoints: np.ndarray, fps: float = 30.0,
                until_failure: bool = False, collides=None):
         """The arms' motion for an episode (lib/sim/robots/arm_motion.py): what they execute of its (n, 2, 8)
         actions with the objects' keypoints (K, 3) at its start; collides: the transits' collision check
-        (AlohaBinding.collision_check; None: unchecked)."""
-        from demoforge.lib.sim.robots.arm_motion import plan_arm_motion
-        from demoforge.lib.task_library import get_task
-
-        return plan_arm_motion(self.ik(task_name), actions, object_keypoints, get_task(task_name).keypoint_object,
-                               fps, np.array(REST * 2), until_failure, collides)
+        (AlohaBinding.collision_check; None: unchecked). The actions are smoothed first (SMOOTH_SIGMA: the
+        ingested pinch point jitters by about 1 cm from frame to frame), then retargeted (retargeting.py)."""
+        retarget = self.retargeting(task_name)
+        smooth = smooth_actions(actions, SMOOTH_SIGMA)
+        return plan_arm_motion(self.ik(task_name), smooth, object_keypoints, get_task(task_name).keypoint_object,
+                               fps, np.array(REST * 2), until_failure, collides,
+                               retarget=lambda a, w: retarget(a, w, object_keypoints))
 
     def joint_values(self, execution: Execution) -> np.ndarray:
         """(m, 14) joint values of an episode as the arms execute it (AlohaBinding.prepare) and the joint-space
@@ -120,6 +138,7 @@ class AlohaRobot(Robot):
 
 
 _IK_CACHE: dict = {}
+_RETARGET_CACHE: dict = {}
 
 
 def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
@@ -144,8 +163,17 @@ def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
             out[:, a] = np.linalg.norm(poses[:, a, :3] - shoulder, axis=1) > reach
         return out
 
+    def analytic(arm: int, pos: np.ndarray, R: np.ndarray, near: np.ndarray) -> np.ndarray:
+        """The closed-form solution (closed_form.py) nearest `near` (m, 6) for pinch poses pos, R."""
+        if not geometry:
+            geometry.append(ViperXGeometry(solver.model))
+        sol = ViperXBatchIK(geometry[0], solver.lower[:6], solver.upper[:6]).solve(bases[arm], pos, R)
+        b = np.abs(sol.q - np.asarray(near)[:, None]).max(axis=-1).argmin(axis=1)
+        return sol.q[np.arange(len(pos)), b]
+
     solver = ArmsIK(xml, files, sites=[f"{s}_hand_pinch" for s in SIDES], arm_joints=(range(6), range(6, 12)),
-                    speed=SPEED * 2, arm_seeds=arm_seeds, rest=np.array(REST * 2), out_of_reach=out_of_reach)
+                    speed=SPEED * 2, arm_seeds=arm_seeds, rest=np.array(REST * 2), out_of_reach=out_of_reach,
+                    analytic=analytic)
     return solver
 
 
