@@ -7,6 +7,14 @@ ik_warm_started_100_steps   fast = ArmsIK.solve along each 100-step episode, war
                             (one process); the check: every step of both within 1 cm and 5 degrees.
                             Episodes: 100-step windows of the six tasks' scripted demonstrations (seeds
                             0-1, plain and mirrored) that the arms reach at every step.
+closed_form_ik_batch        fast = ViperXBatchIK.solve (lib/sim/robots/aloha/closed_form.py) on 100,000 pinch
+                            poses [x y z qx qy qz qw] at once (quaternions to matrices included), all 8
+                            branches with their joint-range margins; baseline = the same poses one at a
+                            time with ViperXGeometry.solutions (seeds.py: its 4 branches, no ranges), timed
+                            on 2,000 poses (500 quick) and scaled. The check: the batch's first 4 branches
+                            are the baseline's angles (modulo 2 pi). Poses: the left arm's base at the
+                            pouring table, positions up to 0.6 m around it (within reach and beyond), any
+                            orientation. Both on one core.
 physics_aloha_<task>        fast = execute_many(workers=1) with the `aloha` robot carrying the 2F-140
                             (IK, joint position actuators, arm links in the scene); baseline = the
                             floating `grippers` on the same episodes: ratio < 1 is what the arms cost
@@ -67,6 +75,36 @@ def _ik_check(fast, baseline) -> None:
     assert not any(s.failed_steps().any() for ep in baseline for s in ep), "a cold-started step off its target"
 
 
+def _closed_form_setup(n: int):
+    from demoforge.lib.geometry import quat_to_matrix, random_quaternions
+    from demoforge.lib.sim.robots.aloha import AlohaRobot
+    from demoforge.lib.sim.robots.aloha.closed_form import ViperXBatchIK
+    from demoforge.lib.sim.robots.aloha.seeds import ViperXGeometry
+
+    robot = AlohaRobot(hand="2f140")
+    ik, base = robot.ik("pouring"), robot.bases_for("pouring")[0]
+    geometry = ViperXGeometry(ik.model)
+    batch = ViperXBatchIK(geometry, ik.lower[:6], ik.upper[:6])
+    rng = np.random.default_rng(5)
+    pos = np.array([base.x, base.y, base.z + 0.3]) + rng.uniform(-0.6, 0.6, (n, 3))
+    poses = np.concatenate([pos, random_quaternions(n, rng)], axis=1)
+
+    def fast():
+        return batch.solve(base, poses[:, :3], quat_to_matrix(poses[:, 3:7])).q
+
+    def baseline():
+        return np.array([geometry.solutions(base, p) for p in poses])
+
+    return fast, baseline
+
+
+def _closed_form_check(fast, baseline) -> None:
+    """The batch's first four branches are seeds.py's solutions, each angle modulo 2 pi (the batch shifts
+    angles into the joints' ranges)."""
+    diff = (fast[:, :4] - baseline + np.pi) % (2 * np.pi) - np.pi
+    assert np.abs(diff).max() < 1e-9, f"the batch IK differs from seeds.py by {np.abs(diff).max():.3g} rad"
+
+
 def _physics_setup(task: str, frames: int | None):
     def setup(n: int):
         from demoforge.bench.cases_sim import scripted_episodes, timed_pair
@@ -84,9 +122,13 @@ def cases(quick: bool) -> list[BenchCase]:
     ik = BenchCase("arms", "ik_warm_started_100_steps", 4 if quick else 12, "episodes",
                    "the same poses solved step by step from scratch (seeds, then mink to convergence), one core",
                    _ik_setup, check=_ik_check, repeats=1 if quick else 3)
+    closed = BenchCase("arms", "closed_form_ik_batch", 100_000, "poses",
+                       "the same poses one at a time with ViperXGeometry.solutions (seeds.py), one core",
+                       _closed_form_setup, check=_closed_form_check, repeats=1 if quick else 3,
+                       baseline_size=500 if quick else 2_000)
     base = "the floating grippers on the same episodes (ratio < 1: what the arms cost more), one process"
     if quick:
-        return [ik, BenchCase("arms", "physics_aloha_pouring_2s", 2, "episodes", base, _physics_setup("pouring", 60),
-                              repeats=1)]
-    return [ik] + [BenchCase("arms", f"physics_aloha_{task}", 4, "episodes", base, _physics_setup(task, None),
-                             repeats=1) for task in TASKS]
+        return [ik, closed, BenchCase("arms", "physics_aloha_pouring_2s", 2, "episodes", base,
+                                      _physics_setup("pouring", 60), repeats=1)]
+    return [ik, closed] + [BenchCase("arms", f"physics_aloha_{task}", 4, "episodes", base,
+                                     _physics_setup(task, None), repeats=1) for task in TASKS]

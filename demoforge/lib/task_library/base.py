@@ -161,10 +161,8 @@ class TaskObject:
     grasp_width: float  # thumb-index distance when holding, metres
     keypoints: tuple  # ((name, (x, y, z)), ...) in the object's frame
     build: object  # callable(pose) -> MJCF body string
-    # turns about the object's local z axis (through its frame's origin) that map it onto itself, so that a
-    # robot may grasp it turned by any of them and the object still moves as demonstrated
-    # (lib/sim/robots/retarget.py): 0 = any turn (a bottle, cup, whisk handle), n >= 1 = the n turns of
-    # 360 / n degrees (2: a box's half-turn, 4: a square bin), 1 = none (the default: today's behaviour)
+    # turns about its local z axis that map it onto itself (a robot may grasp it turned: sim/robots/retarget.py):
+    # 0 any turn (a bottle, a whisk), n >= 1 the n turns of 360 / n degrees (2: a box), 1 none (the default)
     symmetry: int = 1
 
 
@@ -304,8 +302,7 @@ class Task:
         return np.array([o.grasp_width for o in self.objects])
 
     @property
-    def symmetries(self) -> np.ndarray:
-        """(n_obj,) each object's symmetry about its local z (TaskObject.symmetry: 0 any turn, n the n-fold turns)."""
+    def symmetries(self) -> np.ndarray:  # (n_obj,) TaskObject.symmetry
         return np.array([o.symmetry for o in self.objects], int)
 
     @property

@@ -83,28 +83,31 @@ class _Ranked:
 def _best_path(q, good, margin, turns, transit0, max_turn_step):
     """The cheapest sequence of states (turn c, branch b) over the samples: a state costs its missing margin (up
     to MARGIN_CAP) and BAD if not followed there; a move costs TURN_RATE_WEIGHT per rad of turn and BAD when a
-    joint would jump or the turn change by more than max_turn_step. q (C, S, B, 6), good / margin (C, S, B),
-    transit0 (C, B) the start's cost. Returns (c (S,), b (S,), cost)."""
+    joint would jump; the turn changes by at most max_turn_step between samples. q (C, S, B, 6), good / margin
+    (C, S, B), transit0 (C, B) the start's cost. Returns (c (S,), b (S,), cost)."""
     C, S, B = good.shape
     node = BAD * ~good + (MARGIN_CAP - np.minimum(margin, MARGIN_CAP))  # (C, S, B)
     dturn = np.abs(np.angle(np.exp(1j * (turns[:, None] - turns[None, :]))))  # (C, C)
-    turn_cost = np.where(dturn <= max_turn_step + 1e-9, TURN_RATE_WEIGHT * dturn, BAD)[:, None, :, None]
+    K = int((dturn[0] <= max_turn_step + 1e-9).sum())  # the same for every turn: they lie evenly on the circle
+    nbr = np.argsort(dturn, axis=1, kind="stable")[:, :K]  # (C, K) the turns a state can come from
+    move = TURN_RATE_WEIGHT * np.take_along_axis(dturn, nbr, axis=1)[:, :, None, None]  # (C, K, 1, 1)
     cost = transit0 + node[:, 0]
-    back = np.zeros((S, C, B, 2), int)
+    back = np.zeros((S, C, B), int)  # the predecessor (k * B + b) of each state
     for s in range(1, S):
-        jump = np.abs(q[:, s - 1, :, None, None, :] - q[None, None, :, s]).max(axis=-1)  # (C, B, C', B')
-        total = cost[:, :, None, None] + turn_cost + BAD * (jump >= JUMP)
-        flat = total.reshape(C * B, C, B)
-        arg = np.argmin(flat, axis=0)
-        cost = np.take_along_axis(flat, arg[None], axis=0)[0] + node[:, s]
-        back[s, :, :, 0], back[s, :, :, 1] = np.divmod(arg, B)
+        prev = q[nbr, s - 1]  # (C, K, B, 6)
+        jump = np.abs(prev[:, :, :, None] - q[:, s][:, None, None]).max(axis=-1)  # (C, K, B, B')
+        total = (cost[nbr][..., None] + move + BAD * (jump >= JUMP)).reshape(C, K * B, B)
+        arg = np.argmin(total, axis=1)  # (C, B')
+        cost = np.take_along_axis(total, arg[:, None], axis=1)[:, 0] + node[:, s]
+        back[s] = arg
     c, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
     best = float(cost[c, b])
     cs, bs = np.empty(S, int), np.empty(S, int)
     for s in range(S - 1, -1, -1):
         cs[s], bs[s] = c, b
         if s:
-            c, b = back[s, c, b]
+            k, b = divmod(int(back[s, c, b]), B)
+            c = int(nbr[c, k])
     return cs, bs, best
 
 
@@ -128,7 +131,10 @@ def _rank(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.nd
         good &= (lowest(P) > -LIFT_TOLERANCE)[..., None]
         transit0 = (np.abs(q[:, 0] - ready) / speed).max(axis=-1)  # (C, B)
         start = TRANSIT_WEIGHT * transit0 + TURN_WEIGHT * np.abs(turns)[:, None]
-        cs, bs, _ = _best_path(q, good, sol.margin, turns, start, max_step)
+        live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
+        live = live if len(live) else np.arange(good.shape[2])
+        cs, bl, _ = _best_path(q[:, :, live], good[:, :, live], sol.margin[:, :, live], turns, start[:, live], max_step)
+        bs = live[bl]
         idx = np.arange(len(steps))
         followed = good[cs, idx, bs]
         feasible = bool(followed.all())
