@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import assume, given, settings, strategies as st
 
 import demoforge.lib  # noqa: F401
 from demoforge.lib.sim import SimOptions, execute, planned_execution
@@ -54,20 +54,83 @@ def test_registry_and_choices():
         get_robot("ur5")
 
 
+PATH_STEPS = 6
+STRETCHED_ELBOW = -1.375  # rad: the ViperX's elbow with the upper arm and forearm in line (seeds.py: alpha - pi / 2)
+AWAY = 0.3  # rad the drawn paths keep from the wrist's and the elbow's singular angles
+
+
+def _joint_path(ik, u, v, c) -> np.ndarray:
+    """(PATH_STEPS, 12) joints q0 + v t + c t^2 (t the step) of both arms, inside the ranges by 0.25 rad all along,
+    the wrist angle at least AWAY from 0 (where the two wrist rolls' axes meet) and the elbow at least AWAY from
+    stretched; u (12,) in [0, 1] places q0 in what is left of each range."""
+    t = np.arange(PATH_STEPS)[:, None]
+    v, c = np.asarray(v, float), np.asarray(c, float)
+    span = np.abs(v) * (PATH_STEPS - 1) + np.abs(c) * (PATH_STEPS - 1) ** 2  # the farthest the path gets from q0
+    lo, hi = ik.lower + 0.25 + span, ik.upper - 0.25 - span
+    elbow, wrist = [2, 8], [4, 10]
+    lo[elbow] = np.maximum(lo[elbow], STRETCHED_ELBOW + AWAY + span[elbow])
+    u = np.array(u, float)
+    neg = u[wrist] < 0.5  # the wrist angle below -AWAY or above AWAY
+    u[wrist] = np.where(neg, 2 * u[wrist], 2 * u[wrist] - 1)
+    hi[wrist] = np.where(neg, -AWAY - span[wrist], hi[wrist])
+    lo[wrist] = np.where(neg, lo[wrist], AWAY + span[wrist])
+    assert (lo < hi).all()
+    return lo + u * (hi - lo) + v * t + c * t * t
+
+
+def _wrist_reach(ik, q: np.ndarray) -> np.ndarray:
+    """(n, 2) m: each arm's wrist centre from its waist axis (0: the shoulder singularity, the waist and the
+    forearm roll turn the hand alike) at joints q (n, 12)."""
+    m, d = ik.model, ik.cfg.data
+    out = np.zeros((len(q), 2))
+    for i, qi in enumerate(q):
+        ik.cfg.update(qi)
+        for a, side in enumerate(("left", "right")):
+            wrist, shoulder = d.xpos[m.body(f"{side}_wrist_link").id], d.xpos[m.body(f"{side}_shoulder_link").id]
+            out[i, a] = np.linalg.norm((wrist - shoulder)[:2])
+    return out
+
+
+def _off_by(got: np.ndarray, want: np.ndarray) -> np.ndarray:
+    """(n, 2) the larger of position / 1 mm and rotation / 0.5 degrees between pinch poses (n, 2, 8): above 1,
+    outside the IK's convergence (ik.CONVERGED_POSITION, CONVERGED_ROTATION)."""
+    pe = np.linalg.norm(got[..., :3] - want[..., :3], axis=-1)
+    re = np.array([[_angle_deg(g[3:7], w[3:7]) for g, w in zip(gt, wt)] for gt, wt in zip(got, want)])
+    return np.maximum(pe / 1e-3, re / 0.5)
+
+
 @settings(max_examples=25, deadline=None)
-@given(st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6), st.sampled_from([ARMS, ARMS_2F140]))
-def test_fk_of_the_ik_answer_is_the_pose(u, robot):
-    """A reachable pose (the FK of joint angles inside the ranges, 0.25 rad from their ends) comes back
-    from the IK within 1 mm and 0.5 degrees, for either hand."""
+@given(st.lists(st.floats(0.0, 1.0), min_size=12, max_size=12),
+       st.lists(st.floats(-0.04, 0.04), min_size=12, max_size=12),
+       st.lists(st.floats(0.005, 0.01), min_size=12, max_size=12),
+       st.lists(st.sampled_from([-1.0, 1.0]), min_size=12, max_size=12),
+       st.sampled_from([ARMS, ARMS_2F140]))
+def test_fk_of_the_ik_answer_is_the_pose(u, v, c, sign, robot):
+    """Both arms (the right one on the mirrored base: joints q[6:12]) follow a reachable path (the FK of a
+    curved joint-space path inside the ranges, 0.25 rad from their ends, away from the singular
+    configurations) from its first configuration: at every step the FK of the IK's answer is the pose
+    within 1 mm and 0.5 degrees, for either hand. (From the path's first configuration, not from rest: the
+    candidate nearest rest may be another branch, e.g. the wrist's other one, which the margins above do
+    not keep away from the ranges' ends and the singular angles.)
+
+    The poses are ones the IK must solve for: the closed-form seeds (aloha/seeds.py) answer any reachable
+    pose exactly (the first step: within 1e-12 m over 1200 drawn poses), but every later step starts
+    from joints that miss it, the previous step's (the second step) or their constant-velocity
+    extrapolation (the later ones), and the path is drawn so that these miss each pose by more than twice
+    the bound: without mink's refinement (ArmsIK._iterate) the answers would be off by that much."""
     ik = robot.ik("pouring")
-    lo, hi = ik.lower[:6] + 0.25, ik.upper[:6] - 0.25
-    q = np.concatenate([lo + np.asarray(u) * (hi - lo), REST])
-    target = _fk(robot, q[None])
-    sol = ik.solve(target)
+    q = _joint_path(ik, u, v, np.asarray(c) * np.asarray(sign))
+    assume(_wrist_reach(ik, q).min() > 0.05)  # away from the shoulder singularity too
+    target = _fk(robot, q)
+    unsolved = np.concatenate([q[:1], q[:1], 2 * q[1:-1] - q[:-2]])  # the joints each step starts from
+    assume(_off_by(_fk(robot, unsolved)[1:], target[1:]).min() > 2.0)
+    sol = ik.follow(target, np.array([[0, PATH_STEPS], [0, PATH_STEPS]]), reference=q[0], symmetric=False)
     back = _fk(robot, sol.q)
-    assert np.linalg.norm(back[0, 0, :3] - target[0, 0, :3]) < 1e-3
-    assert _angle_deg(back[0, 0, 3:7], target[0, 0, 3:7]) < 0.5
-    assert sol.position_error[0, 0] < 1e-3 and not sol.failed_steps().any()
+    assert sol.q.shape == (PATH_STEPS, 12) and sol.followed.all()
+    for a in range(2):
+        assert np.linalg.norm(back[:, a, :3] - target[:, a, :3], axis=1).max() < 1e-3, a
+        assert max(_angle_deg(back[t, a, 3:7], target[t, a, 3:7]) for t in range(PATH_STEPS)) < 0.5, a
+    assert sol.position_error.max() < 1e-3 and sol.rotation_error.max() < 0.5 and not sol.failed_steps().any()
 
 
 def test_a_pose_a_metre_outside_the_workspace_is_unreachable():
@@ -150,13 +213,15 @@ def test_the_aloha_hand_cannot_open_around_the_bottle(pouring_with_arms):
 # from their ready pose, slowed where a servo is too slow, four tasks succeed; paper_in_case's left arm
 # runs its elbow and wrist to the ends of their ranges while it carries the paper, and empty_vase's left
 # hand closes beside the flower's stem (the pose the arm reaches is the demonstrated one; the grasp is not).
+# seed 1 of every task: the arms follow the objects' demonstrated motion with grasps of their own
+# (aloha/retargeting.py); before that, paper_in_case ended `joint_limit` and empty_vase `missed_grasp`
 SCRIPTED = {
     "pouring": (None, "10/10 liquid spheres in the cup"),
     "trash_in_bin": (None, "can centre in bin frame"),
-    "paper_in_case": ("joint_limit", "a joint at the end of its range"),
+    "paper_in_case": (None, "paper ball centre in case frame"),
     "mix_bowl": (None, "whisk head circled"),
     "open_container": (None, "lid centre in container frame"),
-    "empty_vase": ("missed_grasp", "arm 0 closed at"),
+    "empty_vase": (None, "out of the vase: True"),
 }
 
 
@@ -212,11 +277,14 @@ def test_velocity_limited_retiming_slows_only_the_steps_too_fast():
 def test_a_too_fast_trajectory_is_retimed_on_its_path():
     """The left arm swings from its ready pose to a reach over 10 frames (about three times faster than its
     servos turn), gripper closed throughout (the whole episode is its window): the arms run it slower
-    instead of failing it: time-scale > 2, no joint above its speed limit, every executed pinch point on
-    the demonstrated path (within 2 mm of its polyline) and no verdict."""
+    instead of failing it: time-scale > 1.5 (the poses are smoothed first), no joint above its speed limit, every executed pinch point on
+    the path the arm follows (the demonstration smoothed and retargeted: within 2 mm of its polyline), the
+    last executed pose that path's last, and no verdict."""
     rest = np.array(REST * 2)
     reach = rest.copy()
-    reach[0], reach[1], reach[2], reach[4] = 0.6, 0.3, 0.1, 0.4
+    # the wrist stays bent (-0.3 -> -0.9 rad): through a straight wrist (its singularity) the rolls spin and
+    # no joint-space interpolation stays within 2 mm of the path; that is not what this test is about
+    reach[0], reach[1], reach[2], reach[4] = 1.0, 0.3, 0.1, -0.9
     w = quintic(np.arange(11) / 10.0)[:, None]
     act = _fk(ARMS_2F140, (1 - w) * rest + w * reach)
     act[:, 0, 7] = 0.0
@@ -225,13 +293,14 @@ def test_a_too_fast_trajectory_is_retimed_on_its_path():
     ik = ARMS_2F140.ik("pouring")
     assert max_speed_ratio(act_joints := ik.solve(act).q, 30.0, ik.speed) > 2.0  # the demonstration is too fast
     assert motion.first_failure() is None and motion.summary()["reachable"], motion.first_failure()
-    assert motion.time_scale > 2.0 and max_speed_ratio(motion.q, 30.0, ik.speed) <= 1.0 + 1e-6
-    assert np.allclose(motion.q[-1], act_joints[-1], atol=1e-3)
-    path = act[:, 0, :3]
+    assert motion.time_scale > 1.5 and max_speed_ratio(motion.q, 30.0, ik.speed) <= 1.0 + 1e-6  # smoothed first
+    assert np.linalg.norm(motion.poses[-1, 0, :3] - motion.targets[-1, 0, :3]) < 1e-3
+    assert _angle_deg(motion.poses[-1, 0, 3:7], motion.targets[-1, 0, 3:7]) < 0.5
+    path = motion.targets[:, 0, :3]
     a, b = path[:-1], path[1:]
-    u = np.clip(np.einsum("mki,ki->mk", motion.poses[:, None, 0, :3] - a, b - a)
-                / np.maximum(np.einsum("ki,ki->k", b - a, b - a), 1e-12), 0.0, 1.0)
-    off = np.linalg.norm(motion.poses[:, None, 0, :3] - (a + u[..., None] * (b - a)), axis=-1).min(axis=1)
+    run = motion.poses[motion.s >= 0, None, 0, :3]  # the demonstrated frames (not the ready pose before them)
+    u = np.clip(np.einsum("mki,ki->mk", run - a, b - a) / np.maximum(np.einsum("ki,ki->k", b - a, b - a), 1e-12), 0, 1)
+    off = np.linalg.norm(run - (a + u[..., None] * (b - a)), axis=-1).min(axis=1)
     assert off.max() < 0.002, off.max()
 
 

@@ -3,12 +3,17 @@
 The `grippers` robot's verdicts are pinned: every episode these tests execute is compared with
 tests/golden/grippers_verdicts.json (failure, detail, predicate, physics steps), recorded with the code
 before the robots had an interface of their own (lib/sim/robots), so a refactor of the simulator that
-changes any outcome, any detail or a single physics step of these episodes fails here. Rewrite the file
-only for a deliberate change of the grippers' physics: `python tests/test_robot_sim.py --write-golden`.
+changes any outcome fails here. The failure class, the predicate's verdict and the frame count must be
+equal; the numbers in the details within 1 cm (or 5 %), the physics steps within 10 %: MuJoCo's floating
+point differs between processors (the file was recorded on an Intel Xeon; an AMD EPYC ends the settle phase
+of pouring's seed-0 demonstration 336 steps later and places empty_vase's flowers 3 mm apart, with the same
+verdicts). Rewrite the file only for a deliberate change of the grippers' physics:
+`python tests/test_robot_sim.py --write-golden`.
 """
 
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +41,23 @@ def assert_pinned(key: str, r) -> None:
         seen[key] = _verdict(r)
         GOLDEN.write_text(json.dumps(dict(sorted(seen.items())), indent=1) + "\n")
         return
-    want = json.loads(GOLDEN.read_text())[key]
-    assert _verdict(r) == want, f"{key}: the grippers' verdict changed"
+    want, got = json.loads(GOLDEN.read_text())[key], _verdict(r)
+    for k in ("failure", "predicate_ok", "n_frames"):
+        assert got[k] == want[k], f"{key}: the grippers' {k} changed: {got[k]!r}, pinned {want[k]!r}"
+    assert abs(got["physics_steps"] - want["physics_steps"]) <= 0.1 * want["physics_steps"], (key, got, want)
+    for k in ("detail", "predicate_detail"):
+        assert _close_text(got[k], want[k]), f"{key}: the grippers' {k} changed: {got[k]!r}, pinned {want[k]!r}"
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+
+
+def _close_text(got: str, want: str) -> bool:
+    """The same words, and each number within 0.01 or 5 % of the pinned one."""
+    if _NUMBER.sub("#", got) != _NUMBER.sub("#", want):
+        return False
+    pairs = zip((float(x) for x in _NUMBER.findall(got)), (float(x) for x in _NUMBER.findall(want)))
+    return all(abs(a - b) <= max(0.01, 0.05 * abs(b)) for a, b in pairs)
 
 
 def _demo(task, seed=0, mirror=False):

@@ -299,8 +299,8 @@ class _Records:
         self.diag = {"arm_pair": [], "link_pair": []}
         self.T = T
         self.limit = opt.table_force_limit
-        self.lo = sc.workspace[0] - opt.workspace_margin
-        self.hi = sc.workspace[1] + opt.workspace_margin
+        self.lo, self.hi = sc.workspace[0] - opt.workspace_margin, sc.workspace[1] + opt.workspace_margin
+        self.slack = sc.binding.hand_workspace_slack
         self.stop_frame = stop_frame  # a hard failure known before physics (the plan's): stop there
 
     def truncate(self, last: int) -> None:
@@ -318,8 +318,8 @@ class _Records:
             return True
         if i % 6 and i != self.T - 1:
             return False
-        p = np.concatenate([self.gp[i - 5:i + 1, :, :3], self.hist[i - 5:i + 1, :, :3, 3]], axis=1)
-        return bool(((p < self.lo) | (p > self.hi)).any())
+        g, o = self.gp[i - 5:i + 1, :, :3], self.hist[i - 5:i + 1, :, :3, 3]
+        return bool(((g < self.lo - self.slack) | (g > self.hi + self.slack)).any() or ((o < self.lo) | (o > self.hi)).any())
 
 
 def _contact_scan(sc: SimScene, rec: _Records):

@@ -19,7 +19,8 @@ Outcome = success, or exactly one failure reason (FAILURES).  Rules, in this ord
      `table_force_limit` (15 N): a path through the table is stopped by the table, the soft drive
      weld then presses the gripper onto it;
    * "left_workspace"  a gripper's pinch point or an object's origin leaves task.workspace grown by
-     `workspace_margin` (5 cm), e.g. an object knocked off the table;
+     `workspace_margin` (5 cm), e.g. an object knocked off the table (a hand of an arm robot: by its
+     binding's `hand_workspace_slack` more, for the arm's own ready pose and transits);
    * "link_collision"  an arm link (not the hand: its fingers and housing keep the rules above) touches
      the table, an object or the other arm.
 3. If the task predicate holds: success.
@@ -91,7 +92,8 @@ def classify(sc, opt, fps, pred_ok, pred_detail, hist, gp, touch, arm_contact, t
     hi = sc.workspace[1] + opt.workspace_margin
     gpos = gp[..., :3]
     opos = hist[..., :3, 3]
-    out_g = ((gpos < lo) | (gpos > hi)).any(-1)  # (T, 2)
+    slack = sc.binding.hand_workspace_slack
+    out_g = ((gpos < lo - slack) | (gpos > hi + slack)).any(-1)  # (T, 2)
     out_o = ((opos < lo) | (opos > hi)).any(-1)  # (T, n_obj)
     if out_g.any() or out_o.any():
         fg = int(np.argmax(out_g.any(1))) if out_g.any() else 10**9

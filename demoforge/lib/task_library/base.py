@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -302,10 +302,6 @@ class Task:
         return np.array([o.grasp_width for o in self.objects])
 
     @property
-    def symmetries(self) -> np.ndarray:  # (n_obj,) TaskObject.symmetry
-        return np.array([o.symmetry for o in self.objects], int)
-
-    @property
     def roles(self) -> tuple[str, ...]:
         return tuple(o.role for o in self.objects)
 
@@ -353,8 +349,7 @@ class Task:
             if min(d.values()) <= 0:
                 raise ValueError(f"{self.name}/{o.name}: dimensions must be positive, got {d}")
             setattr(t, attr, d)
-            objs.append(TaskObject(o.name, o.role, float(width_fn(d)), kp_fn(d), functools.partial(o.build, dims=d),
-                                   o.symmetry))
+            objs.append(replace(o, grasp_width=float(width_fn(d)), keypoints=kp_fn(d), build=functools.partial(o.build, dims=d)))
         t.objects = tuple(objs)
         if extra_bodies:
             base_extra = t._extra_bodies  # bound to the copy: resized objects' extras (liquid) follow

@@ -54,7 +54,10 @@ from .retiming import at, max_speed_ratio, step_of, velocity_limited
 #: m of the hand's path before its first skill segment (and after its last) that the arm follows as
 #: recorded: the approach into a grasp, so that the joint-space transit ends clear of the object
 APPROACH = 0.10
-LIFTS = (0.10, 0.20)  # m: how much higher a transit's waypoint is when the straight transit touches something
+CARTESIAN_JUMP = 0.5  # rad a joint may move between two frames of a Cartesian transit (more: the branch changes)
+ON_PATH_ROUNDS = 3  # rounds of moving the samples between steps onto the path and retiming
+NEAR_WINDOW = 3  # frames of a transit next to its window that the collision check leaves out
+LIFTS = (0.10, 0.20, 0.30, 0.40)  # m: how much higher a transit's waypoint is when the straight transit touches something
 
 
 @dataclass
@@ -150,14 +153,48 @@ def _lifted(ik: ArmsIK, arm: int, q: np.ndarray, lift: float) -> np.ndarray | No
     return None
 
 
+def _cartesian_legs(ik: ArmsIK, arm: int, q_full: np.ndarray, q_from: np.ndarray, q_to: np.ndarray, k: int,
+                    lift: float, entry: bool) -> np.ndarray | None:
+    """(k + 1, d) joints of a transit through a pre-grasp configuration `lift` above the window's end of it
+    (its pinch pose raised, on the window's IK branch): a joint-space leg between that and the ready pose,
+    and a straight line of the pinch point between it and the window (the descent into a grasp, the lift
+    off after a release), solved by the arm's closed form on the branch nearest the joint-space line; each
+    leg with a quintic profile. None when the pre-grasp is out of reach or the straight leg leaves the
+    joints' ranges or changes branch."""
+    dofs = ik.arm_dofs[arm]
+    near_q = q_to if entry else q_from
+    full = q_full.copy()
+    full[dofs] = near_q
+    via = _lifted(ik, arm, full, lift)
+    if via is None:
+        return None
+    h = max(k // 2, 1)
+    straight_k = k - h if entry else h
+    ends = np.tile(q_full, (2, 1))
+    ends[0, dofs], ends[1, dofs] = via, near_q
+    pos, R = ik.fk(ends)
+    u = quintic(np.arange(straight_k + 1) / max(straight_k, 1))
+    if not entry:
+        u = u[::-1]  # from the window's end up to the pre-grasp
+    path = pos[0, arm] + u[:, None] * (pos[1, arm] - pos[0, arm])
+    q = ik.analytic(arm, path, np.repeat(R[1:, arm], len(u), axis=0), via + u[:, None] * (near_q - via))
+    if not ((q >= ik.lower[dofs]) & (q <= ik.upper[dofs])).all() or np.abs(np.diff(q, axis=0)).max(initial=0.0) > CARTESIAN_JUMP:
+        return None
+    if entry:
+        return np.concatenate([_legs(q_from, via, h), q[1:]])
+    return np.concatenate([q, _legs(via, q_to, k - h)[1:]])
+
+
 def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.ndarray,
                    collides: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
     """(n + 1, nq) joints over the ready frame and the n demonstrated frames: each arm's window as the IK
     follows it, joint-space transits from the ready pose into it and from its end back to the ready pose.
-    `collides` (rows (k, nq) -> (k, 2) bool: an arm touches something) checks each transit. One into a
-    window that touches something goes over a waypoint above the window's first pose (10 or 20 cm
-    higher); one out of a window always does (the objects have moved since the start, so the check
-    knows less there: the arm lifts off what it released before it turns away)."""
+    `collides` (rows (k, nq) -> (k, 2) bool: an arm comes too close to something) checks each transit,
+    except its `NEAR_WINDOW` frames next to the window (the window's own pose is next to its object). One
+    into a window that touches something goes over a waypoint above the window's first pose (LIFTS higher:
+    the first that touches nothing, else the one that touches least); one out of a window always does (the
+    objects have moved since the start, so the check knows less there: the arm lifts off what it released
+    before it turns away)."""
     n = len(sol.q)
     Q = np.empty((n + 1, sol.q.shape[1]))
     Q[0], Q[1:] = ready, sol.q
@@ -167,41 +204,49 @@ def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.n
             Q[:, dofs] = ready[dofs]
             continue
         # rows: the ready frame .. the window's first step (row w0 + 1); the window's last step (row w1) .. row n
-        for rows, q_from, q_to, end, lift_first in ((np.arange(w0 + 2), ready[dofs], sol.q[w0, dofs], w0 + 1, False),
-                                                    (np.arange(w1, n + 1), sol.q[w1 - 1, dofs], ready[dofs], w1, True)):
+        for rows, q_from, q_to, end, entry in ((np.arange(w0 + 2), ready[dofs], sol.q[w0, dofs], w0 + 1, True),
+                                               (np.arange(w1, n + 1), sol.q[w1 - 1, dofs], ready[dofs], w1, False)):
             if len(rows) < 2:
                 continue
-            Q[rows[:, None], dofs] = _legs(q_from, q_to, len(rows) - 1)
-            if not lift_first and (collides is None or not collides(Q[rows[::2]])[:, a].any()):
-                continue
-            first = None
+            checked = rows[:-NEAR_WINDOW] if entry else rows[NEAR_WINDOW:]
+
+            def touches(path: np.ndarray) -> int:
+                if collides is None or not len(checked):
+                    return 0
+                Q[rows[:, None], dofs] = path
+                return int(collides(Q[checked])[:, a].sum())
+
+            options = [_legs(q_from, q_to, len(rows) - 1)] if entry else []
             for lift in LIFTS:
                 via = _lifted(ik, a, Q[end], lift)
-                if via is None:
-                    continue
-                Q[rows[:, None], dofs] = path = _legs(q_from, q_to, len(rows) - 1, via)
-                first = path if first is None else first
-                if collides is None or not collides(Q[rows[::2]])[:, a].any():
+                if via is not None:
+                    options.append(_legs(q_from, q_to, len(rows) - 1, via))
+            if ik.analytic is not None:
+                options += [p for lift in LIFTS if (p := _cartesian_legs(ik, a, Q[0], q_from, q_to, len(rows) - 1,
+                                                                           lift, entry)) is not None]
+            options = options or [_legs(q_from, q_to, len(rows) - 1)]
+            best, least = options[0], None
+            for path in options:
+                k = touches(path)
+                if least is None or k < least:
+                    best, least = path, k
+                if k == 0:
                     break
-            else:
-                Q[rows[:, None], dofs] = first if lift_first and first is not None else _legs(q_from, q_to, len(rows) - 1)
+            Q[rows[:, None], dofs] = best
     return Q
 
 
-def _on_path(ik: ArmsIK, q: np.ndarray, s_demo: np.ndarray, poses: np.ndarray, sol: IKSolution, fps: float,
-             stop: int):
-    """The executed samples between two followed steps (before step `stop`) moved onto the recorded path
-    (pose interpolated: position linear, rotation slerp, in the orientation the arm follows); returns
-    (q, position error, rotation error (m, 2), or None when no sample lies between steps)."""
+def _path_at(poses: np.ndarray, sol: IKSolution, s_demo: np.ndarray, stop: int):
+    """The followed path at fractional demonstrated steps s_demo (m,) before step `stop`: (active (m, 2) the
+    samples that lie between two followed steps, pos (m, 2, 3), quat (m, 2, 4) xyzw) with the pose
+    interpolated (position linear, rotation slerp, in the orientation the arm follows); None when none does."""
     f0 = np.floor(s_demo + 1e-9).astype(int)
     frac = s_demo - f0
     between = (frac > 1e-9) & (f0 >= 0) & (f0 + 1 < min(len(poses), stop + 1))
-    if not between.any():
-        return q, None, None
     f0c = np.clip(f0, 0, len(poses) - 2)
     active = between[:, None] & sol.followed[f0c] & sol.followed[f0c + 1]
     if not active.any():
-        return q, None, None
+        return None
     xyzw = poses[..., 3:7] / np.linalg.norm(poses[..., 3:7], axis=-1, keepdims=True)
     for a in range(2):
         if sol.flipped[a]:
@@ -209,15 +254,57 @@ def _on_path(ik: ArmsIK, q: np.ndarray, s_demo: np.ndarray, poses: np.ndarray, s
             xyzw[:, a] = np.stack([y, -x, w_, -z], axis=-1)  # q * (0, 0, 1, 0): half a turn about its own z
     w = frac[:, None]
     pos = (1 - w[..., None]) * poses[f0c, :, :3] + w[..., None] * poses[f0c + 1, :, :3]
-    quat = quat_slerp(xyzw[f0c], xyzw[f0c + 1], np.repeat(w, 2, axis=1))
+    return active, pos, quat_slerp(xyzw[f0c], xyzw[f0c + 1], np.repeat(w, 2, axis=1))
+
+
+def _on_path(ik: ArmsIK, q: np.ndarray, s_demo: np.ndarray, poses: np.ndarray, sol: IKSolution, fps: float,
+             stop: int) -> np.ndarray:
+    """The executed samples between two followed steps (before step `stop`) moved onto the recorded path
+    (_path_at)."""
+    path = _path_at(poses, sol, s_demo, stop)
+    if path is None:
+        return q
+    active, pos, quat = path
     R = quat_to_matrix(quat)
     rows = np.flatnonzero(active.any(axis=1))
-    q_new, pe, re = ik.refine(q[rows], pos[rows], R[rows], quat[rows][..., [3, 0, 1, 2]], active[rows], fps)
     out = q.copy()
-    out[rows] = q_new
-    pe_all, re_all = np.zeros(active.shape), np.zeros(active.shape)
-    pe_all[rows], re_all[rows] = pe, re
-    return out, pe_all, re_all
+    out[rows] = ik.refine(q[rows], pos[rows], R[rows], quat[rows][..., [3, 0, 1, 2]], active[rows], fps)[0]
+    # near the wrist's singularity the closed form's nearest branch can differ from sample to sample: where a
+    # joint jumps between neighbouring samples, those samples are refined from the interpolated joints alone
+    step = np.abs(np.diff(out, axis=0)).max(axis=1)
+    jumped = np.zeros(len(out), bool)
+    jumped[1:] |= step > CARTESIAN_JUMP
+    jumped[:-1] |= step > CARTESIAN_JUMP
+    r = rows[jumped[rows]]
+    if len(r):
+        out[r] = ik.refine(q[r], pos[r], R[r], quat[r][..., [3, 0, 1, 2]], active[r], fps, analytic=False)[0]
+    return out
+
+
+def _off_path(ik: ArmsIK, q: np.ndarray, pos: np.ndarray, R: np.ndarray, s_demo: np.ndarray, poses: np.ndarray,
+              sol: IKSolution, stop: int):
+    """(the first executed frame off its path as ArmMotion.sample_failure or None, the worst position (m) and
+    rotation (degrees) error) of the executed frames between two followed steps, as they are finally run."""
+    path = _path_at(poses, sol, s_demo, stop)
+    if path is None:
+        return None, 0.0, 0.0
+    active, want, quat = path
+    pe = np.where(active, np.linalg.norm(pos - want, axis=-1), 0.0)
+    c = (np.einsum("maij,maij->ma", R, quat_to_matrix(quat)) - 1.0) / 2.0
+    re = np.where(active, np.degrees(np.arccos(np.clip(c, -1.0, 1.0))), 0.0)
+    bad = (pe > POSITION_TOL) | (re > ROTATION_TOL_DEG)
+    if not bad.any():
+        return None, float(pe.max()), float(re.max())
+    i = int(np.argmax(bad.any(axis=1)))
+    arm = int(np.argmax(bad[i]))
+    dofs = ik.arm_dofs[arm]
+    limited = bool(((q[i, dofs] - ik.lower[dofs] < AT_LIMIT) | (ik.upper[dofs] - q[i, dofs] < AT_LIMIT)).any())
+    t = int(np.floor(s_demo[i]))
+    failure = (i, arm, "joint_limit" if limited else "unreachable",
+               f"arm {arm} ends {pe[i, arm] * 1000:.0f} mm and {re[i, arm]:.1f} deg from its path between steps {t} and "
+               f"{t + 1} ({'a joint at the end of its range' if limited else 'no joint at a limit'}; tolerance "
+               f"{POSITION_TOL * 1000:.0f} mm, {ROTATION_TOL_DEG:g} deg)")
+    return failure, float(pe.max()), float(re.max())
 
 
 def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
@@ -245,25 +332,17 @@ def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, key
     s_demo = r.s - 1.0
     q = at(Q, r.s)
     first = sol.first_failure()
-    q, pe, re = _on_path(ik, q, s_demo, actions, sol, fps, n if first is None else first[0])
-    sample_failure, spe, sre = None, 0.0, 0.0
-    if pe is not None:
-        spe, sre = float(pe.max()), float(re.max())
-        bad = (pe > POSITION_TOL) | (re > ROTATION_TOL_DEG)
-        if bad.any():
-            i = int(np.argmax(bad.any(axis=1)))
-            arm = int(np.argmax(bad[i]))
-            dofs = ik.arm_dofs[arm]
-            limited = bool(((q[i, dofs] - ik.lower[dofs] < AT_LIMIT) | (ik.upper[dofs] - q[i, dofs] < AT_LIMIT)).any())
-            t = int(np.floor(s_demo[i]))
-            sample_failure = (i, arm, "joint_limit" if limited else "unreachable",
-                              f"arm {arm} ends {pe[i, arm] * 1000:.0f} mm and {re[i, arm]:.1f} deg from its path between "
-                              f"steps {t} and {t + 1} ({'a joint at the end of its range' if limited else 'no joint at a limit'}"
-                              f"; tolerance {POSITION_TOL * 1000:.0f} mm, {ROTATION_TOL_DEG:g} deg)")
-        if max_speed_ratio(q, fps, ik.speed) > 1.0 + 1e-9:  # the samples moved onto the path: retime again
-            r2 = velocity_limited(q, fps, ik.speed)
-            q, s_demo = at(q, r2.s), at(s_demo, r2.s)
+    stop = n if first is None else first[0]
+    for _ in range(ON_PATH_ROUNDS):
+        q = _on_path(ik, q, s_demo, actions, sol, fps, stop)
+        if max_speed_ratio(q, fps, ik.speed) <= 1.0 + 1e-9:
+            break
+        # the samples moved onto the path made a joint too fast: retime, and the new samples go onto the path too
+        r2 = velocity_limited(q, fps, ik.speed)
+        q, s_demo = at(q, r2.s), at(s_demo, r2.s)
     pos, R = ik.fk(q)
+    # checked as finally run: the second retiming interpolates again between the samples moved onto the path
+    sample_failure, spe, sre = _off_path(ik, q, pos, R, s_demo, actions, sol, stop)
     g = actions[np.clip(step_of(s_demo), 0, n - 1), :, 7]
     poses = np.concatenate([pos, matrix_to_quat(R), g[..., None]], axis=-1)
     scale = (len(q) - 1) / max(n - 1, 1)

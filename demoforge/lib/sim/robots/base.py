@@ -101,6 +101,9 @@ class RobotBinding(abc.ABC):
       rest_lin, rest_ang  dof addresses whose speed (m/s, rad/s) must be small for the scene to be at rest
     """
 
+    #: m a hand may go beyond the task's workspace (an arm's own ready pose and transits lie outside the box
+    #: the demonstrated trajectories are bounded by; objects keep the box)
+    hand_workspace_slack: float = 0.0
     finger_qadr: np.ndarray
     grip_act: np.ndarray
     geom_arm: np.ndarray

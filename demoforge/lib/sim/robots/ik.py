@@ -308,9 +308,9 @@ class ArmsIK:
         gens = {a: self.candidates(a, poses[windows[a, 0], a, :7], ref[self.arm_dofs[a]], symmetric) for a in arms}
         if guess is not None:
             guess = np.clip(np.asarray(guess, float), self.lower, self.upper)
-            cands = {a: (guess[windows[a, 0], self.arm_dofs[a]], False, True) for a in arms}
-        else:
-            cands = {a: next(gens[a]) for a in arms}
+        cands = {a: (guess[windows[a, 0], self.arm_dofs[a]], False, True)
+                 if guess is not None and np.isfinite(guess[windows[a, 0], self.arm_dofs[a]]).all() else next(gens[a])
+                 for a in arms}
         res = self._track(ref, targets, arms, windows, cands, fps, until_failure, n, guess)
         iterations = res.pop("iterations")
         tries = {a: 1 for a in arms}
@@ -385,7 +385,7 @@ class ArmsIK:
                 dofs = self.arm_dofs[a]
                 if t == lo[a]:
                     cur[dofs] = cands[a][0]
-                elif guess is not None:
+                elif guess is not None and np.isfinite(guess[t, dofs]).all():
                     cur[dofs] = guess[t, dofs]
                 elif t >= lo[a] + 2:  # predict: the joints keep their last step's velocity (within range)
                     cur[dofs] = np.clip(2 * q[t - 1, dofs] - q[t - 2, dofs], self.lower[dofs], self.upper[dofs])
@@ -426,13 +426,13 @@ class ArmsIK:
         return out
 
     def refine(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, wxyz: np.ndarray, active: np.ndarray,
-               fps: float = 30.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               fps: float = 30.0, analytic: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joints (m, nq) moved onto targets (m, 2, ...) from the guesses q (m, nq), each arm only where
         active (m, 2); returns (q, position error (m, 2) m, rotation error (m, 2) degrees)."""
         out = np.array(q, float)
         pe_all, re_all = np.zeros(active.shape), np.zeros(active.shape)
         dt = 1.0 / fps
-        if self.analytic is not None:
+        if analytic and self.analytic is not None:
             for a, dofs in enumerate(self.arm_dofs):
                 rows = np.flatnonzero(active[:, a])
                 if not len(rows):
@@ -445,6 +445,8 @@ class ArmsIK:
                 out[rows[use][:, None], dofs] = exact[use]
         for i in np.flatnonzero(active.any(axis=1)):
             self.cfg.update(out[i])
-            pe, re, _ = self._iterate(pos[i], R[i], wxyz[i], self.iterations, dt, active[i])
+            # without the closed form's start (near the wrist's singularity) the interpolated joints may be far off
+            pe, re, _ = self._iterate(pos[i], R[i], wxyz[i], self.iterations if analytic else self.first_iterations, dt,
+                                      active[i], give_up=analytic)
             out[i], pe_all[i], re_all[i] = self.cfg.q, pe, np.degrees(re)
         return out, pe_all, re_all

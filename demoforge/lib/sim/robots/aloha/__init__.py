@@ -35,7 +35,7 @@ from demoforge.lib.trajectories.keyframes import smooth_actions
 from .closed_form import ViperXBatchIK
 from .model import JOINTS, KP, KV, REST, SIDES, SPEED, BasePose, arms_parts, hand_spec, kinematic_model_xml, mesh_assets
 from .placement import bases_for
-from .retargeting import ArmsRetargeting
+from .retargeting import NO_GUESS_WRIST, ArmsRetargeting
 from .seeds import ViperXGeometry
 
 HANDS = ("aloha", "2f140")
@@ -44,6 +44,7 @@ HANDS = ("aloha", "2f140")
 # poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table.
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
 IK_VERSION = "5"
+TRANSIT_CLEARANCE = 0.04  # m: contact margin of the transit check (MuJoCo honours it only partly for box pairs)
 SMOOTH_SIGMA = 2.0  # steps: the Gaussian the demonstrated poses are smoothed with before the arms follow them
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
 #: the joint-space export's 14 values, named as the ALOHA datasets name them
@@ -164,12 +165,15 @@ def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
         return out
 
     def analytic(arm: int, pos: np.ndarray, R: np.ndarray, near: np.ndarray) -> np.ndarray:
-        """The closed-form solution (closed_form.py) nearest `near` (m, 6) for pinch poses pos, R."""
+        """The closed-form solution (closed_form.py) nearest `near` (m, 6) for pinch poses pos, R (NaN rows where
+        the wrist is nearly straight)."""
         if not geometry:
             geometry.append(ViperXGeometry(solver.model))
         sol = ViperXBatchIK(geometry[0], solver.lower[:6], solver.upper[:6]).solve(bases[arm], pos, R)
         b = np.abs(sol.q - np.asarray(near)[:, None]).max(axis=-1).argmin(axis=1)
-        return sol.q[np.arange(len(pos)), b]
+        q = sol.q[np.arange(len(pos)), b]
+        q[np.abs(np.sin(q[:, 4])) < NO_GUESS_WRIST] = np.nan  # a nearly straight wrist: its rolls are one angle
+        return q
 
     solver = ArmsIK(xml, files, sites=[f"{s}_hand_pinch" for s in SIDES], arm_joints=(range(6), range(6, 12)),
                     speed=SPEED * 2, arm_seeds=arm_seeds, rest=np.array(REST * 2), out_of_reach=out_of_reach,
@@ -189,6 +193,7 @@ class _JointPlan(MotionPlan):
 
 
 class AlohaBinding(RobotBinding):
+    hand_workspace_slack = 0.15
     def __init__(self, m, robot: AlohaRobot, task_name: str):
         import mujoco
 
@@ -229,16 +234,23 @@ class AlohaBinding(RobotBinding):
         return Execution(motion.poses, motion)
 
     def collision_check(self, scene, object_poses):
-        """rows (k, 12) of both arms' joints -> (k, 2) bool: the arm touches the table, an object at its
-        place at the episode's start, or the other arm (the scene's contact tables; fingers open)."""
+        """rows (k, 12) of both arms' joints -> (k, 2) bool: the arm comes within TRANSIT_CLEARANCE of the table,
+        an object at its place at the episode's start, or the other arm (the scene's contact tables; the fingers
+        open to the gripper's opening). The clearance absorbs what the executed transit deviates from the planned one (the servos'
+        lag, the retiming)."""
+        import copy
+
         import mujoco
 
-        m = scene.model
         if getattr(self, "_check_data", None) is None:
-            self._check_data = mujoco.MjData(m)
+            self._check_model = copy.copy(scene.model)
+            self._check_model.geom_margin[self.geom_arm >= 0] = TRANSIT_CLEARANCE
+            self._check_data = mujoco.MjData(self._check_model)
+        m = self._check_model
         d = self._check_data
         mujoco.mj_resetData(m, d)
         scene.place_objects(d, np.asarray(object_poses, float))
+        d.qpos[self.finger_qadr] = (self.spec.stroke - self.spec.opening) / 2  # open as the executor opens them
         kind, arm_of = scene.pair_kind, self.geom_arm
 
         def collides(rows: np.ndarray) -> np.ndarray:

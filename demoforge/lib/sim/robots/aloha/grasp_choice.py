@@ -1,21 +1,26 @@
 """Which grasp each ViperX uses in its window: among the grasps equivalent for the held object (its symmetry
 turns, lib/sim/robots/retarget.py) and the gripper's half-turn, the one the arm follows over the whole
-window with the largest joint margins, from a short transit off its ready pose, with the two forearms
-apart.
+window with the largest joint margins, from a short transit off its ready pose, clear of the other arm.
 
-    choice = choose_grasps(solver, bases, ready, speed, hand, objs, held, symmetries, windows)
-    choice.hand        # (T, 2, 4, 4) the pinch poses the arms follow (each window's turn applied)
+    choice = choose_grasps(solver, bases, ready, speed, hand, closed, objs, held, symmetries, windows, lowest)
+    choice.hand        # (T, 2, 4, 4) the pinch poses the arms follow (each window's turns applied)
     choice.arms        # (GraspChoice, GraspChoice)
 
 Every candidate is judged on up to `SAMPLES` steps of the window with the arm's closed-form IK
-(closed_form.py, all branches at once): it starts on the branch nearest the ready pose at the window's
-first step (as the IK does, ik.py `candidates`) and follows the nearest branch from sample to sample
-(as the warm-started IK does). A candidate is feasible when every sample lies within reach and inside
-the joints' ranges, the branch never jumps (a wrist roll through its range's end) and the wrist stays
-above the table. Among the feasible ones the score prefers joint margins up to `MARGIN_CAP` rad (more
-margin buys nothing), then a short transit and a small turn (the demonstration's own grasp first).
-Then the best few of each arm are paired, and the best pair whose forearms stay `FOREARM_GAP` apart
-wherever both windows run is kept.
+(closed_form.py, all branches at once). A state (turn, branch) at a sample is followed when the pose is
+within reach, every joint `MIN_MARGIN` inside its range, the wrist and the fingertips above the table.
+The choice is the cheapest path of states over the samples (`_best_path`): it starts near the ready pose
+(as the IK does, ik.py `candidates`), no joint jumps between samples (a wrist roll through its range's
+end), it prefers margins up to `MARGIN_CAP`, and the turn stays what it was at the grasp except while
+the hand holds an axially symmetric object (any turn about its axis maps it onto itself, so the held
+object still moves as demonstrated), from `GRIP_SETTLE_STEPS` after the close on, and then changes by at
+most `TURN_STEP_MAX_DEG` between samples.
+The half-turn of the gripper holds for the whole window.
+
+The two arms are chosen apart, then checked against each other where both windows run: their forearm,
+wrist and hand segments and their hands' fingertips and palms must stay `ARM_GAP` apart, or as far as the
+demonstrated hands were if they came closer. If not, each arm in turn is chosen again with the other's segments as obstacles, and the better
+pair is kept.
 """
 
 from __future__ import annotations
@@ -31,13 +36,19 @@ from .closed_form import ViperXBatchIK
 from .model import BasePose
 
 SAMPLES = 32  # steps of a window the choice looks at
+MIN_MARGIN = 0.05  # rad every joint keeps from its range's ends (the IK and the samples between steps move a little)
 MARGIN_CAP = 0.35  # rad: joint margin beyond this does not make a grasp better
-JUMP = 1.0  # rad: a joint moving this much between two samples means the branch ends (a roll through +-pi)
+JUMP = 1.0  # rad: a joint moving this much between two samples means the branch ends (a roll through +-pi) ...
+JUMP_PER_STEP = 0.2  # ... or this much per demonstrated step between them (6 rad/s at 30 fps: twice a servo's speed)
 WRIST_ABOVE_TABLE = 0.02  # m
-FOREARM_GAP = 0.10  # m between the two arms' forearm-wrist-hand segments (links about 4 cm in radius)
-TURN_STEP_MAX_DEG = 30.0  # the most an axially symmetric object's grasp turns between two samples
+ARM_GAP = 0.12  # m between the two arms' forearm-wrist-hand segments and hands (links about 4 cm in radius)
+HAND_SPREAD = 0.07  # m from the pinch axis to an open 2F-140's finger (half its 110 mm opening and the finger)
+TURN_STEP_MAX_DEG = 30.0  # the most an axially symmetric held object's grasp turns between two samples
 TURN_RATE_WEIGHT = 0.05  # path cost per rad the grasp turns
-BAD = 100.0  # path cost of a sample not followed (out of reach or range, a jump, fingers in the table)
+GRIP_SETTLE_STEPS = 15  # steps after a close before the grasp may turn (the fingers take about 0.45 s to close)
+STRAIGHT_WRIST = 0.5  # sin(wrist angle) below which the wrist counts as near its singularity
+SINGULAR_WEIGHT = 20.0  # path cost of a sample with the wrist straight (MARGIN_CAP: of one at a joint's range end)
+BAD = 100.0  # path cost of a state not followed (out of reach or range, a jump, fingers in the table, the other arm)
 TRANSIT_WEIGHT = 0.05  # score per second of the slowest joint's transit from the ready pose
 TURN_WEIGHT = 0.02  # score per rad of turn away from the demonstrated grasp
 LIFT_TOLERANCE = 0.003  # m a candidate's fingertips may dip below the clearance (retargeting raises them)
@@ -45,9 +56,10 @@ LIFT_TOLERANCE = 0.003  # m a candidate's fingertips may dip below the clearance
 
 @dataclass(frozen=True)
 class GraspChoice:
-    """An arm's grasp for its window: the turn (rad) about the held object's axis (object -1: none held),
-    the gripper's half-turn, the closed form's smallest joint margin over the window (rad), whether every
-    sample was within reach and range, and how many candidates were weighed."""
+    """An arm's grasp for its window: the turn (rad) about the held object's axis at the window's start (object
+    -1: none held) and how much it changes over the window, the gripper's half-turn, the closed form's
+    smallest joint margin over the window (rad), whether every sample is followed, how many candidates
+    (turn x half-turn) were weighed."""
     arm: int
     object: int
     turn: float
@@ -55,7 +67,7 @@ class GraspChoice:
     margin: float
     feasible: bool
     candidates: int
-    turn_range: float = 0.0  # rad the turn changes over the window (an axially symmetric object's grasp may)
+    turn_range: float = 0.0
 
 
 @dataclass
@@ -68,87 +80,66 @@ class Choice:
 
 
 @dataclass
-class _Ranked:
-    """One arm's candidates (one per gripper half-turn), best first: the turn at each sample (S,), flip, score,
-    feasibility, the smallest joint margin, tracked joints (S, 6)."""
-    turns: list
-    flips: list
-    score: np.ndarray
-    feasible: np.ndarray
-    margin: np.ndarray
-    q: list
+class _Window:
+    """One arm's window as the choice sees it: its samples, poses, held object and its symmetry."""
+    arm: int
     steps: np.ndarray
+    hand: np.ndarray  # (S, 4, 4) demonstrated pinch poses at the samples
+    obj: np.ndarray | None  # (S, 4, 4) the held object's poses at the samples
+    symmetry: int
+    may_turn: np.ndarray  # (S,) the turn may change from the previous sample (the object held at both)
+    lowest: Callable[[np.ndarray], np.ndarray]
 
 
-def _best_path(q, good, margin, turns, transit0, max_turn_step):
+@dataclass
+class _Path:
+    """One arm's best path for one half-turn: turn (S,), joints (S, 6), score, feasible, smallest margin."""
+    flip: bool
+    turn: np.ndarray
+    q: np.ndarray
+    poses: np.ndarray  # (S, 4, 4) the pinch poses it follows at the samples
+    score: float
+    feasible: bool
+    margin: float
+    candidates: int
+
+
+def _best_path(q, good, margin, turns, transit0, max_turn_step, may_turn, jumps):
     """The cheapest sequence of states (turn c, branch b) over the samples: a state costs its missing margin (up
     to MARGIN_CAP) and BAD if not followed there; a move costs TURN_RATE_WEIGHT per rad of turn and BAD when a
-    joint would jump; the turn changes by at most max_turn_step between samples. q (C, S, B, 6), good / margin
-    (C, S, B), transit0 (C, B) the start's cost. Returns (c (S,), b (S,), cost)."""
+    joint would jump (more than jumps (S,) rad since the sample before) or the turn changes where it may not
+    (may_turn (S,)). q (C, S, B, 6), good / margin (C, S, B), transit0 (C, B) the start's cost. Returns (c (S,),
+    b (S,))."""
     C, S, B = good.shape
-    node = BAD * ~good + (MARGIN_CAP - np.minimum(margin, MARGIN_CAP))  # (C, S, B)
+    # a wrist close to straight (wrist angle near 0) is the wrist's singularity: its two rolls then spin fast
+    # for a small turn of the hand, so the path keeps away from it like from a joint's range end
+    straight = np.abs(np.sin(q[..., 4]))
+    node = (BAD * ~good + (MARGIN_CAP - np.minimum(margin, MARGIN_CAP))
+            + SINGULAR_WEIGHT * np.maximum(STRAIGHT_WRIST - straight, 0.0) / STRAIGHT_WRIST)  # (C, S, B)
     dturn = np.abs(np.angle(np.exp(1j * (turns[:, None] - turns[None, :]))))  # (C, C)
     K = int((dturn[0] <= max_turn_step + 1e-9).sum())  # the same for every turn: they lie evenly on the circle
-    nbr = np.argsort(dturn, axis=1, kind="stable")[:, :K]  # (C, K) the turns a state can come from
+    nbr = np.argsort(dturn, axis=1, kind="stable")[:, :K]  # (C, K) the turns a state can come from (itself first)
     move = TURN_RATE_WEIGHT * np.take_along_axis(dturn, nbr, axis=1)[:, :, None, None]  # (C, K, 1, 1)
+    held_still = move.copy()
+    held_still[:, 1:] += BAD
     cost = transit0 + node[:, 0]
     back = np.zeros((S, C, B), int)  # the predecessor (k * B + b) of each state
     for s in range(1, S):
         prev = q[nbr, s - 1]  # (C, K, B, 6)
         jump = np.abs(prev[:, :, :, None] - q[:, s][:, None, None]).max(axis=-1)  # (C, K, B, B')
-        total = (cost[nbr][..., None] + move + BAD * (jump >= JUMP)).reshape(C, K * B, B)
+        total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + BAD * (jump >= jumps[s])
+                 ).reshape(C, K * B, B)
         arg = np.argmin(total, axis=1)  # (C, B')
         cost = np.take_along_axis(total, arg[:, None], axis=1)[:, 0] + node[:, s]
         back[s] = arg
     c, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    best = float(cost[c, b])
     cs, bs = np.empty(S, int), np.empty(S, int)
     for s in range(S - 1, -1, -1):
         cs[s], bs[s] = c, b
         if s:
             k, b = divmod(int(back[s, c, b]), B)
             c = int(nbr[c, k])
-    return cs, bs, best
-
-
-def _rank(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.ndarray, hand: np.ndarray,
-          obj: np.ndarray | None, symmetry: int, steps: np.ndarray, lowest: Callable[[np.ndarray], np.ndarray]
-          ) -> _Ranked:
-    """One arm's candidates ranked (see the module docstring); lowest: (C, S, 4, 4) pinch poses -> (C, S) the
-    fingertips' height above the table minus the clearance they must keep."""
-    turns = grasp_turns(symmetry) if obj is not None else np.zeros(1)
-    # any turn maps an axially symmetric object onto itself, so its grasp may turn along the window; an n-fold
-    # one's only by whole steps, which it cannot make while held
-    max_step = np.radians(TURN_STEP_MAX_DEG) if obj is not None and symmetry == 0 else 0.0
-    out = {"turns": [], "flips": [], "score": [], "feasible": [], "margin": [], "q": []}
-    for flip in (False, True):
-        P = np.stack([turn_grasp(hand[steps], None if obj is None else obj[steps], t, flip) for t in turns])
-        sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
-        q = sol.q  # (C, S, B, 6)
-        good = sol.closes & sol.in_range
-        good &= solver.points(base, q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
-        # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
-        good &= (lowest(P) > -LIFT_TOLERANCE)[..., None]
-        transit0 = (np.abs(q[:, 0] - ready) / speed).max(axis=-1)  # (C, B)
-        start = TRANSIT_WEIGHT * transit0 + TURN_WEIGHT * np.abs(turns)[:, None]
-        live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
-        live = live if len(live) else np.arange(good.shape[2])
-        cs, bl, _ = _best_path(q[:, :, live], good[:, :, live], sol.margin[:, :, live], turns, start[:, live], max_step)
-        bs = live[bl]
-        idx = np.arange(len(steps))
-        followed = good[cs, idx, bs]
-        feasible = bool(followed.all())
-        low = float(sol.margin[cs, idx, bs].min())
-        turn = np.unwrap(turns[cs])
-        score = (10.0 + min(low, MARGIN_CAP) - TRANSIT_WEIGHT * transit0[cs[0], bs[0]] if feasible
-                 else float(np.argmin(followed)) / len(steps)) - TURN_WEIGHT * float(np.abs(turn).mean())
-        for k, v in (("turns", turn), ("flips", flip), ("score", score), ("feasible", feasible), ("margin", low),
-                     ("q", q[cs, idx, bs])):
-            out[k].append(v)
-    order = np.argsort(-np.array(out["score"]), kind="stable")
-    pick = lambda k: [out[k][i] for i in order]  # noqa: E731
-    return _Ranked(pick("turns"), pick("flips"), np.array(pick("score")), np.array(pick("feasible")),
-                   np.array(pick("margin")), pick("q"), steps)
+    return cs, bs
 
 
 def _segment_points(solver: ViperXBatchIK, base: BasePose, q: np.ndarray, k: int = 5) -> np.ndarray:
@@ -159,62 +150,146 @@ def _segment_points(solver: ViperXBatchIK, base: BasePose, q: np.ndarray, k: int
     return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
 
 
-def _forearm_gap(solver, bases, ranked: tuple[_Ranked, _Ranked], i: int, j: int, common: np.ndarray) -> float:
-    """The smallest distance (m) between the two arms' forearm segments over the common samples."""
+def _hand_points(P: np.ndarray, reach: float) -> np.ndarray:
+    """(..., 6, 3) points of an open hand at pinch poses P (..., 4, 4): the pinch point, the two fingertips
+    (HAND_SPREAD to each side along the closing axis), the wrist centre `reach` behind along the approach
+    axis, and the palm's two sides half-way."""
+    pinch, x, z = P[..., :3, 3], P[..., :3, 0], P[..., :3, 2]
+    palm = pinch - 0.5 * reach * z
+    return np.stack([pinch, pinch + HAND_SPREAD * x, pinch - HAND_SPREAD * x, pinch - reach * z,
+                     palm + 0.5 * HAND_SPREAD * x, palm - 0.5 * HAND_SPREAD * x], axis=-2)
+
+
+def _gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...)."""
+    return np.linalg.norm(a[..., :, None, :] - b[..., None, :, :], axis=-1).min(axis=(-2, -1))
+
+
+def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.ndarray, w: _Window,
+           avoid: tuple[np.ndarray, np.ndarray] | None = None) -> list[_Path]:
+    """The arm's best path for each half-turn of the gripper, best first. avoid: (points (S, P, 3) of the other
+    arm at the samples (NaN where it is not in its window), the gap (S,) to keep from them)."""
+    turns = grasp_turns(w.symmetry) if w.obj is not None else np.zeros(1)
+    max_step = np.radians(TURN_STEP_MAX_DEG) if w.obj is not None and w.symmetry == 0 else 0.0
+    out = []
+    for flip in (False, True):
+        P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])  # (C, S, 4, 4)
+        sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
+        q = sol.q  # (C, S, B, 6)
+        good = sol.closes & (sol.margin > MIN_MARGIN)
+        good &= solver.points(base, q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
+        # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
+        good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
+        if avoid is not None:
+            with np.errstate(invalid="ignore"):
+                hand_near = _gap(_hand_points(P, solver.g.wrist_to_pinch), avoid[0][None]) < avoid[1][None]  # (C, S)
+                good &= ~(_gap(_segment_points(solver, base, q), avoid[0][None, :, None]) < avoid[1][None, :, None])
+                good &= ~hand_near[..., None]
+        live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
+        live = live if len(live) else np.arange(good.shape[2])
+        transit0 = (np.abs(q[:, 0] - ready) / speed).max(axis=-1)  # (C, B)
+        start = TRANSIT_WEIGHT * transit0 + TURN_WEIGHT * np.abs(turns)[:, None]
+        jumps = np.minimum(JUMP, JUMP_PER_STEP * np.diff(w.steps, prepend=w.steps[0]))
+        cs, bl = _best_path(q[:, :, live], good[:, :, live], sol.margin[:, :, live], turns, start[:, live], max_step,
+                            w.may_turn, jumps)
+        bs, idx = live[bl], np.arange(len(w.steps))
+        followed = good[cs, idx, bs]
+        feasible = bool(followed.all())
+        low = float(sol.margin[cs, idx, bs].min())
+        turn = np.unwrap(turns[cs])
+        score = (10.0 + min(low, MARGIN_CAP) - TRANSIT_WEIGHT * transit0[cs[0], bs[0]] if feasible
+                 else float(np.argmin(followed)) / len(idx)) - TURN_WEIGHT * float(np.abs(turn).mean())
+        out.append(_Path(flip, turn, q[cs, idx, bs], P[cs, idx], score, feasible, low, len(turns) * 2))
+    return sorted(out, key=lambda p: -p.score)
+
+
+def _points_at(solver, base, w: _Window, path: _Path, steps: np.ndarray) -> np.ndarray:
+    """(len(steps), P, 3) the arm's forearm segments (its track interpolated) and its hand's points (at the
+    nearest sample) at other steps; NaN outside its window."""
+    q = np.stack([np.interp(steps, w.steps, path.q[:, j]) for j in range(6)], axis=-1)
+    near = np.abs(steps[:, None] - w.steps[None]).argmin(axis=1)
+    pts = np.concatenate([_segment_points(solver, base, q), _hand_points(path.poses[near], solver.g.wrist_to_pinch)],
+                         axis=-2)
+    pts[(steps < w.steps[0]) | (steps > w.steps[-1])] = np.nan
+    return pts
+
+
+def _demonstrated_gap(solver: ViperXBatchIK, hand: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(S,) the distance between the two hands' points (_hand_points) as demonstrated (hand (T, 2, 4, 4))."""
+    pts = _hand_points(hand[steps], solver.g.wrist_to_pinch)  # (S, 2, 6, 3)
+    return _gap(pts[:, 0], pts[:, 1])
+
+
+def _pair_ok(solver, bases, wins, paths, gap_needed) -> bool:
+    """The two arms' chosen paths keep the gap wherever both windows run."""
+    w0, w1 = wins
+    common = np.union1d(w0.steps, w1.steps)
+    common = common[(common >= max(w0.steps[0], w1.steps[0])) & (common <= min(w0.steps[-1], w1.steps[-1]))]
     if not len(common):
-        return np.inf
-    pts = []
-    for a, r, c in ((0, ranked[0], i), (1, ranked[1], j)):
-        at = np.searchsorted(r.steps, common)
-        pts.append(_segment_points(solver, bases[a], r.q[c][np.minimum(at, len(r.steps) - 1)]))
-    d = np.linalg.norm(pts[0][:, :, None] - pts[1][:, None, :], axis=-1)
-    return float(d.min())
+        return True
+    a = _points_at(solver, bases[0], w0, paths[0], common)
+    b = _points_at(solver, bases[1], w1, paths[1], common)
+    return bool((_gap(a, b) >= gap_needed(common)).all())
 
 
 def choose_grasps(solver: ViperXBatchIK, bases: tuple[BasePose, BasePose], ready: np.ndarray, speed: np.ndarray,
-                  hand: np.ndarray, objs: np.ndarray, held: np.ndarray, symmetries: np.ndarray,
+                  hand: np.ndarray, closed: np.ndarray, objs: np.ndarray, held: np.ndarray, symmetries: np.ndarray,
                   windows: np.ndarray, lowest: Callable[[int, np.ndarray, np.ndarray], np.ndarray]) -> Choice:
-    """Each arm's grasp (see the module docstring). hand (T, 2, 4, 4) demonstrated pinch poses; objs (T, n_obj,
-    4, 4) the objects as demonstrated (retarget.object_trajectories); held (2,) the object each arm's window
-    holds (-1 none); symmetries (n_obj,); windows (2, 2) [start, end); ready, speed (12,) both arms' joints;
-    lowest(arm, steps, poses (C, S, 4, 4)) -> (C, S) the fingertips' height above the table less the clearance."""
-    ranked: list[_Ranked | None] = [None, None]
+    """Each arm's grasp (see the module docstring). hand (T, 2, 4, 4) demonstrated pinch poses; closed (T, 2) the
+    hands closed; objs (T, n_obj, 4, 4) the objects as demonstrated (retarget.object_trajectories); held (2,)
+    the object each arm's window holds (-1 none); symmetries (n_obj,); windows (2, 2) [start, end); ready,
+    speed (12,) both arms' joints; lowest(arm, steps, poses (C, S, 4, 4)) -> (C, S) the fingertips' height
+    above the table less the clearance they keep."""
+    wins: list[_Window | None] = [None, None]
     for a in range(2):
         w0, w1 = (int(v) for v in windows[a])
         if w1 <= w0:
             continue
         steps = np.unique(np.linspace(w0, w1 - 1, min(SAMPLES, w1 - w0)).round().astype(int))
         o = int(held[a])
-        ranked[a] = _rank(solver, bases[a], ready[6 * a:6 * a + 6], speed[6 * a:6 * a + 6], hand[:, a],
-                          objs[:, o] if o >= 0 else None, int(symmetries[o]) if o >= 0 else 1, steps,
+        run = np.zeros(len(closed), int)  # steps the hand has been closed for
+        for t in range(len(closed)):
+            run[t] = run[t - 1] + 1 if closed[t, a] and t else int(closed[t, a])
+        settled = run[steps] > GRIP_SETTLE_STEPS
+        wins[a] = _Window(a, steps, hand[steps, a], objs[steps, o] if o >= 0 else None,
+                          int(symmetries[o]) if o >= 0 else 1, np.concatenate([[False], settled[1:] & settled[:-1]]),
                           lambda P, a=a, steps=steps: lowest(a, steps, P))
-    pick = [0, 0]
-    if ranked[0] is not None and ranked[1] is not None:
-        common = np.intersect1d(np.arange(*windows[0]), np.arange(*windows[1]))
-        common = common[np.unique(np.linspace(0, len(common) - 1, min(SAMPLES, len(common))).round().astype(int))] \
-            if len(common) else common
-        pairs = sorted(((i, j) for i in range(len(ranked[0].flips)) for j in range(len(ranked[1].flips))),
-                       key=lambda ij: -(ranked[0].score[ij[0]] + ranked[1].score[ij[1]]))
-        for i, j in pairs:
-            if _forearm_gap(solver, bases, (ranked[0], ranked[1]), i, j, common) >= FOREARM_GAP:
-                pick = [i, j]
-                break
+    arm = [slice(0, 6), slice(6, 12)]
+    paths = [None if w is None else _paths(solver, bases[w.arm], ready[arm[w.arm]], speed[arm[w.arm]], w)[0]
+             for w in wins]
+    if wins[0] is not None and wins[1] is not None:
+        def gap_needed(steps):
+            return np.minimum(ARM_GAP, _demonstrated_gap(solver, hand, steps) - 0.01)
+
+        if not _pair_ok(solver, bases, wins, paths, gap_needed):
+            best = paths
+            for first in (0, 1):  # the other arm chosen again around this one
+                second = 1 - first
+                ws = wins[second]
+                avoid = (_points_at(solver, bases[first], wins[first], paths[first], ws.steps), gap_needed(ws.steps))
+                redo = _paths(solver, bases[second], ready[arm[second]], speed[arm[second]], ws, avoid)[0]
+                pair = [paths[0], paths[1]]
+                pair[second] = redo
+                if redo.feasible and _pair_ok(solver, bases, wins, pair, gap_needed) and (
+                        best is paths or redo.score + pair[first].score > best[0].score + best[1].score):
+                    best = pair
+            paths = best
     out = np.array(hand, float)
-    choices = []
+    choices, tracks = [], []
     for a in range(2):
-        r = ranked[a]
+        w, p = wins[a], paths[a]
         o = int(held[a])
-        if r is None:
+        if w is None:
             choices.append(GraspChoice(a, o, 0.0, False, np.nan, True, 0))
+            tracks.append(None)
             continue
-        i = pick[a]
         w0, w1 = (int(v) for v in windows[a])
-        turn = np.interp(np.arange(w0, w1), r.steps, r.turns[i])  # the sampled turns, eased between samples
-        out[w0:w1, a] = turn_grasp(hand[w0:w1, a], objs[w0:w1, o] if o >= 0 else None, turn, r.flips[i])
-        choices.append(GraspChoice(a, o, float(turn[0]), bool(r.flips[i]), float(r.margin[i]), bool(r.feasible[i]),
-                                   len(r.flips), float(np.ptp(turn))))
-    tracks = tuple(None if r is None else (r.steps, r.q[pick[a]]) for a, r in enumerate(ranked))
-    return Choice(out, (choices[0], choices[1]), tracks)
+        turn = np.interp(np.arange(w0, w1), w.steps, p.turn)  # the sampled turns, eased between samples
+        out[w0:w1, a] = turn_grasp(hand[w0:w1, a], objs[w0:w1, o] if o >= 0 else None, turn, p.flip)
+        choices.append(GraspChoice(a, o, float(turn[0]), p.flip, p.margin, p.feasible, p.candidates,
+                                   float(np.ptp(turn))))
+        tracks.append((w.steps, p.q))
+    return Choice(out, (choices[0], choices[1]), (tracks[0], tracks[1]))
 
 
 __all__ = ["Choice", "GraspChoice", "choose_grasps"]

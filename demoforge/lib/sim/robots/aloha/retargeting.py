@@ -29,13 +29,16 @@ from .grasp_choice import GraspChoice, choose_grasps
 from .model import BasePose
 
 TABLE_CLEARANCE = 0.005  # m between the lowest fingertip and the table top
+NO_GUESS_WRIST = 0.15  # |sin(wrist angle)| below which the closed form gives no guess
+GRASP_REACH = 0.12  # m from the pinch point to the nearest keypoint of an object it closes on (objects up to 20 cm)
 
 
 @dataclass(frozen=True)
 class Grasps:
     """What the retargeting chose for an episode: each arm's grasp, the most it raised a pose (m), and the
     closed-form joints (T, 12) of the poses the arms follow, on the branch the choice tracked (the IK's
-    starting point at each step; the ready pose outside the windows)."""
+    starting point at each step; the ready pose outside the windows; NaN where the wrist is nearly straight:
+    its two rolls are one there, and the closed form's split of them jumps from step to step)."""
     arms: tuple[GraspChoice, GraspChoice]
     lift: tuple[float, float]
     joints: np.ndarray
@@ -52,14 +55,21 @@ def object_poses_at_start(task, keypoints0: np.ndarray) -> np.ndarray:
     return out
 
 
-def window_objects(held: np.ndarray, windows: np.ndarray) -> np.ndarray:
-    """(2,) the one object each arm holds in its window (-1: none, or more than one)."""
+def window_objects(held: np.ndarray, windows: np.ndarray, hand: np.ndarray, keypoints0: np.ndarray,
+                   keypoint_object: np.ndarray) -> np.ndarray:
+    """(2,) the one object each arm holds in its window (-1: none, more than one, or the hand closes farther
+    than GRASP_REACH from the object's keypoints: turning such a 'grasp' about the object would only swing
+    the hand around it)."""
     out = np.full(2, -1)
     for a in range(2):
         inside = held[windows[a, 0]:windows[a, 1], a]
         objs = np.unique(inside[inside >= 0])
-        if len(objs) == 1:
-            out[a] = int(objs[0])
+        if len(objs) != 1:
+            continue
+        o = int(objs[0])
+        close = windows[a, 0] + int(np.argmax(inside >= 0))
+        if np.linalg.norm(keypoints0[keypoint_object == o] - hand[close, a, :3, 3], axis=1).min() <= GRASP_REACH:
+            out[a] = o
     return out
 
 
@@ -79,7 +89,7 @@ class ArmsRetargeting:
         g = actions[..., 7]
         held = held_objects(actions, np.asarray(keypoints0, float), task.keypoint_object)
         objs = object_trajectories(hand, g < 0.5, held, object_poses_at_start(task, keypoints0))
-        window_held = window_objects(held, windows)
+        window_held = window_objects(held, windows, hand, np.asarray(keypoints0, float), task.keypoint_object)
         widths = np.append(task.grasp_widths, 0.0)  # index -1: nothing held
         half = finger_half_width(g, widths[held], self.spec.opening)  # (T, 2)
 
@@ -88,8 +98,8 @@ class ArmsRetargeting:
             z = lowest_finger_z(flat, np.tile(half[steps, arm], len(poses)), self.spec)
             return z.reshape(poses.shape[:2]) - self.clearance
 
-        choice = choose_grasps(self.solver, self.bases, self.ready, self.speed, hand, objs, window_held,
-                               task.symmetries, windows, lowest)
+        choice = choose_grasps(self.solver, self.bases, self.ready, self.speed, hand, g < 0.5, objs, window_held,
+                               np.array([o.symmetry for o in task.objects]), windows, lowest)
         out = choice.hand
         lifts = [0.0, 0.0]
         for a in range(2):
@@ -113,7 +123,9 @@ class ArmsRetargeting:
             near = np.stack([np.interp(np.arange(w0, w1), steps, q_track[:, j]) for j in range(6)], axis=1)
             sol = self.solver.solve(self.bases[a], hand[w0:w1, a, :3, 3], hand[w0:w1, a, :3, :3])
             b = np.abs(sol.q - near[:, None]).max(axis=-1).argmin(axis=1)
-            out[w0:w1, 6 * a:6 * a + 6] = sol.q[np.arange(w1 - w0), b]
+            q = sol.q[np.arange(w1 - w0), b]
+            q[np.abs(np.sin(q[:, 4])) < NO_GUESS_WRIST] = np.nan  # the rolls are ill-defined there: no guess
+            out[w0:w1, 6 * a:6 * a + 6] = q
         return out
 
 
