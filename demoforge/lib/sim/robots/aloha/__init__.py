@@ -41,9 +41,11 @@ from .seeds import ViperXGeometry
 HANDS = ("aloha", "2f140")
 # 2: the simulator's IK stops at the first failing step; 3: ready-pose start, transits, symmetric orientation,
 # time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving; 5: smoothed
-# poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table.
+# poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table; 6: the
+# grasp chosen as a path over turns and branches clear of the other arm, transits with clearance, the path checked
+# as finally run.
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "5"
+IK_VERSION = "6"
 TRANSIT_CLEARANCE = 0.04  # m: contact margin of the transit check (MuJoCo honours it only partly for box pairs)
 SMOOTH_SIGMA = 2.0  # steps: the Gaussian the demonstrated poses are smoothed with before the arms follow them
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
