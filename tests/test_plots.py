@@ -95,7 +95,7 @@ def test_success_map_rates_per_cell(tmp_path):
 
 def test_report_plots_on_real_episodes(tmp_path):
     """The report's section from a warehouse with real augmented episodes and physics results."""
-    from demoforge.tasks.export import report_plots
+    from demoforge.tasks.report_plots import report_plots
     from demoforge.schemas.core import write_table
     from tests.test_exports import TAKE, TASK, build_episode_warehouse
 
@@ -118,8 +118,21 @@ def test_report_plots_on_real_episodes(tmp_path):
         "physics_steps": np.ones(5, np.int64), "wall_s": np.ones(5)}, wh)
     md = report_plots(str(wh), str(reports), n_augmented=5)
     text = "\n".join(md)
-    assert "5 simulated episodes, 40 % success" in text
+    assert "grippers robot in MuJoCo over the objects' placements (5 simulated episodes, 40 % success" in text
     for name in ("trajectories", "coverage", "success_map"):
         _png(reports / f"{name}_{TASK}.png")
+    arms_ok = [True, True, True, False, False]  # the arms' own map beside the grippers' (not one pooled map)
+    write_table("sim_results", {
+        "task": [TASK] * 5, "take": [TAKE] * 5, "robot": ["aloha"] * 5, "gripper": ["2f140"] * 5,
+        "reachable": [True] * 5, "ik_position_error_m": [0.001] * 5, "ik_rotation_error_deg": [0.1] * 5,
+        "time_scale": [1.1] * 5, "selection": ["sample-5-seed0"] * 5, "chunk": np.zeros(5, np.int32),
+        "episode_id": np.array(ids, np.int64), "kind": [info["kind"][i] for i in ids], "success": arms_ok,
+        "failure": ["" if s else "joint_limit" for s in arms_ok], "detail": [""] * 5, "predicate_ok": arms_ok,
+        "predicate_detail": [""] * 5, "duration_s": np.ones(5), "physics_steps": np.ones(5, np.int64),
+        "wall_s": np.ones(5)}, wh)
+    text = "\n".join(report_plots(str(wh), str(reports), n_augmented=5))
+    assert "grippers robot in MuJoCo over the objects' placements (5 simulated episodes, 40 % success" in text
+    assert "aloha+2f140 robot in MuJoCo over the objects' placements (5 simulated episodes, 60 % success" in text
+    _png(reports / f"success_map_{TASK}_aloha_2f140.png")
     n_eps = len(info["actions"])
     assert f"all {n_eps:,} episodes" in text

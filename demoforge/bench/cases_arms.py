@@ -15,6 +15,13 @@ closed_form_ik_batch        fast = ViperXBatchIK.solve (lib/sim/robots/aloha/clo
                             are the baseline's angles (modulo 2 pi). Poses: the left arm's base at the
                             pouring table, positions up to 0.6 m around it (within reach and beyond), any
                             orientation. Both on one core.
+screening_10000_episodes    fast = screen_episodes (lib/sim/robots/aloha/screening.py) on a pouring database of
+                            10,000 episodes (the scripted demonstration of seed 0 augmented: 5,000 translated,
+                            5,000 mirrored and translated, one core) for the arms with the 2F-140; baseline =
+                            the arms' motion planner (AlohaRobot.motion: windows, grasp choice, mink IK along
+                            every step, retiming; no physics) on 6 of them (2 quick) spread over the database,
+                            scaled to 10,000. The check: every episode the screening lets through has both
+                            arms' grasps feasible in the planner's own choice.
 physics_aloha_<task>        fast = execute_many(workers=1) with the `aloha` robot carrying the 2F-140
                             (IK, joint position actuators, arm links in the scene); baseline = the
                             floating `grippers` on the same episodes: ratio < 1 is what the arms cost
@@ -105,6 +112,51 @@ def _closed_form_check(fast, baseline) -> None:
     assert np.abs(diff).max() < 1e-9, f"the batch IK differs from seeds.py by {np.abs(diff).max():.3g} rad"
 
 
+_DATABASES: dict = {}
+
+
+def screening_database(task: str, n: int):
+    """(actions (n, T, 2, 8), lengths (n,), keypoints (n, K, 3)) of a database of n episodes built from the task's
+    scripted demonstration of seed 0 (half of the augmented ones mirrored), as `demoforge augment` builds one."""
+    key = (task, n)
+    if key not in _DATABASES:
+        from demoforge.lib.task_library import get_task
+        from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+
+        t = get_task(task)
+        b = generate_episodes(from_scripted_demo(t, t.scripted_demo(0)), n=n - 1, n_mirrored=n // 2, seed=0,
+                              workers=1)
+        _DATABASES[key] = (np.asarray(b.actions, float), np.asarray(b.lengths), np.asarray(b.keypoints, float))
+    return _DATABASES[key]
+
+
+def _screening_setup(size: int):
+    def setup(n: int):
+        from demoforge.lib.sim.robots import get_robot
+        from demoforge.lib.sim.robots.aloha.screening import screen_episodes
+
+        robot = get_robot("aloha", "2f140")
+        robot.retargeting("pouring")  # the closed form and the IK model, built once outside the timing
+        actions, lengths, kp = screening_database("pouring", size)
+        pick = np.unique(np.linspace(0, size - 1, n).round().astype(int)) if n < size else np.arange(size)
+
+        def fast():
+            return screen_episodes(robot, "pouring", actions[pick], lengths[pick], kp[pick])
+
+        def baseline():
+            return [robot.motion("pouring", actions[e, :lengths[e]], kp[e]) for e in pick]
+
+        return fast, baseline
+
+    return setup
+
+
+def _screening_check(fast, baseline) -> None:
+    """The screening lets through only episodes whose arms' grasps the planner finds feasible."""
+    for ok, motion in zip(fast.executable, baseline):
+        assert not ok or all(a.feasible for a in motion.grasps.arms), "screened in, but the planner's grasp fails"
+
+
 def _physics_setup(task: str, frames: int | None):
     def setup(n: int):
         from demoforge.bench.cases_sim import scripted_episodes, timed_pair
@@ -126,9 +178,13 @@ def cases(quick: bool) -> list[BenchCase]:
                        "the same poses one at a time with ViperXGeometry.solutions (seeds.py), one core",
                        _closed_form_setup, check=_closed_form_check, repeats=1 if quick else 3,
                        baseline_size=500 if quick else 2_000)
+    screen = BenchCase("arms", "screening_10000_episodes", 2_000 if quick else 10_000, "episodes",
+                       "the arms' motion planner (windows, grasps, mink IK per step, retiming) on a few, one core",
+                       _screening_setup(2_000 if quick else 10_000), check=_screening_check, repeats=1,
+                       baseline_size=2 if quick else 6)
     base = "the floating grippers on the same episodes (ratio < 1: what the arms cost more), one process"
     if quick:
-        return [ik, closed, BenchCase("arms", "physics_aloha_pouring_2s", 2, "episodes", base,
-                                      _physics_setup("pouring", 60), repeats=1)]
-    return [ik, closed] + [BenchCase("arms", f"physics_aloha_{task}", 4, "episodes", base,
+        return [ik, closed, screen, BenchCase("arms", "physics_aloha_pouring_2s", 2, "episodes", base,
+                                              _physics_setup("pouring", 60), repeats=1)]
+    return [ik, closed, screen] + [BenchCase("arms", f"physics_aloha_{task}", 4, "episodes", base,
                                      _physics_setup(task, None), repeats=1) for task in TASKS]

@@ -18,9 +18,11 @@ from demoforge.cli import hamer
 from demoforge.cli import policy
 from demoforge.cli import table3
 from demoforge.cli import variations
+from demoforge.cli import screening
 from demoforge.cli.root import EXIT_USER_ERROR, State, app, current_warehouse, fail  # noqa: F401
 
-for _area in (warehouse, benchmarks, takes, capture, pipeline, evaluation, export, hamer, policy, table3, variations):
+for _area in (warehouse, benchmarks, takes, capture, pipeline, evaluation, export, hamer, policy, table3, variations,
+              screening):
     app.add_typer(_area.app)
 
 

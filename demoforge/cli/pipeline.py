@@ -122,13 +122,26 @@ def augment(
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
     allow_untrusted_hands: bool = typer.Option(False, "--allow-untrusted-hands", help="Build the database even from a hand tracked in too few frames (see the hand_presence table)."),
     accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="As for `demoforge ingest`."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Also screen every episode for this robot's arms (aloha; as `demoforge screen`): the `episode_screening` table."),
+    gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).
 
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
-    `demoforge ingest`): give the values you ingested with, or the ingest is redone with these."""
+    `demoforge ingest`): give the values you ingested with, or the ingest is redone with these. With
+    --robot aloha, each episode is then screened for the arms (`demoforge screen`)."""
     from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
+
+    if robot is not None:
+        from demoforge.flows.screening import check_robot
+        from demoforge.lib.sim.robots import RobotError
+
+        robot, gripper = robot_choice(robot, gripper)
+        try:
+            check_robot(robot, gripper)
+        except (RobotError, ValueError) as e:
+            raise fail(str(e))
 
     status = annotation_status(_open_take_or_fail(path))
     if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
@@ -155,6 +168,14 @@ def augment(
               "WHERE take = ? GROUP BY kind ORDER BY kind", current_warehouse(), [Path(path).resolve().name])
     _emit(t, OutputFormat.table, None, 10)
     _say_demo_check(result.get("demo_check"), path)
+    if robot is not None:
+        from demoforge.cli.screening import say_screening
+        from demoforge.flows.screening import screen_task
+
+        take_id = Path(path).resolve().name
+        for name in query("SELECT DISTINCT task FROM episodes WHERE take = ?", current_warehouse(), [take_id]).column(0).to_pylist():
+            run_flow(screen_task, str(current_warehouse()), task=name, take=take_id, robot=robot, gripper=gripper)
+            say_screening(name, robot, gripper)
 
 
 def _say_demo_check(check, path: Path) -> None:
@@ -219,6 +240,7 @@ def simulate(
     seed: int = typer.Option(0, help="Seed of the episode sample."),
     robot: str = robot_option(),
     gripper: Optional[str] = gripper_option(),
+    screened_for: Optional[str] = typer.Option(None, "--screened-for", help="Draw the episodes from those an arm robot's screening lets through (e.g. aloha+2f140; `demoforge screen` first): run every robot with the same --seed and this option to compare them on the same episodes."),
 ) -> None:
     """Execute episodes with a robot in MuJoCo physics and record success and failure reasons.
 
@@ -231,7 +253,7 @@ def simulate(
     n = _episodes_option(episodes)
     try:
         run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
-                 workers=workers, seed=seed, robot=robot, gripper=gripper)
+                 workers=workers, seed=seed, robot=robot, gripper=gripper, screened_for=screened_for)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query

@@ -11,6 +11,7 @@ from demoforge.flows.augment import augment_take_flow
 from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
 from demoforge.flows.keypoint_eval import evaluate_keypoints
 from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot  # noqa: F401  (the CLI's choices)
+from demoforge.flows.screening import screen_task
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.flows.report import write_report
 from demoforge.runtime.runners import run_flow
@@ -49,9 +50,11 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
     with each other detector of `detectors` beside it (demoforge.flows.ingest.ingest_side_by_side: its ingest
     accuracy, keypoint metrics and the robot executing its ingested demonstration, each detector in its
     own rows; with `detectors=["simulated"]` none of this runs: the cost of the main job before it);
-    the first plain take of each task becomes that task's database of `episodes` episodes, of which
-    `sim_episodes` (the original demonstration and a seeded sample) are executed in MuJoCo by each of
-    `robots` (the same sample, side by side: the floating grippers and the ALOHA arms with each hand),
+    the first plain take of each task becomes that task's database of `episodes` episodes, every one screened
+    for the arms of `grid_robots` (flows/screening.py: kinematics, no physics), of which `sim_episodes` (the
+    original demonstration and a seeded sample of those the first of `grid_robots` can execute) are executed
+    in MuJoCo by each of `robots` (the same sample, side by side: the floating grippers and the ALOHA arms
+    with each hand), the LLM-free and policy columns of Table 3 also with `grid_robots`,
     and `stability_episodes` of them `stability_repeats` times by the first robot with the scene shifted
     by about 0.1 mm (how far a single verdict can be trusted).
     Table 3 (flows/table3.py, protocol `thesis`, the first take of each of `llm_tasks`): the LLM-free
@@ -84,10 +87,15 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
             run_flow(augment_take_flow, m.path, warehouse, augment=AugmentOptions.half_mirrored(c.episodes, c.seed))
             task = name.split("_s")[0].removeprefix("synth_")
             first_take[task] = m.path
+            for label in c.grid_robots:  # every episode checked for the arms, without physics
+                robot, hand = parse_robot(label)
+                run_flow(screen_task, warehouse, task=task, take=name, robot=robot, gripper=hand)
+            # the sample every robot executes: drawn from the episodes the (first) arms' screening lets through
+            screened_for = c.grid_robots[0] if c.grid_robots else None
             for label in c.robots if c.sim_episodes else ():
                 robot, hand = parse_robot(label)
                 run_flow(simulate_episodes, warehouse, task=task, episodes=c.sim_episodes, take=name, seed=c.seed,
-                         robot=robot, gripper=hand)
+                         robot=robot, gripper=hand, screened_for=screened_for)
             if c.stability_episodes and c.stability_repeats >= 2:
                 robot, hand = parse_robot(c.robots[0])
                 run_flow(check_stability, warehouse, task=task, episodes=c.stability_episodes,
@@ -97,7 +105,7 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
         if len(detectors) > 1:
             run_flow(ingest_side_by_side, m.path, warehouse, detectors=detectors)
         progress.step()
-    from demoforge.tasks.table3 import ALL_STRATEGIES, POLICY
+    from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY
 
     for llm_task in c.llm_tasks:
         if llm_task in first_take and c.grid_scenes > 0:
@@ -107,6 +115,14 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
                      strategies=[s for s in ALL_STRATEGIES if s != POLICY or with_policy], seed=c.seed,
                      episodes=c.episodes, policy_epochs=c.policy_epochs, policy_waypoints=c.policy_waypoints,
                      take_dirs=[first_take[llm_task]], structured=c.llm_structured, number_format=c.llm_number_format)
+            for label in c.grid_robots:  # the arms beside it: the columns without an LLM
+                robot, hand = parse_robot(label)
+                run_flow(table3, warehouse, task=llm_task, protocols=["thesis"], takes=1, scenes=c.grid_scenes,
+                         llm_scenes=0, strategies=[s for s in ALL_STRATEGIES if s not in LLM_STRATEGIES
+                                                   and (s != POLICY or with_policy)],
+                         seed=c.seed, episodes=c.episodes, policy_epochs=c.policy_epochs,
+                         policy_waypoints=c.policy_waypoints, take_dirs=[first_take[llm_task]], robot=robot,
+                         gripper=hand)
     from demoforge.flows.policy import evaluate_policy, train_policy
     from demoforge.tasks.policy import checkpoint_row
 

@@ -32,10 +32,12 @@ def _resolve_take(warehouse: str, task: str, take: str | None) -> str:
 @flow(name="train-policy")
 def train_policy(warehouse: str, task: str = "pouring", take: str | None = None, seed: int = 0, epochs: int = 40,
                  max_minutes: float | None = 9.0, threads: int = 1, batch_size: int = 256, lr: float = 1e-3,
-                 d_model: int = 64, layers: int = 2, val_fraction: float = 0.1, n_waypoints: int = 20) -> Manifest:
+                 d_model: int = 64, layers: int = 2, val_fraction: float = 0.1, n_waypoints: int = 20,
+                 robot_label: str | None = None, screening: Manifest | None = None) -> Manifest:
     """Train the keypoint policy on the valid episodes of the task's database (validation: 10 % of the
-    sampled placements, held out whole).  Stops after the epoch that passes `max_minutes`.  The
-    checkpoint goes to <warehouse>/_policy/<task>/<take>/<id>/, its record to `policy_checkpoints`;
+    sampled placements, held out whole; robot_label, an arm robot such as `aloha+2f140`: only the episodes
+    its screening lets through, `screening` its manifest).  Stops after the epoch that passes `max_minutes`.
+    The checkpoint goes to <warehouse>/_policy/<task>/<take>/<id>/, its record to `policy_checkpoints`;
     the same inputs and seed give the same weights (and a cache hit)."""
     if epochs < 1:
         raise ValueError("epochs must be at least 1")
@@ -46,8 +48,8 @@ def train_policy(warehouse: str, task: str = "pouring", take: str | None = None,
                   database=database_inputs(warehouse, task, take), seed=seed, epochs=epochs,
                   max_seconds=None if max_minutes is None else 60.0 * max_minutes, threads=threads,
                   batch_size=batch_size, lr=lr, d_model=d_model, layers=layers, val_fraction=val_fraction,
-                  n_waypoints=n_waypoints)
-    get_run_logger().info("policy of %s/%s: %s", task, take, m.path)
+                  n_waypoints=n_waypoints, robot_label=robot_label, screening=screening)
+    get_run_logger().info("policy of %s/%s%s: %s", task, take, f" ({robot_label})" if robot_label else "", m.path)
     return m
 
 

@@ -26,7 +26,7 @@ SHOWN_VIEWS = {
     "report_takes", "report_replay_by_task", "report_visibility", "report_benchmarks", "report_ingest_by_task",
     "report_ingest_accuracy", "report_segmentation", "report_ingested_demos", "report_augmentation",
     "report_table1", "report_table2", "report_appendix_b", "report_big_vs_small", "report_real_photos",
-    "report_sim", "report_sim_robots", "report_sim_failures", "report_sim_stability", "report_table4",
+    "report_sim", "report_sim_robots", "report_screening", "report_sim_failures", "report_sim_stability", "report_table4",
     "report_table4_failures", "report_policy", "report_policy_failures", "report_table3_grid",
     "report_table3_intervals", "report_table3_failures"}
 
@@ -184,6 +184,14 @@ def sim_sections(warehouse: Path, reports: Path, stamp: str, params: dict) -> li
                        "pose beyond reach or a joint at its range's end or speed limit; `link_collision`: an arm "
                        "link on the table, an object or the other arm; `wider_than_stroke`: an object the hand "
                        "cannot open around). docs/robot-checks.md says where the arms stand and why they fail."))
+    md.append(_section("The databases screened for the arms", "report_screening", warehouse, reports, stamp,
+                       "Every episode of each task's database checked for the arms without physics "
+                       "(`demoforge screen`; lib/sim/robots/aloha/screening.py): reach, joint ranges, the grasps the "
+                       "planner would choose, the fingers above the table and the forearms apart, with the arms' "
+                       "closed-form inverse kinematics. Retrieval, `knn_blend`, the policy and the exports for an "
+                       "arm robot use only the screened-in episodes. `physics_passes_screened_in` / "
+                       "`_screened_out`: of the episodes the physics check also ran with that robot, the share it "
+                       "passed, among those the screening let through and those it did not."))
     md.append(_section("Robot success checks in MuJoCo physics, per episode kind", "report_sim", warehouse, reports,
                        sim_stamp, "The robots replay what the ingest recovered from the video, not the script."))
     md.append(_section("Why episodes failed in physics", "report_sim_failures", warehouse, reports, sim_stamp))
@@ -298,7 +306,7 @@ def _write_report(warehouse: Path, reports: Path, params: dict) -> Path:
                        "simulation's rounding. `flipping` episodes change outcome under that shift: their single "
                        "verdict is decided by numerical chaos, and `success_rate` over all repeats estimates "
                        "their success as a probability (`demoforge stability` for more episodes and repeats)."))
-    from demoforge.tasks.export import report_plots  # per task: trajectories before/after, coverage, success map
+    from demoforge.tasks.report_plots import report_plots  # per task: trajectories, coverage, success maps
 
     md += report_plots(str(warehouse), str(reports))
     bench = _view("report_benchmarks", warehouse)

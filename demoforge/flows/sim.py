@@ -16,13 +16,19 @@ from demoforge.tasks.common import Manifest, in_distributed_flow, run_stage, run
 from demoforge.tasks.sim import simulate_chunk, stability_chunk
 
 
-def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Sequence[int], seed: int = 0) -> list[int]:
-    """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids."""
+def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Sequence[int], seed: int = 0,
+                  screened_for: str | None = None) -> list[int]:
+    """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids;
+    screened_for (an arm robot's label, `aloha+2f140`): of the valid episodes only those its screening lets
+    through (`episode_screening`; `demoforge screen`), and the original."""
     from demoforge.schemas.catalog import query
+    from demoforge.tasks.screening import screened_ids
 
     t = query("SELECT episode_id FROM episodes WHERE task = ? AND take = ? AND valid "
               "ORDER BY episode_id", warehouse, [task, take])
     valid = np.asarray(t.column(0).to_numpy())
+    if screened_for is not None:
+        valid = valid[np.isin(valid, screened_ids(warehouse, task, take, screened_for)) | (valid == 0)]
     if isinstance(episodes, str):
         if episodes != "all":
             raise ValueError(f"episodes must be a number, a list of ids or 'all', got {episodes!r}")
@@ -34,13 +40,16 @@ def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Se
     return [int(e) for e in episodes]
 
 
-def selection_name(episodes: int | str | Sequence[int], ids: Sequence[int], seed: int) -> str:
-    """The `sim_results` selection of a run: `all`, `sample-N-seedS`, or `ids-<hash of the ids>`. Runs of
-    different selections write separate files, so a sample never overwrites a whole-database run."""
+def selection_name(episodes: int | str | Sequence[int], ids: Sequence[int], seed: int,
+                   screened_for: str | None = None) -> str:
+    """The `sim_results` selection of a run: `all`, `sample-N-seedS`, or `ids-<hash of the ids>` (with
+    `-screened-<robot>` when drawn from a screening's episodes). Runs of different selections write separate
+    files, so a sample never overwrites a whole-database run."""
+    tail = f"-screened-{screened_for.replace('+', '_')}" if screened_for else ""  # a partition value: no +
     if isinstance(episodes, str):
-        return "all"
+        return "all" + tail
     if isinstance(episodes, (int, np.integer)):
-        return f"sample-{len(ids)}-seed{int(seed)}"
+        return f"sample-{len(ids)}-seed{int(seed)}{tail}"
     digest = hashlib.sha256(",".join(str(int(i)) for i in ids).encode()).hexdigest()[:12]
     return f"ids-{digest}"
 
@@ -84,17 +93,19 @@ def _robot_args(task: str, robot: str, gripper: str | None) -> tuple[dict, str]:
 @flow(name="simulate-episodes")
 def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
                       take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
-                      show_progress: bool = True, robot: str = "grippers", gripper: str | None = None) -> list[Manifest]:
+                      show_progress: bool = True, robot: str = "grippers", gripper: str | None = None,
+                      screened_for: str | None = None) -> list[Manifest]:
     """Execute episodes of a task's database in MuJoCo with `robot` (and hand `gripper`; default its own)
-    (results: `sim_results`), chunk by chunk.
+    (results: `sim_results`), chunk by chunk; screened_for: draw them from the episodes that arm robot's
+    screening lets through (pick_episodes), the same episodes for every robot.
 
     Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
     the same episodes costs nothing. Its rows carry the run's selection (selection_name) and the robot:
     a sample and a whole-database run of the same task, or two robots, keep their own files."""
     robot_args, label = _robot_args(task, robot, gripper)
     take, source = _episode_database(warehouse, task, take)
-    ids = pick_episodes(warehouse, task, take, episodes, seed)
-    selection = selection_name(episodes, ids, seed)
+    ids = pick_episodes(warehouse, task, take, episodes, seed, screened_for)
+    selection = selection_name(episodes, ids, seed, screened_for)
     common = dict(task=task, take=take, selection=selection, warehouse=warehouse, source=source,
                   workers=workers, show_progress=show_progress, **robot_args)
     return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection} ({label})",

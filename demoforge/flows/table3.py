@@ -8,6 +8,7 @@ from typing import Sequence
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.flows.screening import screen_task
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.llm_eval import keyframe_key
@@ -100,6 +101,16 @@ def table3(
             for protocol in protocols:
                 db, q, ck = _prepare(warehouse, spec, path, protocol, scenes, seed, episodes,
                                      POLICY in strategies, policy_epochs, policy_waypoints, policy_threads, show_progress)
+                if judge:  # an arm robot retrieves from (and learns from) the episodes its screening lets through
+                    judge["screening"] = run_flow(screen_task, warehouse, task=task, take=db["database"], robot=robot,
+                                                  gripper=gripper)
+                    if ck is not None:
+                        from demoforge.flows.policy import train_policy
+
+                        ck = run_flow(train_policy, warehouse, task=task, take=db["database"], seed=seed,
+                                      epochs=policy_epochs, max_minutes=None, threads=policy_threads,
+                                      n_waypoints=policy_waypoints, robot_label=opt.robot.label,
+                                      screening=judge["screening"])
                 for strategy in cells:
                     bar.set_postfix_str(f"{protocol} take {i} {strategy}")
                     llm = strategy in LLM_STRATEGIES

@@ -230,6 +230,29 @@ REPORT_VIEWS: dict[str, str] = {
     """,
     # The robots side by side, per task: success, reachable fraction, the arms' IK residual and time-scale
     # (executed over demonstrated duration) and the failure classes with counts.
+    "report_screening": """
+        WITH r AS (
+            SELECT task, take, robot, string_agg(reason || ' ' || n, ', ' ORDER BY n DESC, reason) AS reasons
+            FROM (SELECT task, take, robot, reason, count(*) AS n FROM episode_screening WHERE NOT executable
+                  GROUP BY ALL)
+            GROUP BY ALL),
+        checked AS (  -- the screened episodes the physics check also ran, with the same robot and hand
+            SELECT s.task, s.take, s.robot, s.executable, o.success
+            FROM episode_screening s JOIN sim_outcomes o
+              ON o.task = s.task AND o.take = s.take AND o.episode_id = s.episode_id
+             AND o.robot = split_part(s.robot, '+', 1) AND o.gripper = s.gripper)
+        SELECT s.task, s.take, s.robot, count(*) AS episodes, count(*) FILTER (WHERE executable) AS screened_in,
+               round(avg(CASE WHEN executable THEN 1.0 ELSE 0.0 END), 3) AS screened_share,
+               (SELECT count(*) FROM checked c WHERE c.task = s.task AND c.take = s.take AND c.robot = s.robot
+                  AND c.executable) AS simulated_screened_in,
+               (SELECT round(avg(CASE WHEN c.success THEN 1.0 ELSE 0.0 END), 3) FROM checked c
+                WHERE c.task = s.task AND c.take = s.take AND c.robot = s.robot AND c.executable) AS physics_passes_screened_in,
+               (SELECT round(avg(CASE WHEN c.success THEN 1.0 ELSE 0.0 END), 3) FROM checked c
+                WHERE c.task = s.task AND c.take = s.take AND c.robot = s.robot AND NOT c.executable) AS physics_passes_screened_out,
+               any_value(r.reasons) AS screened_out_reasons
+        FROM episode_screening s LEFT JOIN r USING (task, take, robot)
+        GROUP BY s.task, s.take, s.robot ORDER BY s.task, s.take, s.robot
+    """,
     "report_sim_robots": """
         WITH f AS (
             SELECT task, robot, gripper, string_agg(failure || ' ' || n, ', ' ORDER BY n DESC, failure) AS failures

@@ -17,6 +17,7 @@ import pyarrow.compute as pc
 import demoforge.lib  # noqa: F401
 from demoforge.lib.exports import ExportError, task_instruction
 from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.screening import screened_pairs
 
 
 EXPORT_VERSION = "3"  # 2: environment state, per-row provenance, LeRobot-style stats, images; 3: robots
@@ -184,7 +185,8 @@ def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None,
     the camera's resolution or ``image_size`` (width, height), as ``observation.images.<camera>``.
     robot: `grippers` writes the two grippers' poses; an arm robot (`aloha`) writes its joint values
     (lib/exports/joint_space.py) of the episodes whose robot check with it succeeded (every selected
-    one with ``unchecked``), leaving out any episode its IK cannot reach, and its images as `top`.
+    one with ``unchecked``) and, where the database is screened for it, its screening let through, leaving
+    out any episode its IK cannot reach, and its images as `top`.
     """
     from demoforge.lib.exports.lerobot import (
         ROBOT_TYPE, keypoint_feature_names, validate_lerobot_dataset, write_lerobot_dataset,
@@ -196,13 +198,17 @@ def export_lerobot(warehouse: str, task: str, out: str, take: str | None = None,
     arm = get_robot(robot, gripper)
     joints = arm.joint_names
     only = None if not joints or unchecked else checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
+    screened = screened_pairs(warehouse, task, arm.label, take) if joints else None
+    if screened is not None:  # an arm robot exports only what its screening lets through
+        only = screened if only is None else only & screened
     sel = load_episodes(warehouse, task, take, include_invalid, limit, only=only)
     joint_state, joint_source, dropped, demonstrated = None, {}, [], sel
     if joints:
         sel, joint_state, dropped, demonstrated, scale = _reachable_joint_space(arm, sel, progress)
         joint_source = {"robot": arm.name, "gripper": arm.gripper_name, "state": list(joints),
-                        "check": "unchecked: every selected episode the arms reach" if unchecked else
-                                 f"sim_results success with robot {arm.name}, gripper {arm.gripper_name}",
+                        "check": ("unchecked: every selected episode the arms reach" if unchecked else
+                                  f"sim_results success with robot {arm.name}, gripper {arm.gripper_name}")
+                                 + (f"; screened in for {arm.label} (episode_screening)" if screened is not None else ""),
                         "trajectory": "as the arms run it, at the dataset's fps: from their ready pose, joint-space "
                                       "transits into and out of each arm's skill segments, the segments through "
                                       "inverse kinematics, slowed where a joint would exceed its servo's speed "
@@ -519,68 +525,3 @@ def _episodes_by_id(steps: tuple[np.ndarray, np.ndarray, np.ndarray], ids, every
     if every > 1:
         m &= s % every == 0
     return e[m], act[m].astype(np.float64)
-
-
-def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = None, n_augmented: int = 40,
-                 coverage_every: int = 3, seed: int = 0) -> list[str]:
-    """The three report plots per task with episodes (PNG under ``reports_dir``), as Markdown lines."""
-    from demoforge.lib.evaluation.plots import plot_success_map, plot_trajectories, plot_workspace_coverage
-    from demoforge.lib.task_library import TASK_NAMES, get_task
-    from demoforge.schemas.core import column_numpy, read_table, table_files
-
-    reports = Path(reports_dir)
-    md = ["## Episode databases in pictures", ""]
-    have = sorted({f.parent.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse)})
-    tasks = [t for t in (tasks or TASK_NAMES) if t in have]
-    if not tasks:
-        return md + ["_No episodes in this warehouse yet: `demoforge augment TAKE`._", ""]
-    from demoforge.schemas.catalog import query
-
-    # one row per episode, whichever runs (a sample, the whole database) checked it
-    sim = query("SELECT task, take, episode_id, success FROM sim_outcomes", warehouse)
-    for task in tasks:
-        spec = get_task(task)
-        take = sorted({f.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse, task=task)})[0]
-        eps = read_table("episodes", warehouse, task=task, take=take)
-        ids = eps.column("episode_id").to_numpy()
-        valid = eps.column("valid").to_numpy(zero_copy_only=False)
-        rng = np.random.default_rng(seed)
-        pool = ids[valid & (ids != 0)]
-        pick = rng.choice(pool, size=min(n_augmented, len(pool)), replace=False)
-        steps = _read_steps(warehouse, task, take)
-        e, act = _episodes_by_id(steps, np.concatenate([[0], pick]))
-        kp_all = column_numpy(eps, "object_keypoints")
-        kp0 = kp_all[np.flatnonzero(ids == 0)[0]]
-        png = plot_trajectories(act[e == 0], [act[e == i] for i in pick], reports / f"trajectories_{task}.png",
-                                keypoints=kp0, workspace=spec.workspace,
-                                title=f"{task}: the demonstration (bold) and {len(pick)} augmented episodes")
-        md += [f"### {task}", "",
-               f"Both grippers' paths: the ingested demonstration of `{take}` (bold) and {png['augmented']} "
-               "valid augmented episodes drawn at random (thin; translated and mirrored). Translation and yaw act "
-               "in the table plane, so the heights over time repeat the demonstration's (a mirrored episode's "
-               "left arm follows the demonstration's right arm).", "",
-               f"![trajectories {task}](trajectories_{task}.png)", ""]
-        e_all, act_all = _episodes_by_id(steps, None, every=coverage_every)
-        del steps
-        cov = plot_workspace_coverage(act_all[:, :, :3], reports / f"coverage_{task}.png", n_episodes=len(ids),
-                                      workspace=spec.workspace, title=f"{task}: workspace coverage")
-        md += [f"Workspace coverage of all {len(ids):,} episodes (one step in {coverage_every}, 2 cm cells): the "
-               f"left gripper visits {100 * cov['covered_fraction']['left']:.0f} % and the right "
-               f"{100 * cov['covered_fraction']['right']:.0f} % of the workspace's cells.", "",
-               f"![coverage {task}](coverage_{task}.png)", ""]
-        rows = sim.filter((pc.field("task") == task) & (pc.field("take") == take))
-        if rows.num_rows == 0:
-            md += ["_No physics results for this task yet (`demoforge simulate`)._", ""]
-            continue
-        sim_ids = rows.column("episode_id").to_numpy()
-        success = rows.column("success").to_numpy(zero_copy_only=False)
-        pos = np.argsort(ids)[np.searchsorted(np.sort(ids), sim_ids)]
-        kp = kp_all[pos]                                                              # (n, 11, 3)
-        obj = spec.keypoint_object
-        xy = np.stack([kp[:, obj == o, :2].mean(axis=1) for o in range(len(spec.object_names))], axis=1)
-        sm = plot_success_map(xy, success, reports / f"success_map_{task}.png", object_names=list(spec.object_names),
-                              title=f"{task}: robot success over object placements")
-        md += [f"Robot success in MuJoCo over the objects' placements ({sm['episodes']} simulated episodes, "
-               f"{100 * sm['success_rate']:.0f} % success; placement = the mean of the object's keypoints at the "
-               "episode's start).", "", f"![success map {task}](success_map_{task}.png)", ""]
-    return md

@@ -16,6 +16,7 @@ from demoforge.schemas.core import (
     WrittenFile, file_sha256, get_schema, read_table, read_table_file, table_files, write_table,
 )
 from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.screening import screened_ids
 
 POLICY_VERSION = "1"
 POLICY_DIR = "_policy"  # checkpoints live beside the warehouse tables, like _prefect and _llm_cache
@@ -39,9 +40,10 @@ def database_inputs(warehouse: str, task: str, take: str) -> dict[str, Path]:
     return {n: Path(f[0]) for n, f in files.items()}
 
 
-def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20):
+def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20, robot_label: str | None = None):
     """(PolicyData of the valid episodes, the episodes table): every action sequence resampled to
-    n_waypoints exactly as the prompts resample it."""
+    n_waypoints exactly as the prompts resample it. robot_label (an arm robot): only the episodes its
+    screening lets through, and the original."""
     from demoforge.lib.policy.data import PolicyData, resample_batch
     from demoforge.schemas.core import column_numpy
 
@@ -49,6 +51,10 @@ def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20
     if ep.num_rows == 0:
         raise ValueError(f"no episodes of {task}/{take}: run `demoforge augment` on the take first")
     valid = np.asarray(ep.column("valid").to_numpy(zero_copy_only=False))
+    if robot_label is not None:
+        all_ids = np.asarray(ep.column("episode_id").to_numpy())
+        original = np.asarray(ep.column("kind").to_pylist()) == "original"
+        valid &= np.isin(all_ids, screened_ids(warehouse, task, take, robot_label)) | original
     if not valid.any():
         raise ValueError(f"no valid episode in {task}/{take}: the policy has nothing to learn from")
     ids = np.asarray(ep.column("episode_id").to_numpy())[valid]
@@ -76,11 +82,13 @@ def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20
     return data, ep
 
 
-@stage_task(name="policy_train", version=POLICY_VERSION)
+@stage_task(name="policy_train", version=POLICY_VERSION, key_optional=("robot_label", "screening"))
 def policy_train(task: str, take: str, warehouse: str, database: dict, seed: int = 0, epochs: int = 40,
                  max_seconds: float | None = 540.0, threads: int = 1, batch_size: int = 256, lr: float = 1e-3,
-                 d_model: int = 64, layers: int = 2, val_fraction: float = 0.1, n_waypoints: int = 20) -> Manifest:
-    """Train one policy on the valid episodes of task/take; write its checkpoint and a
+                 d_model: int = 64, layers: int = 2, val_fraction: float = 0.1, n_waypoints: int = 20,
+                 robot_label: str | None = None, screening: Manifest | None = None) -> Manifest:
+    """Train one policy on the valid episodes of task/take (robot_label, an arm robot: those its screening lets
+    through; `screening`, that screening's manifest, keys the cache); write its checkpoint and a
     `policy_checkpoints` row.  Losses go to the run log every epoch; a progress bar of the steps (with
     the latest losses) is drawn when stderr is a terminal."""
     from prefect import get_run_logger
@@ -92,7 +100,7 @@ def policy_train(task: str, take: str, warehouse: str, database: dict, seed: int
 
     logger = get_run_logger()
     t0 = time.perf_counter()
-    data, _ = load_policy_data(warehouse, task, take, n_waypoints)
+    data, _ = load_policy_data(warehouse, task, take, n_waypoints, robot_label)
     load_s = time.perf_counter() - t0
     tr, va = split_by_placement(data, val_fraction, seed)
     logger.info("%s/%s: %d valid episodes -> %d train, %d validation (held-out placements), loaded in %.1f s",

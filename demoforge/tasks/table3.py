@@ -21,8 +21,9 @@ ALL_STRATEGIES = LLM_STRATEGIES + FREE_STRATEGIES + (POLICY,)
 K_EXAMPLES = 3
 
 
-def _database(warehouse: str, task: str, database: str) -> dict:
-    """The database's valid episodes (ids, kinds, keypoints, initial poses, lengths)."""
+def _database(warehouse: str, task: str, database: str, robot_label: str | None = None) -> dict:
+    """The database's valid episodes (ids, kinds, keypoints, initial poses, lengths); with robot_label (an arm
+    robot: `aloha+2f140`) only those its screening lets through (`episode_screening`), and the original."""
     from demoforge.schemas.catalog import query
 
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
@@ -32,10 +33,16 @@ def _database(warehouse: str, task: str, database: str) -> dict:
     kinds = np.array(ep.column("kind").to_pylist())
     if not (kinds == "original").any():
         raise ValueError(f"{task}/{database} has no original episode: re-run the augmentation")
-    return {"ids": np.asarray(ep.column("episode_id").to_numpy()), "kinds": kinds,
-            "keypoints": np.asarray(ep.column("object_keypoints").to_pylist(), float),
-            "initial": np.asarray(ep.column("initial_poses").to_pylist(), float),
-            "length": np.asarray(ep.column("length").to_numpy())}
+    db = {"ids": np.asarray(ep.column("episode_id").to_numpy()), "kinds": kinds,
+          "keypoints": np.asarray(ep.column("object_keypoints").to_pylist(), float),
+          "initial": np.asarray(ep.column("initial_poses").to_pylist(), float),
+          "length": np.asarray(ep.column("length").to_numpy())}
+    if robot_label is not None:  # selected in numpy: pyarrow 26 filters nested fixed-size lists wrongly
+        from demoforge.tasks.screening import screened_ids
+
+        keep = np.isin(db["ids"], screened_ids(warehouse, task, database, robot_label)) | (kinds == "original")
+        db = {k: v[keep] for k, v in db.items()}
+    return db
 
 
 def nearest_source(source, query_keypoints: np.ndarray):
@@ -50,19 +57,21 @@ def nearest_source(source, query_keypoints: np.ndarray):
 
 
 @stage_task(name="table3_trials", version=TABLE3_VERSION,
-            key_optional=("number_format", "keyframes", "robot", "gripper", "scene_key"))
+            key_optional=("number_format", "keyframes", "robot", "gripper", "scene_key", "screening"))
 def table3_trials(task: str, protocol: str, take: str, take_index: int, database: str, strategy: str, warehouse: str,
                   episodes: Manifest, scenes: list, seed: int = 0, backend: str = "local",
                   backend_options: dict | None = None, n_waypoints: int | None = None, precision: int = 3,
                   max_tokens: int | None = None, policy_checkpoint: Manifest | None = None,
                   show_progress: bool = True, structured: bool | None = None,
                   number_format: str | None = None, keyframes: tuple | None = None, robot: str | None = None,
-                  gripper: str | None = None, scene_key: str | None = None) -> Manifest:
+                  gripper: str | None = None, scene_key: str | None = None,
+                  screening: Manifest | None = None) -> Manifest:
     """Predict and judge every scene (dicts of QueryScenes.scene) of one strategy on one database.
     `episodes` (the database's manifest) makes a re-augmented database recompute the cell; LLM answers
     are cached by the backend, so a re-run after an interruption pays only the robot checks. `robot`,
     `gripper`: the robot that judges (None: the floating grippers, whose cells keep their cache keys;
-    `scene_key`, another robot's scene fingerprint, is in the key only)."""
+    `scene_key`, another robot's scene fingerprint, is in the key only). An arm robot retrieves, blends and
+    replays only the episodes its screening lets through (`screening`: that manifest, keying the cell)."""
     from tqdm import tqdm
 
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
@@ -75,7 +84,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
 
     if strategy not in ALL_STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose from {', '.join(ALL_STRATEGIES)}")
-    db = _database(warehouse, task, database)
+    db = _database(warehouse, task, database, None if opt.robot.name == "grippers" else opt.robot.label)
     index = KeypointIndex(db["keypoints"], ids=db["ids"])
     orig_row = int(np.flatnonzero(db["kinds"] == "original")[0])
     original = int(db["ids"][orig_row])

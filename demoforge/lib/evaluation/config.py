@@ -13,7 +13,7 @@ from typing import Any, Mapping, Sequence
 
 from demoforge.lib.synth import MIRROR_CHOICES, mirror_flags
 
-__all__ = ["DETECTORS", "ROBOTS", "EvaluateConfig", "MIRROR_CHOICES", "parse_robot"]
+__all__ = ["DETECTORS", "GRID_ROBOTS", "ROBOTS", "EvaluateConfig", "MIRROR_CHOICES", "parse_robot"]
 
 # The hand detectors every take is ingested with, side by side: the simulated one (the ground truth
 # through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
@@ -21,6 +21,9 @@ DETECTORS = ("simulated", "mediapipe")
 # The robots every task's sample is executed with, side by side (lib/sim/robots; `robot` or
 # `robot+hand`): the floating grippers, the ALOHA arms with their own fingers and with the 2F-140.
 ROBOTS = ("grippers", "aloha", "aloha+2f140")
+# The arms Table 3's LLM-free and policy columns are judged with too, beside the first robot: the 2F-140 fits
+# every object of the library (ALOHA's own fingers do not open around the bottle)
+GRID_ROBOTS = ("aloha+2f140",)
 
 
 def parse_robot(label: str) -> tuple[str, str | None]:
@@ -49,7 +52,9 @@ class EvaluateConfig:
     policy_trials: the learned policy (0 trials skips it); detectors: the hand detectors each take is
     ingested with, side by side (the simulated one always); robots: the robots (`name` or `name+hand`)
     each task's sample is executed with, side by side (the stability check and the other evaluations
-    use the first)."""
+    use the first); grid_robots: the arm robots Table 3's LLM-free and policy columns are judged with
+    too, beside the first robot (each retrieving from and learning from the episodes its screening lets
+    through)."""
 
     tasks: tuple[str, ...] | None = None
     takes: int = 1
@@ -74,9 +79,10 @@ class EvaluateConfig:
     policy_trials: int = 5
     detectors: tuple[str, ...] = DETECTORS
     robots: tuple[str, ...] = ROBOTS
+    grid_robots: tuple[str, ...] = GRID_ROBOTS
 
     def __post_init__(self):
-        for name in ("tasks", "llm_tasks", "policy_tasks", "detectors", "robots"):  # lists from the CLI or JSON
+        for name in ("tasks", "llm_tasks", "policy_tasks", "detectors", "robots", "grid_robots"):  # CLI or JSON lists
             object.__setattr__(self, name, _names(getattr(self, name)))
         if not self.robots:
             raise ValueError("robots must name at least one robot")

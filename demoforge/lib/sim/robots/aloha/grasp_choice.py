@@ -194,6 +194,7 @@ def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.n
                             w.may_turn, jumps)
         bs, idx = live[bl], np.arange(len(w.steps))
         followed = good[cs, idx, bs]
+        followed[1:] &= np.abs(np.diff(q[cs, idx, bs], axis=0)).max(axis=-1) < jumps[1:]  # the path forced to jump
         feasible = bool(followed.all())
         low = float(sol.margin[cs, idx, bs].min())
         turn = np.unwrap(turns[cs])

@@ -1,0 +1,357 @@
+"""Whether the ViperX arms can execute each episode of a task database, kinematically, batched over all
+episodes and steps with the arms' closed-form IK (closed_form.py): no MuJoCo, no mink.
+
+    s = screen_episodes(robot, "pouring", actions, lengths, keypoints0)   # actions (E, n, 2, 8) or a list
+    s.executable      # (E,) bool
+    s.reason          # (E,) "" or the first cause: unreachable, wrist_in_table, fingers_in_table,
+                      #      joint_limit, branch_jump, forearms_meet
+    s.min_margin_rad  # (E,) the smallest joint margin along the arms' screened paths (NaN: no window)
+    s.turn, s.flip    # (E, 2) each arm's grasp turn (rad, at its window's first sample) and half-turn
+
+The decision is the planner's (aloha/__init__.py AlohaRobot.motion -> arm_motion.py plan_arm_motion ->
+retargeting.py -> grasp_choice.py), rule for rule: the poses smoothed (SMOOTH_SIGMA), each arm's window
+(follow_windows), the held objects (held_objects) and the object each window turns its grasp about
+(window_objects), the objects' demonstrated motion, and per window the candidate grasps (the held object's
+symmetric turns x the gripper's half-turn) judged on the same SAMPLES steps: within reach (the triangle
+closes), every joint MIN_MARGIN inside its range, no joint jumping between samples (JUMP, or JUMP_PER_STEP per
+demonstrated step between them), the wrist WRIST_ABOVE_TABLE and the fingertips the clearance less
+LIFT_TOLERANCE above the table, the turn changing only while an axially symmetric object is held
+(GRIP_SETTLE_STEPS after the close) and by at most TURN_STEP_MAX_DEG a sample; then the two arms'
+forearm-wrist-hand segments and hands ARM_GAP apart (or as far as the demonstrated hands were, less 1 cm) at
+every sample step of either arm where both windows run, else one arm chosen again around the other.
+screening_windows.py does the part before the grasps over a group's episodes at once, screening_arm.py the
+grasps.
+
+An arm can follow its window when some candidate has a path that meets every rule at every sample (a
+*witness*): the planner's shortest path (grasp_choice._best_path, a fault costs BAD, everything else
+together less) then meets them too. A witness is found cheaply: reach and the wrist's and fingertips'
+heights depend on the pose only (not on the branch; a half-turn about the approach axis moves the last
+joint by pi and nothing else), so they are checked for every turn and sample first, a few dozen operations
+each; the joints (all 8 branches of the closed form) are solved only where needed: per episode the
+smallest turn that passes those checks throughout (the demonstration's grasp, as a rule), both half-turns
+from one solve; for the episodes it fails, every turn at once, held fixed (screening_arm.py _fixed_turns)
+or, for an axially symmetric held object, on turning paths (the joints only of the poses such a path
+reaches). An episode with no witness is screened out, with the first cause (by window step) as its reason.
+The forearms are checked on the witnesses, and where they clash each arm is searched again around the
+other's witness, as the planner does (_again).
+
+Where it differs from the planner: the witness is a feasible candidate, not necessarily the planner's best
+one, so the turn and margin reported are the witness's and the forearms are checked on the witnesses'
+joints (the planner's own pair may clash where the witnesses' do not, or the reverse); a path with a joint
+jump is infeasible here, where the planner's flag (GraspChoice.feasible: every sample followed) passes it
+when nothing cleaner exists (such episodes fail in physics: 16 of 22 empty_vase ones `unreachable`, none
+succeeded); a branch changes only within an arm branch (the wrist's two), never through the arm's
+singular configurations (the stretched elbow, the wrist centre over the waist axis), which no followed
+path crosses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .grasp_choice import ARM_GAP
+from .retargeting import GRASP_REACH
+from .screening_arm import (REASONS, ArmScreen, ArmsContext, closer_bound, hand_points, min_distance, screen_arm,
+                            search_again, segments)
+from .screening_windows import held_batch, object_poses_batch, rotations, smooth_batch, windows_batch
+
+#: bump when the same episodes would be screened otherwise
+SCREEN_VERSION = "1"
+CHUNK = 256  # episodes per pass: a pass's arrays stay within a few tens of MB
+
+
+@dataclass
+class Screening:
+    """Per episode (see the module docstring). windows (E, 2, 2) and objects (E, 2) (-1: none) are the
+    planner's; arm_feasible (E, 2) each arm's window on its own; forearm_gap (E,) m the smallest distance
+    between the two arms' segments where their windows share samples (inf: none shared, or an arm out)."""
+    executable: np.ndarray
+    reason: np.ndarray
+    min_margin_rad: np.ndarray
+    turn: np.ndarray
+    flip: np.ndarray
+    windows: np.ndarray
+    objects: np.ndarray
+    arm_feasible: np.ndarray
+    forearm_gap: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.executable)
+
+
+def padded_actions(actions, lengths=None) -> tuple[np.ndarray, np.ndarray]:
+    """(E, n_max, 2, 8) actions (each padded with its last step) and (E,) lengths from an array or a list."""
+    if isinstance(actions, np.ndarray) and actions.ndim == 4:
+        n = np.full(len(actions), actions.shape[1]) if lengths is None else np.asarray(lengths, int)
+        return np.asarray(actions, float), n
+    seqs = [np.asarray(x, float) for x in actions]
+    n = np.array([len(x) for x in seqs], int)
+    out = np.zeros((len(seqs), int(n.max()) if len(n) else 0, 2, 8))
+    for i, x in enumerate(seqs):
+        out[i, :len(x)], out[i, len(x):] = x, x[-1]
+    return out, n
+
+
+def screen_episodes(robot, task_name: str, actions, lengths=None, keypoints0=None, chunk: int = CHUNK) -> Screening:
+    """Screen episodes (actions (E, n, 2, 8) padded with lengths (E,), or a list of (n_i, 2, 8)) whose objects'
+    keypoints at the start are keypoints0 (E, K, 3), for the robot's arms (an AlohaRobot: its retargeting of
+    the task gives the closed form, the bases, the ready pose, the speeds and the hand)."""
+    actions, lengths = padded_actions(actions, lengths)
+    kp = np.asarray(keypoints0, float)
+    E = len(actions)
+    out = Screening(np.zeros(E, bool), np.full(E, "", object), np.full(E, np.nan), np.full((E, 2), np.nan),
+                    np.zeros((E, 2), bool), np.zeros((E, 2, 2), int), np.full((E, 2), -1), np.zeros((E, 2), bool),
+                    np.full(E, np.inf))
+    if not E:
+        return out
+    ctx = ArmsContext(robot.retargeting(task_name))
+    for rows in episode_groups(actions, lengths):
+        n = int(lengths[rows[0]])
+        for i in range(0, len(rows), chunk):
+            part = rows[i:i + chunk]
+            _screen_part(ctx, actions[part, :n], kp[part], out, part)
+    return out
+
+
+def episode_groups(actions: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
+    """Indices of the episodes sharing a length and every step's open/close state of both grippers (a task
+    database: one group per kind of episode, the original and the translated ones sharing one)."""
+    closed = actions[..., 7] < 0.5
+    keys: dict = {}
+    for e in range(len(actions)):
+        keys.setdefault((int(lengths[e]), np.packbits(closed[e, :lengths[e]]).tobytes()), []).append(e)
+    return [np.array(v) for v in keys.values()]
+
+
+def _screen_part(ctx: ArmsContext, actions: np.ndarray, kp: np.ndarray, out: Screening, idx: np.ndarray) -> None:
+    """Screen a chunk of one group's episodes into out[idx]."""
+    from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
+
+    traj = smooth_batch(actions, SMOOTH_SIGMA)
+    held_all = held_batch(traj, kp, ctx.ko)
+    _, first, inverse = np.unique(held_all.reshape(len(traj), -1), axis=0, return_index=True, return_inverse=True)
+    for k, f in enumerate(first):  # one pattern of held objects per group, as a rule
+        sub = np.flatnonzero(inverse.ravel() == k)
+        t, held = traj[sub], held_all[f]
+        windows = windows_batch(t, kp[sub], ctx.ko, held)
+        obj0 = object_poses_batch(ctx.task, kp[sub])
+        objects = _window_objects(held, windows, t, kp[sub], ctx.ko)
+        arms, cands = [], []
+        for a in range(2):
+            res, parts = ArmScreen(len(sub)), []
+            for o in np.unique(objects[:, a]):
+                sel = np.flatnonzero(objects[:, a] == o)
+                c, r = screen_arm(ctx, t[sel], held, obj0[sel], windows[sel, a], a, int(o))
+                res.put(sel, r)
+                parts.append((sel, c))
+            arms.append(res)
+            cands.append(parts)
+        _combine(out, idx[sub], arms, _forearms(ctx, arms, cands, t), windows, objects)
+
+
+def _window_objects(held: np.ndarray, windows: np.ndarray, traj: np.ndarray, kp: np.ndarray,
+                    ko: np.ndarray) -> np.ndarray:
+    """(E, 2) retargeting.window_objects of each episode (held (T, 2): the group's; traj (E, T, 2, 8) the
+    smoothed poses, kp (E, K, 3) the keypoints at the start): the one object held in the window, if the hand
+    closes on it within GRASP_REACH of its keypoints."""
+    T = len(held)
+    out = np.full(windows.shape[:2], -1)
+    for a in range(2):
+        objs = [int(o) for o in np.unique(held[:, a]) if o >= 0]
+        if not objs:
+            continue
+        inside = np.stack([np.concatenate([[0], np.cumsum(held[:, a] == o)]) for o in objs], axis=1)
+        w0, w1 = np.minimum(windows[:, a, 0], T), np.minimum(windows[:, a, 1], T)
+        count = inside[w1] - inside[w0]  # (E, n_held) steps held inside the window
+        one = (count > 0).sum(axis=1) == 1
+        o = np.array(objs)[np.argmax(count > 0, axis=1)]
+        first_held = np.flatnonzero(held[:, a] >= 0)  # the first held step inside each window
+        close = first_held[np.minimum(np.searchsorted(first_held, w0), len(first_held) - 1)]
+        hand = traj[np.arange(len(traj)), close, a, :3]
+        near = np.full(len(traj), np.inf)
+        for obj in objs:
+            d = np.sqrt(((kp[:, ko == obj] - hand[:, None]) ** 2).sum(axis=-1)).min(axis=1)
+            near = np.where(o == obj, d, near)
+        out[:, a] = np.where(one & (near <= GRASP_REACH), o, -1)
+    return out
+
+
+def _needed_gap(ctx: ArmsContext, traj: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(n, M) the gap the arms keep at steps (n, M): ARM_GAP, or as far as the demonstrated hands' points were
+    (grasp_choice._demonstrated_gap, of the smoothed poses traj (n, T, 2, 8)) less 1 cm."""
+    e = np.arange(len(traj))[:, None]
+    pose = traj[e, steps]  # (n, M, 2, 8)
+    pts = hand_points(ctx, pose[..., :3], rotations(pose))  # (n, M, 2, 6, 3)
+    return np.minimum(ARM_GAP, min_distance(pts[:, :, 0], pts[:, :, 1]) - 0.01)
+
+
+def _track(res: ArmScreen, rows: np.ndarray, slot) -> dict:
+    """An arm's witness (slot: int or (n,)) in episodes rows: its sample steps, which are its own, the joints
+    and the hand's points along it."""
+    k = np.broadcast_to(slot, rows.shape)
+    return {"steps": res.steps[rows], "valid": res.valid[rows], "q": res.wit_q[rows, k],
+            "hand": res.wit_hand[rows, k]}
+
+
+def _points_at(ctx: ArmsContext, base, tr: dict, steps: np.ndarray) -> np.ndarray:
+    """(n, M, 16, 3) grasp_choice._points_at: an arm's forearm segments (its witness's joints interpolated) and
+    its hand's points (at the nearest sample) at steps (n, M); NaN outside its window's samples."""
+    xp, valid, n = tr["steps"], tr["valid"], len(steps)
+    count = valid.sum(axis=1)
+    e = np.arange(n)[:, None]
+    hi = np.minimum(((xp[:, None, :] <= steps[:, :, None]) & valid[:, None, :]).sum(axis=2), count[:, None] - 1)
+    lo = np.maximum(np.where(xp[e, hi] > steps, hi - 1, hi), 0)
+    x0, x1 = xp[e, lo], xp[e, hi]
+    w = np.clip(np.where(x1 > x0, (steps - x0) / np.maximum(x1 - x0, 1), 0.0), 0.0, 1.0)[..., None]
+    q = (1 - w) * tr["q"][e, lo] + w * tr["q"][e, hi]
+    near = np.abs(np.where(valid[:, None, :], xp[:, None, :], 10 ** 9) - steps[:, :, None]).argmin(axis=2)
+    out = np.concatenate([segments(ctx, base, q), tr["hand"][e, near]], axis=-2)
+    out[(steps < xp[:, :1]) | (steps > xp[np.arange(n), count - 1][:, None])] = np.nan
+    return out
+
+
+def _shared_steps(tr0: dict, tr1: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(steps (n, M), use (n, M)): every sample step of either arm where both windows run (grasp_choice._pair_ok:
+    np.union1d within the overlap); use marks the steps that count."""
+    n = len(tr0["steps"])
+    lo = np.maximum(tr0["steps"][:, 0], tr1["steps"][:, 0])
+    hi = np.minimum(*[tr["steps"][np.arange(n), tr["valid"].sum(axis=1) - 1] for tr in (tr0, tr1)])
+    both = np.sort(np.concatenate([np.where(tr0["valid"], tr0["steps"], -1), np.where(tr1["valid"], tr1["steps"], -1)],
+                                  axis=1), axis=1)
+    use = (both >= lo[:, None]) & (both <= hi[:, None]) & np.concatenate(
+        [np.ones((n, 1), bool), both[:, 1:] != both[:, :-1]], axis=1)
+    return np.where(use, both, lo[:, None]), use
+
+
+def _pair_gap(p0: np.ndarray, p1: np.ndarray, use: np.ndarray, needed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(smallest gap (n,) m, kept (n,)) of two arms' points (n, M, P, 3) at the shared steps use (n, M): kept where
+    every gap is at least the needed one (n, M). The sets' bounding spheres first: the points' distances only
+    where those come within ARM_GAP."""
+    with np.errstate(invalid="ignore"):
+        close = use & ~(closer_bound(p0, p1) >= ARM_GAP)
+    g = np.full(use.shape, np.inf)
+    g[close] = min_distance(p0[close], p1[close])
+    with np.errstate(invalid="ignore"):
+        kept = ~(use & ~(g >= needed)).any(axis=1)
+    return g.min(axis=1), kept
+
+
+def _pair_check(ctx: ArmsContext, traj: np.ndarray, tr0: dict, tr1: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(smallest gap (n,) m, kept (n,)) grasp_choice._pair_ok of two witnesses: their points at every sample
+    step of either where both windows run keep the needed gap (_needed_gap)."""
+    steps, use = _shared_steps(tr0, tr1)
+    return _pair_gap(_points_at(ctx, ctx.bases[0], tr0, steps), _points_at(ctx, ctx.bases[1], tr1, steps), use,
+                     _needed_gap(ctx, traj, steps))
+
+
+def _forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(gap (E,) m, apart (E,), slot (E, 2) each arm's witness kept): the pairs of witnesses (half-turns), the
+    best scoring first, until one keeps the gap (a pair whose points are those of one already refused is
+    refused with it); else, as grasp_choice, each arm chosen again around the other's best witness (_again).
+    An arm alone: its best witness."""
+    E = len(traj)
+    gap, apart = np.full(E, np.inf), np.ones(E, bool)
+    slot = np.stack([np.argmax(r.wit_score, axis=1) for r in arms], axis=1)
+    r0, r1 = arms
+    rows = np.flatnonzero(r0.active & r1.active & r0.feasible & r1.feasible)
+    if not len(rows):
+        return gap, apart, slot
+    n, at = len(rows), np.arange(len(rows))
+    score = np.stack([np.where(r0.wit_ok[rows, i] & r1.wit_ok[rows, j],
+                               r0.wit_score[rows, i] + r1.wit_score[rows, j], -np.inf) for i in (0, 1) for j in (0, 1)],
+                     axis=1)
+    order = np.argsort(-score, axis=1, kind="stable")
+    # the half-turn moves no point (the last joint's angle only): two witnesses on one path have the same points
+    same = [np.isclose(r.wit_q[rows, 0, :, :5], r.wit_q[rows, 1, :, :5]).all(axis=(1, 2)) &
+            np.isclose(r.wit_hand[rows, 0], r.wit_hand[rows, 1]).all(axis=(1, 2, 3)) for r in arms]
+    steps, use = _shared_steps(_track(r0, rows, 0), _track(r1, rows, 0))  # the same for either witness
+    needed = _needed_gap(ctx, traj[rows], steps)
+    pts = [[_points_at(ctx, ctx.bases[a], _track(r, rows, k), steps) for k in (0, 1)] for a, r in enumerate(arms)]
+    refused, kept = np.zeros((n, 4), bool), np.zeros(n, bool)
+    for rank in range(4):
+        pick = order[:, rank]
+        i, j = np.divmod(pick, 2)
+        twin = 2 * np.where(same[0], 1 - i, i) + np.where(same[1], 1 - j, j)  # a pair with the same points
+        todo = np.flatnonzero(~kept & np.isfinite(score[at, pick]) & ~refused[at, twin])
+        if not len(todo):
+            continue
+        p0 = np.where((i[todo] == 0)[:, None, None, None], pts[0][0][todo], pts[0][1][todo])
+        p1 = np.where((j[todo] == 0)[:, None, None, None], pts[1][0][todo], pts[1][1][todo])
+        ok = _pair_gap(p0, p1, use[todo], needed[todo])[1]
+        refused[todo, pick[todo]] = ~ok
+        slot[rows[todo[ok]]] = np.stack([i[todo[ok]], j[todo[ok]]], axis=1)
+        kept[todo[ok]] = True
+    apart[rows] = kept
+    if (~kept).any():
+        apart[rows[~kept]] = _again(ctx, arms, cands, rows[~kept], traj, slot)
+    gap[rows] = _pair_check(ctx, traj[rows], _track(r0, rows, slot[rows, 0]), _track(r1, rows, slot[rows, 1]))[0]
+    return gap, apart, slot
+
+
+def _again(ctx: ArmsContext, arms: list, cands: list, rows: np.ndarray, traj: np.ndarray,
+           slot: np.ndarray) -> np.ndarray:
+    """(n,) whether grasp_choice's second choice finds a pair for the episodes rows whose witnesses clash:
+    each arm in turn searched again with every state kept clear of the other's witness, the pair then
+    checked. A pair found replaces the arm's witnesses (the first order that finds one: grasp_choice keeps
+    the better scoring of the two)."""
+    found = np.zeros(len(rows), bool)
+    every = rows
+    for first in (0, 1):  # (the second order only where the first found nothing: one pair decides)
+        rows = every[~found]
+        if not len(rows):
+            break
+        second = 1 - first
+        r1, r2 = arms[first], arms[second]
+        tr1 = _track(r1, rows, slot[rows, first])
+        steps = r2.steps[rows]
+        avoid = (_points_at(ctx, ctx.bases[first], tr1, steps), _needed_gap(ctx, traj[rows], steps))
+        for sel, c in cands[second]:
+            inside = np.flatnonzero(np.isin(rows, sel))
+            if c is None or not len(inside):
+                continue
+            again = search_again(ctx, c, r2, np.searchsorted(sel, rows[inside]), rows[inside],
+                                 (avoid[0][inside], avoid[1][inside]))
+            k = np.argmax(again.wit_score, axis=1)
+            here = _track(again, np.arange(len(inside)), k)
+            there = {key: v[inside] for key, v in tr1.items()}
+            pair = (there, here) if first == 0 else (here, there)
+            ok = _pair_check(ctx, traj[rows[inside]], *pair)[1]
+            score = again.wit_score[np.arange(len(inside)), k] + r1.wit_score[rows[inside], slot[rows[inside], first]]
+            better = again.feasible & again.active & ok
+            take = inside[better]
+            for name in ("wit_ok", "wit_score", "wit_turn", "wit_margin", "wit_q", "wit_hand"):
+                getattr(r2, name)[rows[take]] = getattr(again, name)[better]
+            slot[rows[take], second] = k[better]
+            found[np.searchsorted(every, rows[take])] = True
+    return found
+
+
+def _combine(out: Screening, idx: np.ndarray, arms: list, forearms: tuple, windows: np.ndarray,
+             objects: np.ndarray) -> None:
+    """The episodes' verdicts from both arms and their forearms: the first cause by window step."""
+    n = len(idx)
+    gap, apart, slot = forearms
+    feasible = np.stack([r.feasible for r in arms], axis=1)
+    steps = np.stack([np.where(r.feasible, np.iinfo(np.int64).max, r.fail_step) for r in arms], axis=1)
+    first = np.argmin(steps, axis=1)
+    code = np.stack([r.reason for r in arms], axis=1)[np.arange(n), first]
+    reason = np.where(feasible.all(axis=1), np.where(apart, "", "forearms_meet"),
+                      np.array(REASONS, object)[np.where(code >= 0, code, 0)])
+    margin = np.full((n, 2), np.inf)
+    for a, r in enumerate(arms):
+        m = np.where(r.feasible, r.wit_margin[np.arange(n), slot[:, a]], r.best_margin)
+        margin[:, a] = np.where(r.active, m, np.inf)
+        ok = r.active & r.feasible
+        out.turn[idx, a] = np.where(ok, r.wit_turn[np.arange(n), slot[:, a]], np.nan)
+        out.flip[idx, a] = ok & (slot[:, a] == 1)
+    low = margin.min(axis=1)
+    out.executable[idx] = feasible.all(axis=1) & apart
+    out.reason[idx] = reason
+    out.min_margin_rad[idx] = np.where(np.isfinite(low), low, np.nan)
+    out.windows[idx], out.objects[idx], out.forearm_gap[idx] = windows, objects, gap
+    out.arm_feasible[idx] = feasible
+
+
+__all__ = ["CHUNK", "REASONS", "SCREEN_VERSION", "Screening", "episode_groups", "padded_actions", "screen_episodes"]

@@ -1,0 +1,533 @@
+"""One arm's part of the screening (screening.py) over a batch of episodes: the candidate grasps of its window
+(the held object's symmetric turns, the gripper's half-turn), their pose checks, and the search for a
+*witness*, a candidate the arm follows over the window by grasp_choice.py's rules.
+
+    cands, res = screen_arm(ctx, traj, held, obj0, windows[:, a], a, o)
+    res.feasible        # (E,) some candidate is followed: the planner's own choice is then too
+    res.wit_q           # (E, 2, SAMPLES, 6) the witness's joints per half-turn (slot 0 without, 1 with)
+    res.reason          # (E,) for an arm that cannot: the first cause (an index into REASONS)
+    again = search_again(ctx, cands, res, rows, avoid)   # the same, kept clear of the other arm
+
+The batched pieces re-implement grasp_choice.py's private _best_path (screening_paths.py: over many
+episodes and both half-turns at once), _segment_points, _hand_points and _gap, and retarget.py's turn_grasp
+and lowest_finger_z on the few numbers a check needs; the rules and their constants are grasp_choice's,
+imported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from demoforge.lib.sim.robots.retarget import finger_half_width, grasp_turns
+
+from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_STEP, LIFT_TOLERANCE, MARGIN_CAP,
+                           MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
+                           WRIST_ABOVE_TABLE)
+from .screening_paths import best_paths
+from .screening_windows import matrices, object_at_steps
+
+REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
+_TAU = 2.0 * np.pi
+PASS = 64  # episodes per pass of the search over every turn at once (their joints: a few MB per episode)
+
+
+class ArmsContext:
+    """What every pass needs of the task's retargeting (retargeting.py ArmsRetargeting)."""
+
+    def __init__(self, retarget):
+        self.solver, self.bases, self.task, self.spec = retarget.solver, retarget.bases, retarget.task, retarget.spec
+        self.ready, self.speed, self.clearance = retarget.ready, retarget.speed, retarget.clearance
+        self.ko = np.asarray(self.task.keypoint_object, int)
+        self.widths = np.append(self.task.grasp_widths, 0.0)  # index -1: nothing held
+        self.symmetries = np.array([o.symmetry for o in self.task.objects], int)
+        g = self.solver.g
+        self.l1, self.l2, self.shoulder_z, self.w2p = g.l1, g.l2, g.shoulder_z, g.wrist_to_pinch
+
+
+
+class ArmScreen:
+    """One arm's screening of n episodes: its window's samples, whether some candidate is followed, the
+    witnesses per half-turn (slot 0 without, 1 with), and for an arm that cannot follow its window the first
+    cause (an index into REASONS) and the window step it shows at."""
+
+    def __init__(self, n: int):
+        self.active = np.zeros(n, bool)
+        self.feasible = np.ones(n, bool)
+        self.reason = np.full(n, -1)
+        self.fail_step = np.full(n, np.iinfo(np.int64).max)
+        self.steps = np.zeros((n, SAMPLES), int)
+        self.valid = np.zeros((n, SAMPLES), bool)
+        self.wit_ok = np.zeros((n, 2), bool)
+        self.wit_score = np.full((n, 2), -np.inf)
+        self.wit_turn = np.full((n, 2), np.nan)
+        self.wit_margin = np.full((n, 2), np.nan)
+        self.wit_q = np.zeros((n, 2, SAMPLES, 6))
+        self.wit_hand = np.zeros((n, 2, SAMPLES, 6, 3))  # the hand's points (hand_points) along the witness
+        self.best_margin = np.full(n, np.nan)  # an arm that cannot follow its window: along its best try
+
+    def put(self, rows: np.ndarray, other: "ArmScreen") -> None:
+        for k, v in vars(other).items():
+            getattr(self, k)[rows] = v
+
+
+def sample_steps(w0: np.ndarray, w1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E, SAMPLES) the window steps grasp_choice looks at (np.linspace(w0, w1 - 1, min(SAMPLES, n)) rounded;
+    a window of fewer steps takes each, its last repeated) and which of them are its own."""
+    n = np.maximum(w1 - w0, 0)
+    k = np.arange(SAMPLES)
+    lin = np.round(np.linspace(w0, w1 - 1, SAMPLES, axis=1)).astype(int)
+    few = w0[:, None] + np.minimum(k, np.maximum(n - 1, 0)[:, None])
+    steps = np.where((n >= SAMPLES)[:, None], lin, few)
+    return steps, k[None] < n[:, None]
+
+
+class _Turner:
+    """A hand's pinch poses P (E, S, 4, 4) turned about its held object's axis (objects' poses O (E, S, 4, 4),
+    None: nothing held, only the turn 0): retarget.turn_grasp's O Rz(theta) O^-1 P by Rodrigues' formula on
+    the position and the rotation's columns (each: its part along the axis, across it, and the axis x it)."""
+
+    def __init__(self, P: np.ndarray, O: np.ndarray | None):
+        self.P, self.O = P, O
+        if O is None:
+            return
+        u, ctr = O[..., :3, 2], O[..., :3, 3]
+        self.ctr = ctr
+        vecs = np.stack([P[..., :3, 3] - ctr, P[..., :3, 0], P[..., :3, 1], P[..., :3, 2]], axis=-2)  # (E, S, 4, 3)
+        self.par = u[..., None, :] * np.sum(u[..., None, :] * vecs, axis=-1, keepdims=True)
+        self.perp = vecs - self.par
+        self.cross = np.cross(u[..., None, :], vecs)
+
+    def take(self, rows: np.ndarray) -> "_Turner":
+        """The same for the episodes `rows`."""
+        out = _Turner.__new__(_Turner)
+        out.P, out.O = self.P[rows], None if self.O is None else self.O[rows]
+        if self.O is not None:
+            out.ctr, out.par, out.perp, out.cross = self.ctr[rows], self.par[rows], self.perp[rows], self.cross[rows]
+        return out
+
+    def turned(self, theta: np.ndarray, rows=slice(None), per_sample: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (..., S, 3), R (..., S, 3, 3)) of the episodes `rows` turned by theta: (E',) one turn per
+        episode, (E', C) several, or (E', S) one per sample (per_sample)."""
+        theta = np.asarray(theta, float)
+        extra = 0 if per_sample else theta.ndim - 1  # 1: a turn axis after the episodes'
+        if self.O is None:
+            P = self.P[rows]
+            if per_sample:
+                return P[..., :3, 3].copy(), P[..., :3, :3].copy()
+            P = P[:, None] if extra else P
+            return np.broadcast_to(P[..., :3, 3], theta.shape + P.shape[-3:-2] + (3,)).copy(), \
+                np.broadcast_to(P[..., :3, :3], theta.shape + P.shape[-3:-2] + (3, 3)).copy()
+        tail = (None, None) if per_sample else (None, None, None)
+        c, s = np.cos(theta)[(...,) + tail], np.sin(theta)[(...,) + tail]  # (..., [1,] 1, 1)
+        par, perp, cross = (x[rows][:, None] if extra else x[rows] for x in (self.par, self.perp, self.cross))
+        v = par + c * perp + s * cross  # (..., S, 4, 3)
+        ctr = self.ctr[rows][:, None] if extra else self.ctr[rows]
+        return v[..., 0, :] + ctr, np.swapaxes(v[..., 1:, :], -1, -2)
+
+    def check_parts(self, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+        """For every episode, turn (C,) and sample: pinch position (E, C, S, 3), approach axis (E, C, S, 3) and
+        the z (height) parts of the gripper's x and y axes (E, C, S): all the pose checks need."""
+        pos, R = self.turned(np.broadcast_to(theta, (len(self.P), len(theta))))
+        return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
+
+
+def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(closes, wrist, fingers) (E, C, S) of pinch poses: the wrist centre within the shoulder-elbow
+    triangle's reach (closed_form.py: branch-independent), above WRIST_ABOVE_TABLE, and the fingertips'
+    lowest point (retarget.lowest_finger_z: its minimum over the fingers' corners, taken term by term)
+    at most LIFT_TOLERANCE below the clearance. half (E, S): each finger's distance from the pinch axis."""
+    wc = pos - ctx.w2p * approach
+    dx, dy, h = wc[..., 0] - base.x, wc[..., 1] - base.y, wc[..., 2] - base.z - ctx.shoulder_z
+    c = (dx * dx + dy * dy + h * h - ctx.l1 ** 2 - ctx.l2 ** 2) / (2.0 * ctx.l1 * ctx.l2)
+    closes = np.abs(c) <= 1.0
+    wrist = wc[..., 2] > WRIST_ABOVE_TABLE
+    spec = ctx.spec
+    xo = (half + 2.0 * spec.pad_half[0] + spec.finger_thick)[:, None]  # (E, 1, S) the finger's outer face
+    lowest = pos[..., 2] - np.abs(xz) * xo - np.abs(yz) * spec.pad_half[1] + approach[..., 2] * spec.tip_offset
+    return closes, wrist, lowest - ctx.clearance > -LIFT_TOLERANCE
+
+
+def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(q (..., 8, 6), margin (..., 8), the last joint of the half-turned grasp (..., 8), its margin) of pinch
+    poses pos (..., 3), R (..., 3, 3). The gripper's half-turn about its approach axis is the last joint's
+    angle plus pi, nothing else (its range is a full turn: every other joint's margin stays)."""
+    sv = ctx.solver
+    q = sv.solve(base, pos, R).q
+    m = sv.half - np.abs(q - sv.mid)  # per joint
+    off = q[..., 5] + np.pi - sv.mid[5]
+    off -= _TAU * np.rint(off / _TAU)
+    m04 = m[..., 0]
+    for j in range(1, 5):
+        m04 = np.minimum(m04, m[..., j])
+    return q, np.minimum(m04, m[..., 5]), off + sv.mid[5], np.minimum(m04, sv.half[5] - np.abs(off))
+
+
+def _solve_cells(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, ...]:
+    """_solve of the poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) where cells (n, C, S); elsewhere every branch out of
+    range (margins -inf), its joints 0."""
+    q = np.zeros(cells.shape + (8, 6))
+    m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
+    if cells.any():
+        q[cells], m[cells], q5f[cells], mf[cells] = _solve(ctx, base, pos[cells], R[cells])
+    return q, m, q5f, mf
+
+
+def _neighbours(turns: np.ndarray, max_step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(nb (C, m) the turns a path may come from into each turn (itself first), their mask (C, m), and the
+    cost of each move (C, m)): grasp_choice._best_path's moves without those costing BAD."""
+    d = np.abs(np.angle(np.exp(1j * (turns[:, None] - turns[None, :]))))
+    ok = d <= max_step + 1e-9
+    m = int(ok.sum(axis=1).max())
+    nb = np.zeros((len(turns), m), int)
+    mask = np.zeros((len(turns), m), bool)
+    for c in range(len(turns)):
+        near = [c] + [j for j in np.flatnonzero(ok[c]) if j != c]
+        nb[c, :len(near)], mask[c, :len(near)] = near, True
+    return nb, mask, TURN_RATE_WEIGHT * np.take_along_axis(d, nb, axis=1)
+
+
+def _transit(ctx: ArmsContext, a: int, q0: np.ndarray) -> np.ndarray:
+    """(...) seconds of the slowest joint's move from the ready pose to joints q0 (..., 6)."""
+    d = np.abs(q0 - ctx.ready[6 * a:6 * a + 6]) / ctx.speed[6 * a:6 * a + 6]
+    out = d[..., 0]
+    for j in range(1, 6):
+        out = np.maximum(out, d[..., j])
+    return out
+
+
+@dataclass
+class ArmCandidates:
+    """One arm's candidates over a batch of episodes: the arm, its base, the turns and the moves between them
+    (_neighbours), the max turn step, the poses (_Turner), which samples are the window's (E, S), the pose
+    checks of every turn (E, C, S), where the turn may change (E, S), where the checks alone leave no path
+    (E,: its sample, -1: none), and the other arm's segment points to keep clear of with the gap
+    ((E, S, P, 3), (E, S)) or None."""
+    a: int
+    base: object
+    turns: np.ndarray
+    nb: tuple
+    max_step: float
+    turner: _Turner
+    valid: np.ndarray
+    ok: np.ndarray
+    may_turn: np.ndarray
+    dead: np.ndarray
+    jumps: np.ndarray
+    avoid: tuple | None = None
+
+    def take(self, rows: np.ndarray, avoid: tuple | None = None) -> "ArmCandidates":
+        """These episodes' candidates, kept clear of `avoid`."""
+        return replace(self, turner=self.turner.take(rows), valid=self.valid[rows], ok=self.ok[rows],
+                       may_turn=self.may_turn[rows], dead=self.dead[rows], jumps=self.jumps[rows], avoid=avoid)
+
+
+def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarray, cells, poses, sol,
+           theta) -> np.ndarray:
+    """Judge candidates of the episodes `rows`: poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) turned by theta
+    (n, C) whose pose checks are cells (n, C, S) (C = 1: one fixed turn; else all turns, a turning path), and
+    their joints sol (_solve: q (n, C, S, 8, 6) with margins m, the half-turned grasp's last joint q5f and
+    margins mf (n, C, S, 8)). Stores the feasible ones as witnesses and, for the others, the furthest a path
+    got. Returns which episodes got a witness."""
+    q, m, q5f, mf = sol
+    n, C, S = m.shape[:3]
+    valid = arm.valid[rows]
+    got = np.zeros(n, bool)
+    at, idx, e = np.arange(n)[:, None], np.arange(S)[None], np.arange(n)
+    clear = np.ones(m.shape, bool)
+    if arm.avoid is not None:
+        clear = _clear_of(ctx, arm, rows, cells, poses, q, (m > MIN_MARGIN) | (mf > MIN_MARGIN))
+    M = np.stack([m, mf], axis=1)  # (n, 2, C, S, B)
+    good = ((M > MIN_MARGIN) & (cells[..., None] & clear)[:, None]) | ~valid[:, None, None, :, None]
+    q0f = q[:, :, 0].copy()
+    q0f[..., 5] = q5f[:, :, 0]
+    transit = np.stack([_transit(ctx, arm.a, q[:, :, 0]), _transit(ctx, arm.a, q0f)], axis=1)  # (n, 2, C, B)
+    start = TRANSIT_WEIGHT * transit + TURN_WEIGHT * np.abs(theta)[:, None, :, None]
+    cs, bs, cost = best_paths(q, q5f, good, M, start, valid, arm.may_turn[rows], arm.jumps[rows], *arm.nb)
+    for slot in range(2):
+        c, b = cs[:, slot], bs[:, slot]
+        followed = good[at, slot, c, idx, b]
+        feasible = cost[:, slot] < BAD
+        marg = np.where(valid, M[at, slot, c, idx, b], np.inf).min(axis=1)
+        turn = theta[at, c]  # (n, S) the turn along the path
+        score = 10.0 + np.minimum(marg, MARGIN_CAP) - TRANSIT_WEIGHT * transit[e, slot, c[:, 0], b[:, 0]] \
+            - TURN_WEIGHT * np.abs(turn).mean(axis=1)
+        path = q[at, c, idx, b]  # (n, S, 6)
+        if slot:
+            path[..., 5] = q5f[at, c, idx, b]
+        new = feasible & ~res.wit_ok[rows, slot]
+        r = rows[new]
+        res.wit_ok[r, slot], res.wit_score[r, slot] = True, score[new]
+        res.wit_turn[r, slot], res.wit_margin[r, slot] = turn[new, 0], marg[new]
+        res.wit_q[r, slot] = path[new]
+        res.wit_hand[r, slot] = hand_points(ctx, poses[0][at, c, idx][new], poses[1][at, c, idx][new])
+        got |= feasible
+        # the furthest an infeasible path got: its first sample not followed, and why
+        first = np.argmin(followed | ~valid, axis=1)
+        step = res.steps[rows, first]
+        cf = c[e, first]
+        some_branch = ((M[e, slot, cf, first] > MIN_MARGIN) & clear[e, cf, first]).any(axis=-1)
+        later = ~feasible & (step > res.fail_step[rows])
+        r = rows[later]
+        res.reason[r] = np.where(some_branch[later], REASONS.index("branch_jump"),
+                                 REASONS.index("joint_limit" if arm.avoid is None else "forearms_meet"))
+        res.fail_step[r] = step[later]
+        res.best_margin[r] = marg[later]
+    return got
+
+
+def _pose_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(..., 9, 3) the points of grasp_choice's pair check that the pinch pose alone places: the hand's
+    (hand_points: the pinch point and the wrist centre among them) and the inner points of the wrist -> pinch
+    segment (the wrist centre is the pose's, whatever the branch)."""
+    wrist = pos - ctx.w2p * R[..., :, 2]
+    u = np.linspace(0.0, 1.0, 5)[1:-1, None]
+    return np.concatenate([hand_points(ctx, pos, R), wrist[..., None, :] + u * (pos - wrist)[..., None, :]], axis=-2)
+
+
+def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, poses, q, in_range) -> np.ndarray:
+    """(n, C, S, B) grasp_choice._paths' avoid: the states whose forearm segments and hand keep the gap from the
+    other arm's points (arm.avoid; NaN where it is not in its window: no constraint), looked at only where the
+    state could be followed otherwise (in range, the pose checks passed). The hand and the wrist -> pinch
+    segment are the pose's (search_again checks them); the elbow -> wrist segment is the arm branch's (the two
+    wrist branches share the elbow; the half-turn moves no point)."""
+    pts, gap = arm.avoid[0][rows], arm.avoid[1][rows]  # (n, S, P, 3), (n, S)
+    n, C, S, B = in_range.shape
+    live = cells[..., None] & arm.valid[rows][:, None, :, None] & (in_range[..., :4] | in_range[..., 4:])
+    e, c, s, k = np.nonzero(live & np.isfinite(gap)[:, None, :, None])
+    p = ctx.solver.points(arm.base, q[e, c, s, k])
+    u = np.linspace(0.0, 1.0, 5)[:, None]
+    seg = p["elbow"][:, None] + u * (p["wrist"] - p["elbow"])[:, None]  # (m, 5, 3)
+    near = closer_than(seg, pts[e, s], gap[e, s])
+    clear = np.ones((n, C, S, 4), bool)
+    clear[e[near], c[near], s[near], k[near]] = False
+    return np.concatenate([clear, clear], axis=-1)
+
+
+def screen_arm(ctx: ArmsContext, traj: np.ndarray, held: np.ndarray, obj0: np.ndarray, win: np.ndarray, a: int,
+               o: int) -> tuple[ArmCandidates | None, ArmScreen]:
+    """Arm a's window win (E, 2) in each episode of a group (smoothed poses traj (E, T, 2, 8), held (T, 2),
+    the objects at the start obj0 (E, n_obj, 4, 4)), holding object o (-1: none): the pose checks of every
+    turn and sample, then the search (search_arm). The candidates are None when no episode has the window."""
+    E, T = traj.shape[:2]
+    res = ArmScreen(E)
+    res.active = win[:, 1] > win[:, 0]
+    steps, res.valid = sample_steps(win[:, 0], np.maximum(win[:, 1], win[:, 0]))
+    res.steps = steps = np.minimum(steps, T - 1)
+    res.fail_step[:] = -1
+    res.feasible[:] = ~res.active
+    if not res.active.any():
+        return None, res
+    e = np.arange(E)[:, None]
+    half = finger_half_width(traj[e, steps, a, 7], ctx.widths[held[steps, a]], ctx.spec.opening)
+    turns, max_step, O = np.zeros(1), 0.0, None
+    if o >= 0:
+        sym = int(ctx.symmetries[o])
+        turns, max_step = grasp_turns(sym), (np.radians(TURN_STEP_MAX_DEG) if sym == 0 else 0.0)
+        O = object_at_steps(traj, held, obj0, o, steps)
+    turner = _Turner(matrices(traj[e, steps, a]), O)
+    closes, wrist, fingers = _pose_checks(ctx, ctx.bases[a], *turner.check_parts(turns), half)
+    pad = ~res.valid[:, None, :]
+    ok = (closes & wrist & fingers) | pad
+    run = np.zeros(T, int)  # steps the hand has been closed for (grasp_choice: the turn changes once settled)
+    closed = traj[0, :, a, 7] < 0.5
+    for t in range(T):
+        run[t] = run[t - 1] + 1 if closed[t] and t else int(closed[t])
+    settled = run[steps] > GRIP_SETTLE_STEPS
+    may_turn = np.concatenate([np.zeros((E, 1), bool), settled[:, 1:] & settled[:, :-1]], axis=1)
+    nb = _neighbours(turns, max_step)
+    # a joint may move JUMP between two samples, or JUMP_PER_STEP per demonstrated step between them if less
+    jumps = np.minimum(JUMP, JUMP_PER_STEP * np.diff(steps, axis=1, prepend=steps[:, :1]))
+    cands = ArmCandidates(a, ctx.bases[a], turns, nb, max_step, turner, res.valid, ok, may_turn,
+                          _reach(ok, may_turn, *nb[:2]), jumps)
+    search_arm(ctx, cands, res)
+    code, at = _pose_reason(closes | pad, (closes & wrist) | pad, ok, cands.dead)
+    out = res.active & ~res.feasible & (code >= 0)
+    res.reason[out], res.fail_step[out] = code[out], steps[out, at[out]]
+    return cands, res
+
+
+def search_arm(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen) -> None:
+    """Witnesses for the episodes of res that have none: the smallest turn whose poses pass the checks
+    throughout first; for those it fails, every turn at once: fixed turns (_fixed_turns), or for an axially
+    symmetric held object the turning paths (which the fixed turns are among)."""
+    _fixed_turns(ctx, cands, res, first_only=True)
+    if cands.max_step <= 0 or not cands.may_turn.any():
+        _fixed_turns(ctx, cands, res, first_only=False)
+        return
+    rows = np.flatnonzero(res.active & ~res.feasible & (cands.dead < 0))
+    for i in range(0, len(rows), PASS):
+        part = rows[i:i + PASS]
+        theta = np.broadcast_to(cands.turns, (len(part), len(cands.turns)))
+        poses = cands.turner.turned(theta, part)
+        # the joints only of the poses some path through poses that pass the checks reaches
+        on = _on_paths(cands.ok[part], cands.may_turn[part], *cands.nb[:2]) & cands.valid[part][:, None, :]
+        res.feasible[part] |= _judge(ctx, cands, res, part, cands.ok[part], poses,
+                                     _solve_cells(ctx, cands.base, *poses, on), theta)
+
+
+def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_rows: np.ndarray, res_rows: np.ndarray,
+                 avoid: tuple) -> ArmScreen:
+    """The arm's search again over some episodes (cand_rows of cands, res_rows of res), every state kept clear
+    of the other arm (avoid: its segment points (n, S, P, 3) at this arm's samples, NaN where it is not in its
+    window, and the gap (n, S)): grasp_choice's second choice of an arm around the other."""
+    again = ArmScreen(len(res_rows))
+    again.active, again.steps, again.valid = res.active[res_rows], res.steps[res_rows], res.valid[res_rows]
+    again.feasible[:], again.fail_step[:] = ~again.active, -1
+    sub = cands.take(cand_rows, avoid)
+    # the hand's and the wrist -> pinch segment's points depend on the pose only: a pose too near the other arm
+    # fails with every branch (looked at where the pose passes the checks and the other arm is in its window)
+    pos, R = sub.turner.turned(np.broadcast_to(sub.turns, (len(cand_rows), len(sub.turns))))
+    e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & np.isfinite(avoid[1])[:, None, :])
+    near = closer_than(_pose_points(ctx, pos[e, c, s], R[e, c, s]), avoid[0][e, s], avoid[1][e, s])
+    sub.ok = sub.ok.copy()
+    sub.ok[e[near], c[near], s[near]] = False
+    sub.dead = _reach(sub.ok, sub.may_turn, *sub.nb[:2])
+    search_arm(ctx, sub, again)
+    return again
+
+
+def _fixed_turns(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, first_only: bool) -> None:
+    """The turns whose poses pass the checks at every sample, each held fixed over the window: the smallest
+    (the demonstration's grasp first) of each episode without a witness (first_only), or all of them at
+    once (the path's cost picks among them, as grasp_choice's among its turns)."""
+    viable = arm.ok.all(axis=2)
+    rows = np.flatnonzero(res.active & ~res.feasible & viable.any(axis=1))
+    if first_only:
+        c = np.argmax(viable[rows], axis=1)
+        theta = arm.turns[c][:, None]
+        cells = arm.ok[rows, c][:, None]
+        pos, R = arm.turner.turned(theta[:, 0], rows)
+        pos, R = pos[:, None], R[:, None]
+    else:
+        cols = np.flatnonzero(viable[rows].any(axis=0))  # the turns any of them may take
+        rows, cols = (rows, cols) if len(cols) else (rows[:0], cols)
+        theta = np.broadcast_to(arm.turns[cols], (len(rows), len(cols)))
+        cells = arm.ok[rows][:, cols] & viable[rows][:, cols, None]  # a turn not viable fails at every sample
+        pos, R = arm.turner.turned(theta, rows)
+    for i in range(0, len(rows), PASS * 4):
+        k = slice(i, i + PASS * 4)
+        fixed = replace(arm, nb=(np.arange(theta.shape[1])[:, None], np.ones((theta.shape[1], 1), bool),
+                                 np.zeros((theta.shape[1], 1))))
+        on = cells[k] & arm.valid[rows[k]][:, None, :]
+        got = _judge(ctx, fixed, res, rows[k], cells[k], (pos[k], R[k]), _solve_cells(ctx, arm.base, pos[k], R[k], on),
+                     theta[k])
+        res.feasible[rows[k][got]] = True
+
+
+def _reach(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
+    """(E,) the first sample at which no path of turns (moving to neighbours where the turn may change)
+    through poses that pass the checks ok (E, C, S) is left; -1: one runs through."""
+    E, C, S = ok.shape
+    r = ok[:, :, 0]
+    dead = np.where(r.any(axis=1), -1, 0)
+    for s in range(1, S):
+        r = ok[:, :, s] & np.where(may_turn[:, s, None], (r[:, nb] & nb_mask).any(axis=-1), r)
+        dead = np.where((dead < 0) & ~r.any(axis=1), s, dead)
+    return dead
+
+
+def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
+    """(E, C, S) the poses (turn, sample) that some path of turns through poses that pass the checks ok (E, C, S)
+    reaches from the first sample to the last (moving to neighbours where the turn may change)."""
+    E, C, S = ok.shape
+    fwd, bwd = np.zeros_like(ok), np.zeros_like(ok)
+    fwd[:, :, 0], bwd[:, :, S - 1] = ok[:, :, 0], ok[:, :, S - 1]
+
+    def step(r, s):  # the turns reachable from set r across the move into sample s
+        return np.where(may_turn[:, s, None], (r[:, nb] & nb_mask).any(axis=-1), r)
+
+    for s in range(1, S):
+        fwd[:, :, s] = ok[:, :, s] & step(fwd[:, :, s - 1], s)
+        bwd[:, :, S - 1 - s] = ok[:, :, S - 1 - s] & step(bwd[:, :, S - s], S - s)
+    return fwd & bwd
+
+
+def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(code (E,) into REASONS, -1 where the pose checks leave a path; sample (E,)): the first sample at
+    which no turn is within reach (unreachable), none has its wrist above the table (wrist_in_table) or none
+    its fingertips (fingers_in_table); where every sample has some turn but no path links them, the check
+    most turns fail at the sample the last path ends."""
+    E, C, S = ok.shape
+    nones = [~np.any(x, axis=1) for x in (closes, wrist, ok)]  # (E, S) no turn passes the check
+    firsts = np.stack([np.where(none.any(axis=1), np.argmax(none, axis=1), S) for none in nones], axis=1)
+    code = np.argmin(firsts, axis=1)
+    at = firsts[np.arange(E), code]
+    stuck = (at >= S) & (dead >= 0)
+    s = np.maximum(dead, 0)
+    idx = np.arange(E)
+    fails = np.stack([(~closes[idx, :, s]).sum(axis=1), (closes & ~wrist)[idx, :, s].sum(axis=1),
+                      (wrist & ~ok)[idx, :, s].sum(axis=1)], axis=1)
+    code = np.where(stuck, np.argmax(fails, axis=1), np.where(at < S, code, -1))
+    return code, np.where(stuck, s, np.minimum(at, S - 1))
+
+
+def segments(ctx: ArmsContext, base, q: np.ndarray, k: int = 5) -> np.ndarray:
+    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
+    (grasp_choice._segment_points)."""
+    p = ctx.solver.points(base, q)
+    u = np.linspace(0.0, 1.0, k)[:, None]
+    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
+    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
+
+
+def hand_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(..., 6, 3) grasp_choice._hand_points of pinch poses (pos (..., 3), R (..., 3, 3)): the pinch point, the
+    fingertips HAND_SPREAD to each side along the closing axis, the wrist centre behind along the approach
+    axis and the palm's two sides half-way (a half-turn maps the set onto itself)."""
+    x, z = R[..., :, 0], R[..., :, 2]
+    palm = pos - 0.5 * ctx.w2p * z
+    return np.stack([pos, pos + HAND_SPREAD * x, pos - HAND_SPREAD * x, pos - ctx.w2p * z,
+                     palm + 0.5 * HAND_SPREAD * x, palm - 0.5 * HAND_SPREAD * x], axis=-2)
+
+
+def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...; NaN where a
+    point is NaN), each coordinate's differences on contiguous planes, in float32 (0.1 um at a metre: far
+    below the centimetres the gaps are kept by)."""
+    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    A = np.ascontiguousarray(np.moveaxis(np.broadcast_to(a, lead + a.shape[-2:]), -1, 0), np.float32)
+    B = np.ascontiguousarray(np.moveaxis(np.broadcast_to(b, lead + b.shape[-2:]), -1, 0), np.float32)
+    d = (A[0][..., :, None] - B[0][..., None, :]) ** 2
+    for k in (1, 2):
+        d += (A[k][..., :, None] - B[k][..., None, :]) ** 2
+    return np.sqrt(d.reshape(lead + (-1,)).min(axis=-1))
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """|v| over the last axis (3), without a reduction over it."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
+def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about the first point."""
+    c = a[..., 0, :]
+    r = _norm(a[..., 1, :] - c)
+    for k in range(2, a.shape[-2]):
+        np.maximum(r, _norm(a[..., k, :] - c), out=r)
+    return c, r
+
+
+def closer_bound(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...) a lower bound of the distance between point sets a (..., P, 3) and b (..., Q, 3): their spheres'."""
+    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
+    return _norm(ca - cb) - ra - rb
+
+
+def closer_than(a: np.ndarray, b: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """(...) bool: point sets a (..., P, 3) and b (..., Q, 3) come closer than gap (...) (False where a point or
+    the gap is NaN). Their bounding spheres first: the points' distances only where those come that close."""
+    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2], np.shape(gap))
+    a, b = np.broadcast_to(a, lead + a.shape[-2:]), np.broadcast_to(b, lead + b.shape[-2:])
+    gap = np.broadcast_to(gap, lead)
+    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
+    out = np.zeros(lead, bool)
+    with np.errstate(invalid="ignore"):
+        maybe = _norm(ca - cb) - ra - rb < gap
+        if maybe.any():
+            out[maybe] = min_distance(a[maybe], b[maybe]) < gap[maybe]
+    return out
+
+__all__ = ["ArmCandidates", "ArmScreen", "ArmsContext", "REASONS", "closer_bound", "closer_than", "hand_points", "min_distance", "sample_steps", "screen_arm",
+           "search_again", "search_arm", "segments"]

@@ -1,0 +1,281 @@
+"""What the arms' planner derives from an episode before any inverse kinematics, batched over the episodes
+of one group (screening.py): the smoothed poses (aloha/__init__.py SMOOTH_SIGMA), the object each hand
+holds (trajectories/segmentation.py held_objects), each arm's window (arm_motion.py follow_windows with the
+motion/skill segmentation it runs) and the objects' poses (retargeting.py object_poses_at_start,
+retarget.py object_trajectories) at given steps.
+
+Each function is the per-episode one's arithmetic on a leading episode axis; a *group* is a set of
+episodes with the same length, the same gripper open/close steps and the same held object in each closed
+run (augmentation keeps the timing: a database has one group per kind, original and translated episodes
+sharing one), so the run structure (which steps are closed, which object a run holds) is the group's.
+The windows themselves are computed per episode: they move by a few steps between the episodes of a
+group (the skill segments start where a hand comes within 6 cm of its object, and the approach runs the
+last 10 cm of a path whose blend differs per episode).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demoforge.lib.geometry import quat_to_matrix, umeyama
+from demoforge.lib.sim.robots.arm_motion import APPROACH
+from demoforge.lib.trajectories.segmentation import SegmentationParams
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of the True runs of a (T,) bool array."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def smooth_batch(actions: np.ndarray, sigma: float) -> np.ndarray:
+    """keyframes.smooth_actions of each episode of a group (E, T, 2, 8): the gripper's changes (the runs
+    smoothed on their own) are the group's, so one filter call per run covers every episode."""
+    from scipy.ndimage import gaussian_filter1d
+
+    a = np.asarray(actions, float)
+    out = a.copy()
+    if sigma == 0 or a.shape[1] < 3:
+        return out
+    q = a[..., 3:7] / np.linalg.norm(a[..., 3:7], axis=-1, keepdims=True)
+    flips = np.where(np.sum(q[:, 1:] * q[:, :-1], axis=-1) < 0.0, -1.0, 1.0)  # hemisphere_continuous
+    q = q * np.concatenate([np.ones_like(flips[:, :1]), np.cumprod(flips, axis=1)], axis=1)[..., None]
+    opened = a[0, :, :, 7] >= 0.5
+    cuts = [0, *(np.flatnonzero(np.any(opened[1:] != opened[:-1], axis=1)) + 1).tolist(), a.shape[1]]
+    for s0, s1 in zip(cuts[:-1], cuts[1:]):
+        if s1 - s0 < 3:
+            continue
+        out[:, s0:s1, :, :3] = gaussian_filter1d(a[:, s0:s1, :, :3], float(sigma), axis=1, mode="nearest")
+        sq = gaussian_filter1d(q[:, s0:s1], float(sigma), axis=1, mode="nearest")
+        out[:, s0:s1, :, 3:7] = sq / np.linalg.norm(sq, axis=-1, keepdims=True)
+    return out
+
+
+def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
+               closed_below: float = 0.5) -> np.ndarray:
+    """(E, T, 2) segmentation.held_objects of each episode of a group (E, T, 2, 8) with its keypoints (E, K, 3):
+    the object whose keypoints are nearest each closed run's first step (the runs: the group's)."""
+    E, T = traj.shape[:2]
+    ko = np.asarray(keypoint_object, int)
+    n_obj = int(ko.max()) + 1
+    held = np.full((E, T, 2), -1)
+    for arm in range(2):
+        for a, b in runs(traj[0, :, arm, 7] < closed_below):  # the group's closed runs
+            d = np.linalg.norm(keypoints0 - traj[:, a, arm, None, :3], axis=-1)  # (E, K)
+            per_obj = np.stack([d[:, ko == o].min(axis=1) for o in range(n_obj)], axis=1)
+            held[:, a:b, arm] = np.argmin(per_obj, axis=1)[:, None]
+    return held
+
+
+def keypoints_over_time(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
+                        held: np.ndarray) -> np.ndarray:
+    """(E, T, 3, K) segmentation.object_keypoints_over_time of a group (held (T, 2): the group's), the
+    coordinate before the keypoint (each coordinate's keypoints contiguous: the distances below run on
+    (E, T) planes without reductions over a 3-axis)."""
+    E, T = traj.shape[:2]
+    out = np.broadcast_to(np.swapaxes(keypoints0, 1, 2)[:, None], (E, T, 3, keypoints0.shape[1])).copy()
+    for arm in range(2):
+        for a, b in runs(held[:, arm] >= 0):
+            sel = keypoint_object == held[a, arm]
+            R0, t0 = rotations(traj[:, a, arm]), traj[:, a, arm, :3]
+            rel = np.swapaxes(R0, 1, 2) @ (out[:, a][:, :, sel] - t0[:, :, None])  # (E, 3, k) in the grasp frame
+            moved = rotations(traj[:, a:b, arm]) @ rel[:, None] + traj[:, a:b, arm, :3, None]  # (E, b - a, 3, k)
+            out[:, a:b, :, sel] = moved
+            out[:, b:, :, sel] = moved[:, -1:]
+    return out
+
+
+def rotations(pose8: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) of (..., >= 7) poses (normalised quaternions, as retarget.pose8_to_matrix)."""
+    q = pose8[..., 3:7]
+    return quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
+
+
+def _sq_dist(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Squared distances of points (..., 3, k) and (..., 3, k') broadcast: (..., k) or (..., k, k') as given."""
+    d = (P[..., 0, :] - Q[..., 0, :]) ** 2
+    d += (P[..., 1, :] - Q[..., 1, :]) ** 2
+    d += (P[..., 2, :] - Q[..., 2, :]) ** 2
+    return d
+
+
+def _min_over(d: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """d[..., cols].min(-1) for a few columns, by element-wise minima (a reduction over a short last axis
+    costs about ten times as much)."""
+    out = d[..., cols[0]].copy()
+    for c in cols[1:]:
+        np.minimum(out, d[..., c], out=out)
+    return out
+
+
+def _proximity_sq(traj: np.ndarray, kpt: np.ndarray, ko: np.ndarray, held: np.ndarray, arm: int) -> np.ndarray:
+    """(E, T) the square of segmentation.proximity's signal d of one arm over a group (kpt (E, T, 3, K))."""
+    E, T = traj.shape[:2]
+    n_obj = int(ko.max()) + 1
+    cols = [np.flatnonzero(ko == o) for o in range(n_obj)]
+    g = traj[:, :, arm, :3, None]  # (E, T, 3, 1)
+    dk = _sq_dist(kpt, g)  # (E, T, K)
+    per_obj = [_min_over(dk, c) for c in cols]
+    h = held[:, arm]
+    for o in range(n_obj):
+        is_h = h == o
+        if not is_h.any():
+            continue
+        starts = np.flatnonzero(is_h & np.concatenate([[True], ~is_h[:-1]]))
+        grasp_of = np.maximum.accumulate(np.where(np.isin(np.arange(T), starts), np.arange(T), 0))
+        at = np.flatnonzero(is_h)
+        per_obj[o][:, at] = _min_over(_sq_dist(kpt[:, grasp_of[at]][..., cols[o]], g[:, at]), np.arange(len(cols[o])))
+        Ko = kpt[:, at][..., cols[o]]  # (E, n_at, 3, k_o)
+        for o2 in range(n_obj):
+            if o2 == o:
+                continue
+            K2 = kpt[:, at][..., cols[o2]]
+            dd = sum((Ko[:, :, c, :, None] - K2[:, :, c, None, :]) ** 2 for c in range(3))  # (E, n_at, k_o, k_2)
+            dd = _min_over(dd.reshape(E, len(at), -1), np.arange(dd.shape[2] * dd.shape[3]))
+            per_obj[o2][:, at] = np.minimum(per_obj[o2][:, at], dd)
+    out = per_obj[0]
+    for p in per_obj[1:]:
+        out = np.minimum(out, p)
+    return out
+
+
+def _hysteresis(d: np.ndarray, enter: float, exit: float) -> np.ndarray:
+    """segmentation._hysteresis along axis 1 (of the squared signal, with squared thresholds)."""
+    state = np.where(d < enter, 1, np.where(d > exit, 0, -1))
+    idx = np.where(state >= 0, np.arange(d.shape[1]), -1)
+    last = np.maximum.accumulate(idx, axis=1)
+    return np.where(last >= 0, np.take_along_axis(state, np.maximum(last, 0), axis=1), 0).astype(bool)
+
+
+def _remove_short(mask: np.ndarray, value: bool, min_len: int) -> np.ndarray:
+    """segmentation._remove_short along axis 1: runs of `value` shorter than min_len turned over (a run of
+    False only between two others; a run of True anywhere). The runs are the input's."""
+    E, T = mask.shape
+    idx = np.broadcast_to(np.arange(T), (E, T))
+    change = np.concatenate([np.ones((E, 1), bool), mask[:, 1:] != mask[:, :-1]], axis=1)
+    start = np.maximum.accumulate(np.where(change, idx, 0), axis=1)
+    last = np.concatenate([mask[:, 1:] != mask[:, :-1], np.ones((E, 1), bool)], axis=1)
+    end = np.minimum.accumulate(np.where(last, idx, T - 1)[:, ::-1], axis=1)[:, ::-1]
+    short = (mask == value) & (end - start + 1 < min_len)
+    if not value:
+        short &= (start > 0) & (end < T - 1)
+    return np.where(short, not value, mask)
+
+
+def skill_masks(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray, held: np.ndarray,
+                params: SegmentationParams | None = None) -> np.ndarray:
+    """(E, T, 2) segmentation.segment_trajectory's skill frames of each episode of a group (held (T, 2))."""
+    p = params or SegmentationParams()
+    ko = np.asarray(keypoint_object, int)
+    kpt = keypoints_over_time(traj, keypoints0, ko, held)
+    E, T = traj.shape[:2]
+    out = np.zeros((E, T, 2), bool)
+    for arm in range(2):
+        mask = _hysteresis(_proximity_sq(traj, kpt, ko, held, arm), p.enter ** 2, p.exit ** 2)
+        closed = traj[0, :, arm, 7] < p.closed_below
+        for e in np.flatnonzero(np.diff(closed.astype(np.int8))) + 1:
+            mask[:, max(0, e - p.grip_margin):min(T, e + p.grip_margin)] = True
+        h = held[:, arm]
+        if (h >= 0).any():
+            g = traj[:, :, arm, :3]
+            starts = np.flatnonzero((h >= 0) & np.concatenate([[True], h[:-1] != h[1:]]))
+            grasp_of = np.maximum.accumulate(np.where(np.isin(np.arange(T), starts), np.arange(T), 0))
+            mask |= (h >= 0) & (np.linalg.norm(g - g[:, grasp_of], axis=-1) < p.carry_distance)
+        mask = _remove_short(mask, False, p.min_motion)
+        out[..., arm] = _remove_short(mask, True, p.min_skill)
+    return out
+
+
+def windows_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray, held: np.ndarray,
+                  approach: float = APPROACH) -> np.ndarray:
+    """(E, 2, 2) arm_motion.follow_windows of each episode of a group (held (T, 2): the group's)."""
+    E, T = traj.shape[:2]
+    skill = skill_masks(traj, keypoints0, keypoint_object, held)
+    out = np.full((E, 2, 2), T, int)
+    for arm in range(2):
+        closed = np.flatnonzero(traj[0, :, arm, 7] < 0.5)
+        has = skill[..., arm].any(axis=1)
+        if not len(closed) and not has.any():
+            continue
+        first = np.where(has, np.argmax(skill[..., arm], axis=1), T)
+        last_end = np.where(has, T - np.argmax(skill[:, ::-1, arm], axis=1), -1)
+        start = np.minimum(first, closed[0] if len(closed) else T)
+        end = np.minimum(np.maximum(last_end, start + 1), T)
+        if len(closed):
+            end = np.where(closed[-1] >= end, T, end)
+        steps = np.linalg.norm(np.diff(traj[:, :, arm, :3], axis=1), axis=-1)
+        path = np.concatenate([np.zeros((E, 1)), np.cumsum(steps, axis=1)], axis=1)
+        at = np.arange(E)
+        w0 = np.sum(path < (path[at, start] - approach)[:, None], axis=1)
+        w1 = np.sum(path <= (path[at, end - 1] + approach)[:, None], axis=1)
+        none = ~has & (len(closed) == 0)
+        out[:, arm, 0] = np.where(none, T, w0)
+        out[:, arm, 1] = np.where(none, T, np.minimum(w1, T))
+    return out
+
+
+def object_poses_batch(task, keypoints0: np.ndarray) -> np.ndarray:
+    """(E, n_obj, 4, 4) retargeting.object_poses_at_start of each episode's keypoints (E, K, 3)."""
+    kp = np.asarray(keypoints0, float)
+    owner = task.keypoint_object
+    out = np.tile(np.eye(4), (len(kp), len(task.objects), 1, 1))
+    for k in range(len(task.objects)):
+        _, R, t = umeyama(task.keypoints_local[owner == k], kp[:, owner == k], with_scale=False)
+        out[:, k, :3, :3], out[:, k, :3, 3] = R, t
+    return out
+
+
+def matrices(pose8: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) retarget.pose8_to_matrix."""
+    T = np.zeros(pose8.shape[:-1] + (4, 4))
+    T[..., :3, :3] = rotations(pose8)
+    T[..., :3, 3] = pose8[..., :3]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def _inverse(T: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def object_at_steps(traj: np.ndarray, held: np.ndarray, obj0: np.ndarray, o: int, steps: np.ndarray) -> np.ndarray:
+    """(E, S, 4, 4) object o's pose at each episode's steps (E, S) as retarget.object_trajectories moves it:
+    at obj0 (E, n_obj, 4, 4) until a hand closes on it, then carried rigidly with that hand (pinch poses
+    of the smoothed traj (E, T, 2, 8)), then where released. held (T, 2): the group's."""
+    E, T = traj.shape[:2]
+    closed = traj[0, :, :, 7] < 0.5
+    events = sorted((a, b, arm) for arm in range(2) for a, b in runs(closed[:, arm] & (held[:, arm] >= 0)))
+    events = [(a, b, arm) for a, b, arm in events if held[a, arm] == o]
+    out = np.broadcast_to(obj0[:, o, None], (E, steps.shape[1], 4, 4)).copy()
+    inv_grasps = []
+    for k, (a, b, arm) in enumerate(events):  # the object's pose at a: where the earlier events left it
+        pose_a = obj0[:, o] if k == 0 else _pose_after(traj, events[:k], inv_grasps, np.full(E, a))
+        inv_grasps.append(_inverse(_inverse(pose_a) @ matrices(traj[:, a, arm])))
+    if events:
+        out = np.where(steps[..., None, None] >= events[0][0],
+                       _pose_after(traj, events, inv_grasps, steps), out)
+    return out
+
+
+def _pose_after(traj: np.ndarray, events: list, inv_grasps: list, steps: np.ndarray) -> np.ndarray:
+    """(*steps.shape, 4, 4) the object's pose at steps (E,) or (E, S) not before the first event: carried
+    by the last event starting at or before the step, or where that event released it."""
+    starts = np.array([a for a, _, _ in events])
+    k = np.searchsorted(starts, steps, side="right") - 1  # the governing event
+    k = np.maximum(k, 0)
+    ends = np.array([b for _, b, _ in events])[k]
+    arms = np.array([arm for _, _, arm in events])[k]
+    t = np.minimum(steps, ends - 1)  # after the release: where it was at the last held step
+    e = np.arange(len(traj)).reshape((-1,) + (1,) * (steps.ndim - 1))
+    hand = matrices(traj[e, t, arms])
+    G = np.stack(inv_grasps, axis=1)  # (E, n_events, 4, 4)
+    return hand @ G[e, k]
+
+
+__all__ = ["held_batch", "keypoints_over_time", "matrices", "object_at_steps", "object_poses_batch", "rotations",
+           "runs", "skill_masks", "smooth_batch", "windows_batch"]
