@@ -43,9 +43,9 @@ HANDS = ("aloha", "2f140")
 # time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving; 5: smoothed
 # poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table; 6: the
 # grasp chosen as a path over turns and branches clear of the other arm, transits with clearance, the path checked
-# as finally run.
+# as finally run; 7: a grasp path forced across a joint jump is not feasible.
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "6"
+IK_VERSION = "7"
 TRANSIT_CLEARANCE = 0.04  # m: contact margin of the transit check (MuJoCo honours it only partly for box pairs)
 SMOOTH_SIGMA = 2.0  # steps: the Gaussian the demonstrated poses are smoothed with before the arms follow them
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
