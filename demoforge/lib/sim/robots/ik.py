@@ -51,6 +51,7 @@ CONVERGED_ROTATION = np.radians(0.5)  # ... and this (half the accuracy the test
 ROTATION_TOL = np.radians(ROTATION_TOL_DEG)
 AT_LIMIT = 0.02  # rad from a range's end counts as at the limit (mink approaches it geometrically)
 TRIES = 4  # candidates tried per arm and window
+COLLISION_DETECTION = 0.05  # m: geoms closer than this enter the QP's collision constraints
 ANALYTIC_NEAR = 1.5  # rad: a closed-form answer farther than this from the interpolated joints is another branch
 
 
@@ -137,7 +138,9 @@ class ArmsIK:
                  out_of_reach: Callable[[np.ndarray], np.ndarray] | None = None, iterations: int = 8,
                  first_iterations: int = 60, position_cost: float = 1.0, orientation_cost: float = 0.15,
                  lm_damping: float = 1e-4,
-                 analytic: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None):
+                 analytic: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+                 collision_pairs: Sequence[tuple[Sequence[str], Sequence[str], float]] = (),
+                 posture_cost: float = 0.0):
         import mink
         import mujoco
         import qpsolvers
@@ -150,6 +153,15 @@ class ArmsIK:
         self.tasks = [mink.FrameTask(s, "site", position_cost=position_cost, orientation_cost=orientation_cost,
                                      lm_damping=lm_damping) for s in sites]
         self.limits = [mink.ConfigurationLimit(self.model)]
+        # mink's own collision limits: (geoms, geoms, the distance they keep); pairs within COLLISION_DETECTION
+        # of each other constrain each QP step (its broadphase skips the others)
+        self.limits += [mink.CollisionAvoidanceLimit(self.model, [(list(a), list(b))], minimum_distance_from_collisions=d,
+                                                     collision_detection_distance=COLLISION_DETECTION)
+                        for a, b, d in collision_pairs]
+        if posture_cost > 0:  # a pull towards the rest (ready) pose: what the arm does with what the tasks leave free
+            posture = mink.PostureTask(self.model, cost=posture_cost)
+            posture.set_target(np.asarray(rest, float))
+            self.tasks = self.tasks + [posture]
         self.arm_dofs = [np.asarray(list(j), int) for j in arm_joints]
         self.speed = np.asarray(speed, float)
         self.rest = np.asarray(rest, float)

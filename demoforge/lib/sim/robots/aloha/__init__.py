@@ -43,9 +43,17 @@ HANDS = ("aloha", "2f140")
 # time-scaling instead of speed clipping; 4: a window's candidates refined until they stop improving; 5: smoothed
 # poses, each window's grasp chosen among the held object's symmetric turns, fingers kept above the table; 6: the
 # grasp chosen as a path over turns and branches clear of the other arm, transits with clearance, the path checked
-# as finally run; 7: a grasp path forced across a joint jump is not feasible.
+# as finally run; 7: a grasp path forced across a joint jump is not feasible; 8: mink collision limits and posture
+# task, fingertips 2 mm above the table, a thin held object turns only in a hand that grips it.
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "7"
+IK_VERSION = "8"
+# mink's collision limits in the IK (lib/sim/robots/ik.py): the two forearms, wrists and hands apart, every link
+# from the upper arm on above the table top; (geoms, geoms, distance kept m)
+_FOREARM = ("5_lower_forearm", "6_wrist", "7_gripper")
+_LINKS = ("3_upper_arm", "4_upper_forearm", "5_lower_forearm", "6_wrist", "7_gripper")
+COLLISION_PAIRS = ((tuple(f"left_{g}" for g in _FOREARM), tuple(f"right_{g}" for g in _FOREARM), 0.02),
+                   (tuple(f"{s}_{g}" for s in SIDES for g in _LINKS), ("table_top",), 0.01))
+POSTURE_COST = 1e-3  # mink's posture task towards the ready pose (the pose tasks leave an arm no freedom to spare)
 TRANSIT_CLEARANCE = 0.04  # m: contact margin of the transit check (MuJoCo honours it only partly for box pairs)
 SMOOTH_SIGMA = 2.0  # steps: the Gaussian the demonstrated poses are smoothed with before the arms follow them
 LEAD = np.array([kv / kp for kp, kv in zip(KP, KV)] * 2)  # s: each joint's damping-to-stiffness ratio
@@ -179,7 +187,7 @@ def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
 
     solver = ArmsIK(xml, files, sites=[f"{s}_hand_pinch" for s in SIDES], arm_joints=(range(6), range(6, 12)),
                     speed=SPEED * 2, arm_seeds=arm_seeds, rest=np.array(REST * 2), out_of_reach=out_of_reach,
-                    analytic=analytic)
+                    analytic=analytic, collision_pairs=COLLISION_PAIRS, posture_cost=POSTURE_COST)
     return solver
 
 

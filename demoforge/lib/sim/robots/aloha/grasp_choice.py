@@ -12,8 +12,8 @@ within reach, every joint `MIN_MARGIN` inside its range, the wrist and the finge
 The choice is the cheapest path of states over the samples (`_best_path`): it starts near the ready pose
 (as the IK does, ik.py `candidates`), no joint jumps between samples (a wrist roll through its range's
 end), it prefers margins up to `MARGIN_CAP`, and the turn stays what it was at the grasp except while
-the hand holds an axially symmetric object (any turn about its axis maps it onto itself, so the held
-object still moves as demonstrated), from `GRIP_SETTLE_STEPS` after the close on, and then changes by at
+the hand holds an axially symmetric object (any turn about its axis maps it onto itself, so the held object
+still moves as demonstrated; not a thin one in a hand whose pads let it roll: aloha/retargeting.py), from `GRIP_SETTLE_STEPS` after the close on, and then changes by at
 most `TURN_STEP_MAX_DEG` between samples.
 The half-turn of the gripper holds for the whole window.
 
@@ -235,12 +235,14 @@ def _pair_ok(solver, bases, wins, paths, gap_needed) -> bool:
 
 def choose_grasps(solver: ViperXBatchIK, bases: tuple[BasePose, BasePose], ready: np.ndarray, speed: np.ndarray,
                   hand: np.ndarray, closed: np.ndarray, objs: np.ndarray, held: np.ndarray, symmetries: np.ndarray,
-                  windows: np.ndarray, lowest: Callable[[int, np.ndarray, np.ndarray], np.ndarray]) -> Choice:
+                  windows: np.ndarray, lowest: Callable[[int, np.ndarray, np.ndarray], np.ndarray],
+                  widths: np.ndarray | None = None, turn_held_min_width: float = 0.0) -> Choice:
     """Each arm's grasp (see the module docstring). hand (T, 2, 4, 4) demonstrated pinch poses; closed (T, 2) the
     hands closed; objs (T, n_obj, 4, 4) the objects as demonstrated (retarget.object_trajectories); held (2,)
     the object each arm's window holds (-1 none); symmetries (n_obj,); windows (2, 2) [start, end); ready,
     speed (12,) both arms' joints; lowest(arm, steps, poses (C, S, 4, 4)) -> (C, S) the fingertips' height
-    above the table less the clearance they keep."""
+    above the table less the clearance they keep; widths (n_obj,) the objects' grasp widths: an object
+    narrower than turn_held_min_width keeps its turn while held (a hand whose pads let a thin handle roll)."""
     wins: list[_Window | None] = [None, None]
     for a in range(2):
         w0, w1 = (int(v) for v in windows[a])
@@ -251,7 +253,8 @@ def choose_grasps(solver: ViperXBatchIK, bases: tuple[BasePose, BasePose], ready
         run = np.zeros(len(closed), int)  # steps the hand has been closed for
         for t in range(len(closed)):
             run[t] = run[t - 1] + 1 if closed[t, a] and t else int(closed[t, a])
-        settled = run[steps] > GRIP_SETTLE_STEPS
+        thin = o >= 0 and widths is not None and widths[o] < turn_held_min_width
+        settled = (run[steps] > GRIP_SETTLE_STEPS) & (not thin)
         wins[a] = _Window(a, steps, hand[steps, a], objs[steps, o] if o >= 0 else None,
                           int(symmetries[o]) if o >= 0 else 1, np.concatenate([[False], settled[1:] & settled[:-1]]),
                           lambda P, a=a, steps=steps: lowest(a, steps, P))

@@ -240,8 +240,9 @@ def joint_ranges() -> np.ndarray:
 
 
 def kinematic_model_xml(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec) -> tuple[str, dict]:
-    """(MJCF, assets) of the two arms alone, without finger joints: the inverse kinematics' model (its
-    12 joints in the order left then right, JOINTS within each; sites `<side>_hand_pinch`)."""
+    """(MJCF, assets) of the two arms and the table top, without finger joints: the inverse kinematics' model
+    (its 12 joints in the order left then right, JOINTS within each; sites `<side>_hand_pinch`; the table for
+    mink's collision limits, the same box as the task scenes')."""
     mesh_xml, files = mesh_assets()
     arms = "\n".join(arm_xml(side, base, hand, spec, fingers=False) for side, base in zip(SIDES, bases))
     xml = f"""<mujoco model="aloha_ik">
@@ -250,6 +251,7 @@ def kinematic_model_xml(bases: tuple[BasePose, BasePose], hand: str, spec: Gripp
 {mesh_xml}
 </asset>
 <worldbody>
+<geom name="table_top" type="box" pos="0 0.3 -0.02" size="0.75 0.45 0.02" contype="2" conaffinity="2"/>
 {arms}
 </worldbody>
 </mujoco>"""

@@ -28,8 +28,12 @@ from .closed_form import ViperXBatchIK
 from .grasp_choice import GraspChoice, choose_grasps
 from .model import BasePose
 
-TABLE_CLEARANCE = 0.005  # m between the lowest fingertip and the table top
+TABLE_CLEARANCE = 0.0  # m between the lowest fingertip and the table top
 NO_GUESS_WRIST = 0.15  # |sin(wrist angle)| below which the closed form gives no guess
+# per hand: the narrowest object whose grasp may turn while held. A pad's friction turns a held object about its
+# axis with a torque in proportion to its radius; in ALOHA's fingers the whisk's 12 mm handle rolls instead
+# (scripted mix_bowl: 2/8 turning, 5/8 not), in the 2F-140's pads it turns (database episodes: 17/20 and 14/20)
+TURN_HELD_MIN_WIDTH = {"aloha_vx300s": 0.03}
 GRASP_REACH = 0.12  # m from the pinch point to the nearest keypoint of an object it closes on (objects up to 20 cm)
 
 
@@ -99,7 +103,8 @@ class ArmsRetargeting:
             return z.reshape(poses.shape[:2]) - self.clearance
 
         choice = choose_grasps(self.solver, self.bases, self.ready, self.speed, hand, g < 0.5, objs, window_held,
-                               np.array([o.symmetry for o in task.objects]), windows, lowest)
+                               np.array([o.symmetry for o in task.objects]), windows, lowest, task.grasp_widths,
+                               TURN_HELD_MIN_WIDTH.get(self.spec.name, 0.0))
         out = choice.hand
         lifts = [0.0, 0.0]
         for a in range(2):
