@@ -24,9 +24,11 @@ What a researcher with two arms does with a human demonstration (MimicGen's reci
    waypoint 10 or 20 cm above the window's first pose instead (checked on the robot's scene, every
    other frame); the physics then checks every transit like any motion (a link in the table is
    `link_collision`).
-3. **Inside the window** the arm follows the recorded poses with the IK (lib/sim/robots/ik.py), from
-   the candidate configuration nearest its ready pose, with the gripper's symmetric orientation
-   (half a turn about the approach axis) where that is nearer, once for the whole window.
+3. **Inside the window** the arm follows the poses the robot's `retarget` hands it (for the ALOHA arms
+   aloha/retargeting.py: the held object's demonstrated motion with the arm's own grasp of it) with the IK
+   (lib/sim/robots/ik.py), each step started from the retargeting's joints where it gives them; without a
+   retarget, from the candidate configuration nearest its ready pose, with the gripper's symmetric
+   orientation (half a turn about the approach axis) where that is nearer, once for the whole window.
 4. **Time-scaling** (lib/sim/robots/retiming.py): the joint trajectory over the demonstrated frames is
    slowed wherever a joint would exceed its speed limit, then sampled at the frame rate again; the
    samples between two demonstrated steps are moved onto the recorded path (the poses interpolated,

@@ -1,16 +1,19 @@
 """The `aloha` robot: two ViperX 300 6-DOF arms (gym-aloha's model) executing episodes in joint space.
 
-Per episode (lib/sim/robots/arm_motion.py): both arms start at their ready pose (gym-aloha's start
-pose, `REST`), move in joint space into each arm's window of the episode (from its first skill
-segment to its last), follow the window's (2, 8) pinch poses through inverse kinematics
-(lib/sim/robots/ik.py, mink), with the gripper's symmetric orientation where that is nearer, and move
-back to the ready pose after it; the whole joint trajectory is slowed wherever a joint would exceed
-its servo's speed (lib/sim/robots/retiming.py). The arms' position actuators follow it, interpolated
-linearly between the executed frames at the control rate; the fingers get the same force-limited
-finger command as the grippers. A step of a window whose pose the IK cannot reach within 1 cm and 5
-degrees is a hard failure (`unreachable`, or `joint_limit` with a joint at the end of its range) at
-that step; an arm link touching the table, an object or the other arm is `link_collision`
-(lib/sim/failures.py).
+Per episode (lib/sim/robots/arm_motion.py): the demonstrated poses are smoothed, each arm's window (from
+its first skill segment to its last) is made the arms' own (retargeting.py: the held object's motion kept,
+the grasp turned about the object's symmetry axis as grasp_choice.py finds best for the ViperX over the
+whole window, the fingertips kept above the table), both arms start at their ready pose (gym-aloha's start
+pose, `REST`), move in joint space into their window (transits checked for clearance) and follow it through
+inverse kinematics (lib/sim/robots/ik.py: mink with its collision limits, each step started from the
+closed-form joints of closed_form.py), and move back to the ready pose after it; the whole joint
+trajectory is slowed wherever a joint would exceed its servo's speed (lib/sim/robots/retiming.py). The
+arms' position actuators follow it, interpolated linearly between the executed frames at the control
+rate; the fingers get the same force-limited finger command as the grippers. A step of a window whose
+pose the IK cannot reach within 1 cm and 5 degrees is a hard failure (`unreachable`, or `joint_limit` with
+a joint at the end of its range) at that step; an arm link touching the table, an object or the other
+arm is `link_collision` (lib/sim/failures.py). screening.py checks whole databases the same way without
+physics.
 
 Hands (`hand`): `aloha`, the ViperX gripper with ALOHA's fingers (69 mm between the pads fully open);
 `2f140`, the Robotiq 2F-140 of the floating grippers on the wrist (the thesis's "6-DOF arm with a
