@@ -33,11 +33,12 @@ def _angle(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
 def object_errors(task, actions, keypoints0, result, motion) -> tuple[list, list]:
     """(position errors m, rotation errors degrees) of the held objects over the executed frames."""
     from demoforge.lib.sim.robots.aloha.retargeting import object_poses_at_start
-    from demoforge.lib.sim.robots.retarget import object_trajectories, pose8_to_matrix, rot_z
+    from demoforge.lib.geometry import pose7_to_transform
+    from demoforge.lib.sim.robots.retarget import object_trajectories, rot_z
     from demoforge.lib.trajectories.segmentation import held_objects
 
     held = held_objects(actions, keypoints0, task.keypoint_object)
-    demo = object_trajectories(pose8_to_matrix(actions), actions[..., 7] < 0.5, held,
+    demo = object_trajectories(pose7_to_transform(actions[..., :7]), actions[..., 7] < 0.5, held,
                                object_poses_at_start(task, keypoints0))
     sim = result.object_poses
     m = min(len(sim), len(motion.s))

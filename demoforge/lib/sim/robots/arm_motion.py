@@ -19,10 +19,12 @@ What a researcher with two arms does with a human demonstration (MimicGen's reci
    first); each arm moves from there to its window's first configuration along a straight line in
    joint space (a quintic time profile: at rest at both ends) over the frames before its window, and
    after a window that ends with the gripper open, back to the ready pose over the remaining frames,
-   lifting off first (over a waypoint 10 cm above the window's last pose). A transit into a window
-   that would touch the table, an object (at its place at the start) or the other arm goes over a
-   waypoint 10 or 20 cm above the window's first pose instead (checked on the robot's scene, every
-   other frame); the physics then checks every transit like any motion (a link in the table is
+   lifting off first (over a waypoint above the window's last pose). A transit into a window that would
+   come too close to the table, an object (at its place at the start) or the other arm goes over a
+   waypoint LIFTS above the window's first pose instead, in joint space or (where the robot has a closed
+   form) down to the window on a straight line of the pinch point (checked on the robot's scene, every
+   frame but the NEAR_WINDOW next to the window; the first option clear, else the one least in
+   contact); the physics then checks every transit like any motion (a link in the table is
    `link_collision`).
 3. **Inside the window** the arm follows the poses the robot's `retarget` hands it (for the ALOHA arms
    aloha/retargeting.py: the held object's demonstrated motion with the arm's own grasp of it) with the IK
@@ -156,20 +158,14 @@ def _lifted(ik: ArmsIK, arm: int, q: np.ndarray, lift: float) -> np.ndarray | No
 
 
 def _cartesian_legs(ik: ArmsIK, arm: int, q_full: np.ndarray, q_from: np.ndarray, q_to: np.ndarray, k: int,
-                    lift: float, entry: bool) -> np.ndarray | None:
-    """(k + 1, d) joints of a transit through a pre-grasp configuration `lift` above the window's end of it
-    (its pinch pose raised, on the window's IK branch): a joint-space leg between that and the ready pose,
+                    via: np.ndarray, entry: bool) -> np.ndarray | None:
+    """(k + 1, d) joints of a transit through `via`, the pre-grasp configuration above the window's end of it
+    (_lifted: its pinch pose raised, on the window's IK branch): a joint-space leg between that and the ready pose,
     and a straight line of the pinch point between it and the window (the descent into a grasp, the lift
     off after a release), solved by the arm's closed form on the branch nearest the joint-space line; each
-    leg with a quintic profile. None when the pre-grasp is out of reach or the straight leg leaves the
-    joints' ranges or changes branch."""
+    leg with a quintic profile. None when the straight leg leaves the joints' ranges or changes branch."""
     dofs = ik.arm_dofs[arm]
     near_q = q_to if entry else q_from
-    full = q_full.copy()
-    full[dofs] = near_q
-    via = _lifted(ik, arm, full, lift)
-    if via is None:
-        return None
     h = max(k // 2, 1)
     straight_k = k - h if entry else h
     ends = np.tile(q_full, (2, 1))
@@ -219,13 +215,11 @@ def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.n
                 return int(collides(Q[checked])[:, a].sum())
 
             options = [_legs(q_from, q_to, len(rows) - 1)] if entry else []
-            for lift in LIFTS:
-                via = _lifted(ik, a, Q[end], lift)
-                if via is not None:
-                    options.append(_legs(q_from, q_to, len(rows) - 1, via))
+            vias = [v for v in (_lifted(ik, a, Q[end], lift) for lift in LIFTS) if v is not None]
+            options += [_legs(q_from, q_to, len(rows) - 1, via) for via in vias]
             if ik.analytic is not None:
-                options += [p for lift in LIFTS if (p := _cartesian_legs(ik, a, Q[0], q_from, q_to, len(rows) - 1,
-                                                                           lift, entry)) is not None]
+                options += [p for via in vias if (p := _cartesian_legs(ik, a, Q[0], q_from, q_to, len(rows) - 1,
+                                                                         via, entry)) is not None]
             options = options or [_legs(q_from, q_to, len(rows) - 1)]
             best, least = options[0], None
             for path in options:

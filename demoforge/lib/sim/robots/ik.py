@@ -303,7 +303,9 @@ class ArmsIK:
         configuration), after it it holds its last step's joints.
 
         until_failure: stop tracking at the first step off its target (the simulator, which stops there
-        anyway, needs no more): the later steps hold that step's joints and residuals.guess: (n, nq) joints to start each step of a window from (e.g. the arm's closed-form solution on the
+        anyway, needs no more): the later steps hold that step's joints and residuals.
+
+        guess: (n, nq) joints to start each step of a window from (e.g. the arm's closed-form solution on the
         branch a grasp choice tracked) instead of the last step's moved on with its velocity; the window's
         first step starts from it too, before any other candidate.
         """

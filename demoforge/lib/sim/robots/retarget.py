@@ -21,27 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.geometry import matrix_to_quat, quat_to_matrix, transform_inverse
+from demoforge.lib.geometry import transform_inverse
 
 #: degrees between the turns tried for an object that any turn maps onto itself
 TURN_STEP_DEG = 15.0
 #: the gripper frame turned half a turn about its approach axis (z): x and y reversed
 HALF_TURN = np.diag([-1.0, -1.0, 1.0, 1.0])
-
-
-def pose8_to_matrix(actions: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) of (..., >= 7) poses [x y z qx qy qz qw ...]."""
-    a = np.asarray(actions, float)
-    T = np.zeros(a.shape[:-1] + (4, 4))
-    T[..., :3, :3] = quat_to_matrix(a[..., 3:7] / np.linalg.norm(a[..., 3:7], axis=-1, keepdims=True))
-    T[..., :3, 3] = a[..., :3]
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def matrix_to_pose8(T: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """(..., 8) poses [x y z qx qy qz qw g] of (..., 4, 4) matrices and gripper states g (...)."""
-    return np.concatenate([T[..., :3, 3], matrix_to_quat(T[..., :3, :3]), np.asarray(g, float)[..., None]], axis=-1)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -133,4 +118,4 @@ def lift_above_table(hand: np.ndarray, half_width: np.ndarray, spec, clearance: 
 
 
 __all__ = ["HALF_TURN", "TURN_STEP_DEG", "finger_half_width", "grasp_turns", "lift_above_table", "lowest_finger_z",
-           "matrix_to_pose8", "object_trajectories", "pose8_to_matrix", "rot_z", "turn_grasp"]
+           "object_trajectories", "rot_z", "turn_grasp"]

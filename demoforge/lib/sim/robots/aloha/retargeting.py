@@ -18,10 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from demoforge.lib.geometry import umeyama
+from demoforge.lib.geometry import pose7_to_transform, transform_to_pose8, umeyama
 from demoforge.lib.sim.gripper import GripperSpec
-from demoforge.lib.sim.robots.retarget import (finger_half_width, lift_above_table, lowest_finger_z, matrix_to_pose8,
-                                               object_trajectories, pose8_to_matrix)
+from demoforge.lib.sim.robots.retarget import finger_half_width, lift_above_table, lowest_finger_z, object_trajectories
 from demoforge.lib.trajectories.segmentation import held_objects
 
 from .closed_form import ViperXBatchIK
@@ -89,7 +88,7 @@ class ArmsRetargeting:
     def __call__(self, actions: np.ndarray, windows: np.ndarray, keypoints0: np.ndarray) -> tuple[np.ndarray, Grasps]:
         actions = np.asarray(actions, float)
         task = self.task
-        hand = pose8_to_matrix(actions)
+        hand = pose7_to_transform(actions[..., :7])
         g = actions[..., 7]
         held = held_objects(actions, np.asarray(keypoints0, float), task.keypoint_object)
         objs = object_trajectories(hand, g < 0.5, held, object_poses_at_start(task, keypoints0))
@@ -114,7 +113,7 @@ class ArmsRetargeting:
             out[w0:w1, a], lift = lift_above_table(out[w0:w1, a], half[w0:w1, a], self.spec, self.clearance)
             lifts[a] = float(lift.max())
         joints = self._joints(out, windows, choice.tracks)
-        return matrix_to_pose8(out, g), Grasps(choice.arms, (lifts[0], lifts[1]), joints)
+        return transform_to_pose8(out, g), Grasps(choice.arms, (lifts[0], lifts[1]), joints)
 
     def _joints(self, hand: np.ndarray, windows: np.ndarray, tracks) -> np.ndarray:
         """(T, 12) each arm's closed-form joints in its window: at every step the branch nearest the choice's

@@ -20,13 +20,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from demoforge.lib.geometry import pose7_to_transform
 from demoforge.lib.sim.robots.retarget import finger_half_width, grasp_turns
 
 from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_STEP, LIFT_TOLERANCE, MARGIN_CAP,
                            MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
                            WRIST_ABOVE_TABLE)
 from .screening_paths import best_paths
-from .screening_windows import matrices, object_at_steps
+from .screening_windows import object_at_steps
 
 REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
 _TAU = 2.0 * np.pi
@@ -326,7 +327,7 @@ def screen_arm(ctx: ArmsContext, traj: np.ndarray, held: np.ndarray, obj0: np.nd
         sym = int(ctx.symmetries[o])
         turns, max_step = grasp_turns(sym), (np.radians(TURN_STEP_MAX_DEG) if sym == 0 else 0.0)
         O = object_at_steps(traj, held, obj0, o, steps)
-    turner = _Turner(matrices(traj[e, steps, a]), O)
+    turner = _Turner(pose7_to_transform(traj[e, steps, a, :7]), O)
     closes, wrist, fingers = _pose_checks(ctx, ctx.bases[a], *turner.check_parts(turns), half)
     pad = ~res.valid[:, None, :]
     ok = (closes & wrist & fingers) | pad

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.geometry import quat_to_matrix, umeyama
+from demoforge.lib.geometry import pose7_to_transform, quat_to_matrix, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
 from demoforge.lib.trajectories.segmentation import SegmentationParams
 
@@ -86,7 +86,7 @@ def keypoints_over_time(traj: np.ndarray, keypoints0: np.ndarray, keypoint_objec
 
 
 def rotations(pose8: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) of (..., >= 7) poses (normalised quaternions, as retarget.pose8_to_matrix)."""
+    """(..., 3, 3) of (..., >= 7) poses (normalised quaternions, as lib/geometry pose7_to_transform)."""
     q = pose8[..., 3:7]
     return quat_to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
@@ -225,24 +225,6 @@ def object_poses_batch(task, keypoints0: np.ndarray) -> np.ndarray:
     return out
 
 
-def matrices(pose8: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) retarget.pose8_to_matrix."""
-    T = np.zeros(pose8.shape[:-1] + (4, 4))
-    T[..., :3, :3] = rotations(pose8)
-    T[..., :3, 3] = pose8[..., :3]
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def _inverse(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
 def object_at_steps(traj: np.ndarray, held: np.ndarray, obj0: np.ndarray, o: int, steps: np.ndarray) -> np.ndarray:
     """(E, S, 4, 4) object o's pose at each episode's steps (E, S) as retarget.object_trajectories moves it:
     at obj0 (E, n_obj, 4, 4) until a hand closes on it, then carried rigidly with that hand (pinch poses
@@ -255,7 +237,7 @@ def object_at_steps(traj: np.ndarray, held: np.ndarray, obj0: np.ndarray, o: int
     inv_grasps = []
     for k, (a, b, arm) in enumerate(events):  # the object's pose at a: where the earlier events left it
         pose_a = obj0[:, o] if k == 0 else _pose_after(traj, events[:k], inv_grasps, np.full(E, a))
-        inv_grasps.append(_inverse(_inverse(pose_a) @ matrices(traj[:, a, arm])))
+        inv_grasps.append(transform_inverse(transform_inverse(pose_a) @ pose7_to_transform(traj[:, a, arm, :7])))
     if events:
         out = np.where(steps[..., None, None] >= events[0][0],
                        _pose_after(traj, events, inv_grasps, steps), out)
@@ -272,7 +254,7 @@ def _pose_after(traj: np.ndarray, events: list, inv_grasps: list, steps: np.ndar
     arms = np.array([arm for _, _, arm in events])[k]
     t = np.minimum(steps, ends - 1)  # after the release: where it was at the last held step
     e = np.arange(len(traj)).reshape((-1,) + (1,) * (steps.ndim - 1))
-    hand = matrices(traj[e, t, arms])
+    hand = pose7_to_transform(traj[e, t, arms, :7])
     G = np.stack(inv_grasps, axis=1)  # (E, n_events, 4, 4)
     return hand @ G[e, k]
 
