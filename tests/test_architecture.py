@@ -53,9 +53,10 @@ def _layer(module: str) -> str:
 # what each layer may import from the package (anywhere in the file, lazy imports included)
 ALLOWED = {
     "lib": {"lib"},
+    "envs": {"lib", "envs"},
     "schemas": {"lib", "schemas"},
-    "tasks": {"lib", "schemas", "tasks"},
-    "flows": {"lib", "schemas", "tasks", "flows", "runtime"},
+    "tasks": {"lib", "envs", "schemas", "tasks"},
+    "flows": {"lib", "envs", "schemas", "tasks", "flows", "runtime"},
 }
 
 

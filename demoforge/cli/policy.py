@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import current_warehouse, fail, robot_choice
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -34,15 +34,33 @@ def train_policy_cmd(
     layers: int = typer.Option(2, min=1, help="Encoder and decoder layers each."),
     waypoints: int = typer.Option(20, min=2, help="Waypoints per predicted action sequence (the prompts' count)."),
     val_fraction: float = typer.Option(0.1, min=0.01, max=0.9, help="Share of the sampled placements held out for validation."),
+    closed_loop: bool = typer.Option(False, "--closed-loop", help="Train the closed-loop policy instead: action chunks "
+                                     "from the arms' joints and the objects' keypoints at every step (ACT-style), on "
+                                     "screened-in episodes in the arms' joint space."),
+    episodes: int = typer.Option(100, min=1, help="--closed-loop: episodes to train on (1 = the original demonstration "
+                                 "alone; else it and episodes the screening lets through, drawn with --seed)."),
+    steps: int = typer.Option(3000, min=1, help="--closed-loop: optimizer steps (batches of 256 frames)."),
+    robot: str = typer.Option("aloha", "--robot", help="--closed-loop: the arm robot whose joint space it acts in."),
+    gripper: Optional[str] = typer.Option("2f140", "--gripper", help="--closed-loop: the arms' hands (2f140 or aloha)."),
 ) -> None:
     """Train the keypoint-to-trajectory policy (a small Transformer) on a task's augmented episodes.
 
     Input: the scene's object keypoints and the initial gripper poses; output: the action sequence at
     the prompts' waypoint count (positions, 6D rotations, gripper open probability).  The checkpoint
     is stored in <warehouse>/_policy/, its validation errors in the `policy_checkpoints` table.
+
+    With --closed-loop: the policy a robot runs step by step. Input: the export's features at one frame
+    (observation.state: the 14 joint values, observation.environment_state: the 11 object keypoints, the
+    timestamp); output: the next 30 actions, averaged over overlapping predictions (ACT's temporal
+    ensembling). Trained on --episodes episodes as the arms execute them; checkpoint in
+    <warehouse>/_closed_loop/, its record in `closed_loop_checkpoints`; `demoforge eval-policy --closed-loop`
+    rolls it out in the task's Gymnasium environment (demoforge.envs).
     """
     from demoforge.flows.policy import train_policy
 
+    if closed_loop:
+        _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads)
+        return
     if d_model % 4:
         raise fail(f"--d-model must be a multiple of 4 (the attention heads), got {d_model}")
     try:
@@ -56,6 +74,21 @@ def train_policy_cmd(
                 "round(val_grip_acc, 3) AS grip_acc FROM policy_checkpoints WHERE task = ? ORDER BY trained_at DESC LIMIT 1", [task])
 
 
+def _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads) -> None:
+    from demoforge.flows.closed_loop import train_closed_loop
+    from demoforge.lib.sim.robots import RobotError
+
+    robot, gripper = robot_choice(robot, gripper)
+    try:
+        run_flow(train_closed_loop, str(current_warehouse()), task=task, take=take, episodes=episodes, seed=seed,
+                 steps=steps, robot=robot, gripper=gripper, threads=threads)
+    except (ValueError, RobotError) as e:
+        raise fail(str(e))
+    _print_rows("SELECT checkpoint_id, robot, n_requested, n_episodes, frames, steps, round(plan_seconds, 1) AS plan_s, "
+                "round(train_seconds, 1) AS train_s, round(final_loss, 4) AS final_loss FROM closed_loop_checkpoints "
+                "WHERE task = ? ORDER BY trained_at DESC LIMIT 1", [task])
+
+
 @app.command("eval-policy")
 def eval_policy_cmd(
     task: str = typer.Option("pouring", "--task", "-t", help="Task of the policy."),
@@ -65,8 +98,15 @@ def eval_policy_cmd(
     checkpoint: Optional[str] = typer.Option(None, help="Checkpoint id (kp-...); default: the newest of the task."),
     kind: Optional[List[str]] = typer.Option(None, "--kind", "-k", help="in_distribution, out_of_distribution, mirrored, held_out (repeatable; default all)."),
     threads: int = typer.Option(1, min=1, help="torch CPU threads for inference."),
+    closed_loop: bool = typer.Option(False, "--closed-loop", help="Roll out a closed-loop policy (train-policy "
+                                     "--closed-loop) step by step in the task's Gymnasium environment instead."),
+    scenes: int = typer.Option(50, min=1, help="--closed-loop: held-out scenes (thesis protocol, seeds no database uses)."),
 ) -> None:
     """Run a trained policy on new scenes and judge every prediction with the robot in MuJoCo.
+
+    With --closed-loop: the newest closed-loop policy of the task (or --checkpoint cl-...) runs --scenes
+    held-out scenes in the task's Gymnasium environment with the robot it was trained for; rows in
+    `closed_loop_trials`, summed up in the view `report_data_scaling`.
 
     in_distribution = llm-eval's query scenes (also written to `llm_trials` as strategy `policy`, so
     Table 3 gains a row), mirrored = their mirror images, out_of_distribution = the demonstration's
@@ -76,6 +116,9 @@ def eval_policy_cmd(
     from demoforge.flows.policy import evaluate_policy
     from demoforge.tasks.policy import SCENE_KINDS
 
+    if closed_loop:
+        _eval_closed_loop(task, checkpoint, scenes, seed)
+        return
     bad = [k for k in kind or [] if k not in SCENE_KINDS]
     if bad:
         raise fail(f"unknown --kind {bad[0]!r}; choose from {', '.join(SCENE_KINDS)}")
@@ -87,3 +130,52 @@ def eval_policy_cmd(
     _print_rows("SELECT checkpoint_id, scene_kind, count(*) AS trials, sum(success::INT) AS successes, "
                 "round(avg(success::INT), 3) AS success_rate, round(median(latency_ms), 2) AS median_latency_ms "
                 "FROM policy_trials WHERE task = ? GROUP BY ALL ORDER BY checkpoint_id, scene_kind", [task])
+
+
+def _eval_closed_loop(task: str, checkpoint: Optional[str], scenes: int, seed: int) -> None:
+    from demoforge.flows.closed_loop import eval_closed_loop, stored_checkpoint
+    from demoforge.lib.sim.robots import RobotError
+
+    try:
+        manifest, row = stored_checkpoint(str(current_warehouse()), task, checkpoint)
+        run_flow(eval_closed_loop, str(current_warehouse()), checkpoint=manifest, task=task, take=row["take"],
+                 scenes=scenes, seed=seed, robot=row["robot"].split("+")[0], gripper=row["gripper"])
+    except (ValueError, RobotError) as e:
+        raise fail(str(e))
+    _print_rows("SELECT * FROM report_data_scaling WHERE task = ?", [task])
+
+
+@app.command("data-scaling")
+def data_scaling_cmd(
+    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Tasks (repeatable)."),
+    sizes: str = typer.Option("1,10,100,1000", help="Numbers of episodes to train on, comma-separated (1 = the "
+                              "original demonstration alone)."),
+    scenes: int = typer.Option(50, min=1, help="Held-out scenes per task (thesis protocol, seeds no database uses)."),
+    seed: int = typer.Option(0, help="Seed of the episode draws, the training and the scenes."),
+    steps: int = typer.Option(3000, min=1, help="Optimizer steps per policy."),
+    robot: str = typer.Option("aloha", "--robot", help="The arm robot."),
+    gripper: Optional[str] = typer.Option("2f140", "--gripper", help="Its hands (2f140 or aloha)."),
+    threads: int = typer.Option(1, min=1, help="torch CPU threads for training."),
+    baselines: bool = typer.Option(True, help="Also run the LLM-free baselines (replay_top1, transform_demo) on the "
+                                   "same scenes."),
+) -> None:
+    """The data-scaling table: is a generated episode worth anything to a learner?
+
+    Per task, a closed-loop policy (train-policy --closed-loop) trained on each number of episodes in
+    --sizes, each rolled out on the same --scenes held-out scenes in the task's Gymnasium environment with
+    the arms, beside the LLM-free baselines on those scenes. Rows: `closed_loop_trials`; the table with
+    Wilson 95 % intervals: the view `report_data_scaling` (printed at the end, and in reports/REPORT.md)."""
+    from demoforge.flows.closed_loop import data_scaling
+    from demoforge.lib.sim.robots import RobotError
+
+    try:
+        n = [int(x) for x in sizes.split(",") if x.strip()]
+    except ValueError:
+        raise fail(f"--sizes must be comma-separated numbers of episodes, e.g. 1,10,100, got {sizes!r}")
+    robot, gripper = robot_choice(robot, gripper)
+    try:
+        run_flow(data_scaling, str(current_warehouse()), tasks=list(task), sizes=n, scenes=scenes, seed=seed,
+                 steps=steps, robot=robot, gripper=gripper, threads=threads, baselines=baselines)
+    except (ValueError, RobotError) as e:
+        raise fail(str(e))
+    _print_rows("SELECT * FROM report_data_scaling")

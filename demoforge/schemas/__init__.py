@@ -9,6 +9,6 @@ from demoforge.schemas.core import (  # noqa: F401
     write_table, write_table_file, read_table_file,
 )
 from demoforge.schemas import (
-    augment, benchmarks, detection, ingest, ingested_demos, keypoints, llm, policy, screening, sim, synthetic,
+    augment, benchmarks, closed_loop, detection, ingest, ingested_demos, keypoints, llm, policy, screening, sim, synthetic,
     table3, takes, variations,
 )

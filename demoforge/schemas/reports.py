@@ -5,6 +5,7 @@ report (`make evaluate`) is written from these same views, so what a person read
 reports/REPORT.md and what they query in SQL are one and the same.
 """
 
+from demoforge.schemas.closed_loop import REPORT_DATA_SCALING_SQL
 from demoforge.schemas.ingested_demos import REPORT_INGESTED_DEMOS_SQL
 from demoforge.schemas.table3 import (
     REPORT_TABLE3_FAILURES_SQL, REPORT_TABLE3_GRID_SQL, REPORT_TABLE3_INTERVALS_SQL,
@@ -188,6 +189,8 @@ REPORT_VIEWS: dict[str, str] = {
     # Thesis Table 3 in its layout (per protocol: takes x strategies), Wilson intervals, failure reasons.
     "report_table3_grid": REPORT_TABLE3_GRID_SQL,
     "report_table3_intervals": REPORT_TABLE3_INTERVALS_SQL,
+    # The data-scaling table: closed-loop policy success against training episodes, beside the baselines.
+    "report_data_scaling": REPORT_DATA_SCALING_SQL,
     "report_table3_failures": REPORT_TABLE3_FAILURES_SQL,
     # Why trials failed, per strategy.
     "report_llm_failures": """

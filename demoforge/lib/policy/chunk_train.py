@@ -1,0 +1,177 @@
+"""Seeded training of the closed-loop chunk policy (chunking.py) on joint demonstrations (joint_demos.py),
+and its self-contained checkpoints.
+
+A sample is one frame of one episode: its state, environment state and timestamp, and as target the next
+`chunk` actions (the following frames' states; past an episode's end its last state, the arms at rest).
+Loss: L1 on the joints' normalised changes (as ACT's L1) plus the grippers' binary cross-entropy. Small Gaussian noise on
+the input joints (``state_noise`` rad) teaches the policy to come back to the demonstrated path from
+where its own errors take it. Same data, config, seed and thread count: the same weights."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from demoforge.lib.policy.chunking import ChunkConfig, ChunkPolicy
+from demoforge.lib.policy.joint_demos import JointDemos
+
+CHUNK_CHECKPOINT_FORMAT = "demoforge-chunk-policy-v1"
+
+
+@dataclass(frozen=True)
+class ChunkTrainConfig:
+    steps: int = 3000
+    batch_size: int = 256
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 100
+    grip_weight: float = 0.5
+    state_noise: float = 0.01   # rad of Gaussian noise on the input joints
+    threads: int = 1
+
+    def __post_init__(self):
+        if self.steps < 1 or self.batch_size < 1 or self.lr <= 0 or self.threads < 1 or self.state_noise < 0:
+            raise ValueError(f"steps, batch_size, threads must be >= 1, lr > 0, state_noise >= 0; got {self}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ChunkTrainResult:
+    model: ChunkPolicy
+    losses: list[float]      # the mean loss of each tenth of the steps
+    seconds: float
+    frames: int
+    episodes: int
+
+
+def targets_index(lengths: np.ndarray, chunk: int) -> np.ndarray:
+    """(F, chunk) row indices of each frame's target actions: the next `chunk` frames of its episode, the
+    episode's last frame repeated past its end."""
+    lengths = np.asarray(lengths, np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    ep = np.repeat(np.arange(len(lengths)), lengths)
+    local = np.arange(len(ep)) - starts[ep]
+    ahead = local[:, None] + 1 + np.arange(chunk)[None]
+    return starts[ep][:, None] + np.minimum(ahead, lengths[ep][:, None] - 1)
+
+
+def frame_times(lengths: np.ndarray, fps: float) -> np.ndarray:
+    """(F,) each frame's timestamp in its episode, s."""
+    lengths = np.asarray(lengths, np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    ep = np.repeat(np.arange(len(lengths)), lengths)
+    return (np.arange(len(ep)) - starts[ep]) / float(fps)
+
+
+def train_chunk_policy(demos: JointDemos, config: ChunkConfig | None = None, train: ChunkTrainConfig | None = None,
+                       seed: int = 0, fps: float = 30.0, on_step: Callable[[int, int], None] | None = None,
+                       model: ChunkPolicy | None = None) -> ChunkTrainResult:
+    """Train a ChunkPolicy (a new one of `config`, or `model`) on every frame of `demos`."""
+    tc = train or ChunkTrainConfig()
+    if len(demos) == 0:
+        raise ValueError("no episodes to train on: the arms reach none of the selected episodes")
+    torch.set_num_threads(tc.threads)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng([int(seed), 43])
+    k = demos.environment.shape[1] // 3
+    cfg = config or ChunkConfig(state_dim=demos.states.shape[1], n_keypoints=k, robot=demos.robot, task=demos.task)
+    model = model if model is not None else ChunkPolicy(cfg)
+    cfg = model.config
+    states = torch.as_tensor(demos.states, dtype=torch.float32)
+    kps = torch.as_tensor(demos.environment.reshape(-1, k, 3), dtype=torch.float32)
+    times = torch.as_tensor(frame_times(demos.lengths, fps), dtype=torch.float32)
+    target_rows = torch.as_tensor(targets_index(demos.lengths, cfg.chunk))
+    deltas = demos.states[target_rows.numpy()] - demos.states[:, None]
+    model.fit_normalizer(demos.states, demos.environment.reshape(-1, k, 3), deltas)
+    opt = torch.optim.AdamW(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
+    bce = nn.BCEWithLogitsLoss()
+    joints, grippers = model.joints, model.grippers
+    noise = torch.zeros(states.shape[1])
+    noise[joints] = tc.state_noise
+    losses, window = [], []
+    t0 = time.perf_counter()
+    n = len(states)
+    for step in range(tc.steps):
+        lr = tc.lr * min(1.0, (step + 1) / tc.warmup_steps) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / tc.steps)))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        rows = torch.as_tensor(rng.integers(0, n, tc.batch_size))
+        s = states[rows] + torch.randn(len(rows), states.shape[1]) * noise
+        pinch = torch.as_tensor(model.pinch_points(s.numpy()), dtype=torch.float32) if cfg.pinch_features else None
+        raw = model(s, times[rows], kps[rows], pinch)
+        tgt = states[target_rows[rows]]                                                   # (B, chunk, 14)
+        tgt_n = (tgt - s[:, None]) / model.delta_std  # the change from the noisy input: a way back to the path
+        loss = (raw[..., joints] - tgt_n[..., joints]).abs().mean() \
+            + tc.grip_weight * bce(raw[..., grippers], tgt[..., grippers])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        window.append(loss.item())
+        if (step + 1) % max(1, tc.steps // 10) == 0 or step + 1 == tc.steps:
+            losses.append(float(np.mean(window)))
+            window = []
+        if on_step is not None:
+            on_step(step + 1, tc.steps)
+    model.eval()
+    return ChunkTrainResult(model, losses, time.perf_counter() - t0, int(n), len(demos))
+
+
+def chunk_checkpoint_id(model: ChunkPolicy) -> str:
+    """A short id of the trained weights: sha256 of the config and every tensor's bytes."""
+    h = hashlib.sha256(json.dumps(model.config.to_dict(), sort_keys=True).encode())
+    for name, t in sorted(model.state_dict().items()):
+        h.update(name.encode())
+        h.update(t.detach().contiguous().numpy().tobytes())
+    return "cl-" + h.hexdigest()[:10]
+
+
+def save_chunk_checkpoint(model: ChunkPolicy, folder: str | os.PathLike, meta: dict) -> Path:
+    """Write model.pt (config + weights) and config.json (config + training metadata), each atomically."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    torch.save({"format": CHUNK_CHECKPOINT_FORMAT, "config": model.config.to_dict(), "state_dict": model.state_dict()},
+               buf)
+    pt = folder / "model.pt"
+    for path, data in ((pt, buf.getvalue()),
+                       (folder / "config.json",
+                        json.dumps({"format": CHUNK_CHECKPOINT_FORMAT, "checkpoint_id": chunk_checkpoint_id(model),
+                                    "config": model.config.to_dict(), **meta}, indent=2, default=float).encode())):
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    return pt
+
+
+def load_chunk_checkpoint(path: str | os.PathLike) -> ChunkPolicy:
+    """A ChunkPolicy from a model.pt written by save_chunk_checkpoint (or the folder holding it)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "model.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"no closed-loop policy checkpoint at {path}: train one with "
+                                "`demoforge train-policy --closed-loop`")
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(blob, dict) or blob.get("format") != CHUNK_CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not a demoforge closed-loop policy checkpoint ({CHUNK_CHECKPOINT_FORMAT})")
+    model = ChunkPolicy(ChunkConfig(**blob["config"]))
+    model.load_state_dict(blob["state_dict"])
+    model.eval()
+    return model
+
+
+__all__ = ["CHUNK_CHECKPOINT_FORMAT", "ChunkTrainConfig", "ChunkTrainResult", "chunk_checkpoint_id",
+           "frame_times", "load_chunk_checkpoint", "save_chunk_checkpoint", "targets_index", "train_chunk_policy"]

@@ -1,0 +1,170 @@
+"""Prefect tasks of the closed-loop policy: train it on n screened-in episodes of a database in an arm
+robot's joint space (-> `closed_loop_checkpoints`), and roll it out on held-out scenes in the task's
+Gymnasium environment beside the LLM-free baselines on the same scenes (-> `closed_loop_trials`)."""
+
+from __future__ import annotations
+
+import json
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, write_table
+from demoforge.tasks.common import Manifest, stage_task
+
+CLOSED_LOOP_VERSION = "1"
+CLOSED_LOOP_DIR = "_closed_loop"  # checkpoints beside the warehouse tables, like _policy
+SCENE_SEED_BASE = 1_000_000       # held-out scene seeds: seed * 10,000 + i above it; no database uses them
+BASELINES = ("replay_top1", "transform_demo")
+
+
+def training_episode_ids(warehouse: str, task: str, take: str, robot_label: str, n: int, seed: int) -> np.ndarray:
+    """The episodes a policy of n episodes trains on: the original demonstration, then n - 1 screened-in
+    episodes drawn with the seed (the draws of a larger n start with those of a smaller one)."""
+    from demoforge.tasks.screening import screened_ids
+    from demoforge.tasks.table3 import _database
+
+    db = _database(warehouse, task, take, None)
+    original = int(db["ids"][db["kinds"] == "original"][0])
+    pool = np.setdiff1d(screened_ids(warehouse, task, take, robot_label), [original])
+    if n - 1 > len(pool):
+        raise ValueError(f"{task}/{take} has {len(pool)} screened-in episodes for {robot_label}, fewer than the "
+                         f"{n - 1} asked for: ask for fewer episodes or augment a larger database")
+    drawn = np.random.default_rng([int(seed), 47]).permutation(pool)[:n - 1]
+    return np.concatenate([[original], np.sort(drawn)]).astype(np.int64)
+
+
+def held_out_scenes(task: str, source, seed: int, n: int) -> list[dict]:
+    """n thesis-protocol scenes of the database's distribution (envs/scenes.py draw_scene) from the held-out
+    seeds SCENE_SEED_BASE + seed * 10,000 + i, each with its seed."""
+    from demoforge.envs.scenes import draw_scene
+    from demoforge.lib.task_library import get_task
+
+    spec = get_task(task)
+    out = []
+    for i in range(n):
+        s = SCENE_SEED_BASE + int(seed) * 10_000 + i
+        out.append({**draw_scene(spec, "thesis", np.random.default_rng(s), source), "scene_seed": s})
+    return out
+
+
+@stage_task(name="closed_loop_train", version=CLOSED_LOOP_VERSION, key_ignore=("threads",))
+def closed_loop_train(task: str, take: str, warehouse: str, robot: str, gripper: str, n_episodes: int,
+                      screening: Manifest, database: dict, seed: int = 0, steps: int = 3000, threads: int = 1
+                      ) -> Manifest:
+    """Train one closed-loop policy on n_episodes of task/take (training_episode_ids) as the arms execute them;
+    write its checkpoint and a `closed_loop_checkpoints` row."""
+    from tqdm.auto import tqdm
+
+    from demoforge.lib.policy.chunk_train import ChunkTrainConfig, chunk_checkpoint_id, save_chunk_checkpoint, \
+        train_chunk_policy
+    from demoforge.lib.policy.joint_demos import joint_demos
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.task_library import get_task
+    from demoforge.tasks.export import load_episodes
+
+    arm = get_robot(robot, gripper)
+    ids = training_episode_ids(warehouse, task, take, arm.label, n_episodes, seed)
+    sel = load_episodes(warehouse, task, take, only={(take, int(i)) for i in ids})
+    t0 = time.perf_counter()
+    with tqdm(total=len(ids), desc=f"{task}: {len(ids)} episodes in joint space", unit="episode", disable=None) as bar:
+        demos = joint_demos(arm, get_task(task), sel.poses, sel.lengths, sel.keypoints, int(round(arm.gripper.close_lead_s * 30.0)),
+                            progress=lambda i: bar.update(i - bar.n))
+    plan_s = time.perf_counter() - t0
+    tc = ChunkTrainConfig(steps=steps, threads=threads)
+    with tqdm(total=steps, desc=f"{task}: train on {len(demos)} episodes", unit="step", disable=None,
+              mininterval=1.0) as bar:
+        res = train_chunk_policy(demos, train=tc, seed=seed, on_step=lambda s, total: bar.update(1))
+    cid = chunk_checkpoint_id(res.model)
+    folder = Path(warehouse) / CLOSED_LOOP_DIR / task / take / arm.label / cid
+    config = {"policy": res.model.config.to_dict(), "train": tc.to_dict()}
+    pt = save_chunk_checkpoint(res.model, folder, {"task": task, "take": take, "robot": arm.label, "seed": seed,
+                                                    "episode_ids": ids.tolist(), "losses": res.losses})
+    row = {"task": task, "take": take, "robot": arm.label, "gripper": arm.gripper_name, "checkpoint_id": cid,
+           "path": str(folder), "n_requested": int(n_episodes), "n_episodes": res.episodes, "frames": res.frames,
+           "seed": int(seed), "steps": int(steps), "threads": int(threads), "plan_seconds": plan_s,
+           "train_seconds": res.seconds, "final_loss": res.losses[-1], "config": json.dumps(config, sort_keys=True),
+           "trained_at": datetime.now(timezone.utc)}
+    schema = get_schema("closed_loop_checkpoints").arrow
+    written = write_table("closed_loop_checkpoints", pa.Table.from_pylist([row], schema=schema), warehouse)
+    files = list(written) + [WrittenFile("closed_loop_checkpoint_file", str(pt), 0, file_sha256(pt))]
+    return Manifest.from_written("closed_loop_checkpoints", files, path=written[0].path)
+
+
+def checkpoint_row(manifest: Manifest) -> dict:
+    from demoforge.schemas.core import read_table_file
+
+    return read_table_file("closed_loop_checkpoints", manifest.path).to_pylist()[0]
+
+
+def _row(task, take, arm, method, checkpoint_id, n_train, scene, out, inference_ms=0.0) -> dict:
+    return {"task": task, "take": take, "robot": arm.label, "gripper": arm.gripper_name, "method": method,
+            "checkpoint_id": checkpoint_id, "n_train_episodes": int(n_train), "scene_seed": int(scene["scene_seed"]),
+            "scene_mirrored": bool(scene["mirrored"]), "success": bool(out["success"]),
+            "failure": str(out["failure"] or ""), "detail": str(out["detail"])[:500], "frames": int(out["frames"]),
+            "rollout_seconds": float(out["seconds"]), "inference_ms_per_step": float(inference_ms)}
+
+
+@stage_task(name="closed_loop_trials", version=CLOSED_LOOP_VERSION, key_optional=("checkpoint",))
+def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper: str, method: str,
+                       database: dict, screening: Manifest, seed: int = 0, scenes: int = 50,
+                       checkpoint: Manifest | None = None, max_steps: int = 900) -> Manifest:
+    """Roll one method out on the held-out scenes of task/take: `closed_loop` (the checkpoint's policy stepping
+    DemoforgeEnv with temporal ensembling) or a baseline executed by the robot check; `closed_loop_trials` rows."""
+    from tqdm.auto import tqdm
+
+    from demoforge.envs.robot_env import DemoforgeEnv
+    from demoforge.envs.rollout import rollout
+    from demoforge.lib.sim import SimOptions, execute
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.tasks.augment import load_demo_source
+
+    arm = get_robot(robot, gripper)
+    source = load_demo_source(take, task, warehouse)
+    rows = []
+    todo = held_out_scenes(task, source, seed, scenes)
+    bar = tqdm(todo, desc=f"{task}: {method} on {scenes} held-out scenes", unit="scene", disable=None)
+    if method == "closed_loop":
+        from demoforge.lib.policy.chunk_train import load_chunk_checkpoint
+        from demoforge.lib.policy.chunking import TemporalEnsemble
+
+        if checkpoint is None:
+            raise ValueError("method closed_loop needs a trained checkpoint")
+        ck = checkpoint_row(checkpoint)
+        policy = TemporalEnsemble(load_chunk_checkpoint(ck["path"]))
+        env = DemoforgeEnv(task, robot=arm.name, gripper=arm.gripper_name, max_steps=max_steps)
+        for sc in bar:
+            out = rollout(env, policy, options={"scene": sc})
+            ms = 1000 * policy.inference_s / max(out["frames"], 1)
+            rows.append(_row(task, take, arm, method, ck["checkpoint_id"], ck["n_episodes"], sc, out, ms))
+        env.close()
+    elif method in BASELINES:
+        from demoforge.lib.trajectories.augmentation import transform_demo
+        from demoforge.lib.trajectories.retrieval import KeypointIndex
+        from demoforge.tasks.augment import episode_actions
+        from demoforge.tasks.table3 import _database, nearest_source
+
+        db = _database(warehouse, task, take, arm.label)
+        index = KeypointIndex(db["keypoints"], ids=db["ids"])
+        options = SimOptions(robot=arm)
+        for sc in bar:
+            t0 = time.perf_counter()
+            kp = np.asarray(sc["keypoints"], float)
+            if method == "replay_top1":
+                top = int(np.asarray(index.query(kp, k=1).ids).ravel()[0])
+                actions = episode_actions(warehouse, task, take, [top])[top]
+            else:
+                actions = transform_demo(nearest_source(source, kp), np.asarray(sc["object_poses"], float))
+            res = execute(task, kp, actions, options=options)
+            out = {"success": res.success, "failure": res.failure, "detail": res.detail,
+                   "frames": res.n_frames,
+                   "seconds": time.perf_counter() - t0}
+            rows.append(_row(task, take, arm, method, "none", len(db["ids"]), sc, out))
+    else:
+        raise ValueError(f"unknown method {method!r}; choose from closed_loop, {', '.join(BASELINES)}")
+    schema = get_schema("closed_loop_trials").arrow
+    written = write_table("closed_loop_trials", pa.Table.from_pylist(rows, schema=schema), warehouse)
+    return Manifest.from_written("closed_loop_trials", written)
