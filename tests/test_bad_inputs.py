@@ -331,6 +331,11 @@ def test_scene_file_with_wrong_keypoints(wh, tmp_path, scene):
     rejected(wh, "retrieve", "--task", "pouring", "--scene", str(path), needles=(str(path), "11 x 3"))
 
 
+@pytest.mark.parametrize("command", [("simulate",), ("screen",), ("train-policy", "--closed-loop"), ("data-scaling",)])
+def test_a_task_name_typo_is_one_line_listing_the_tasks(wh, command):
+    rejected(wh, *command, "--task", "nosuch_task", needles=("unknown task 'nosuch_task'", "pouring, trash_in_bin"))
+
+
 def test_scene_file_that_is_not_json(wh, tmp_path):
     path = tmp_path / "scene.json"
     path.write_text("object_keypoints: [1, 2, 3]")

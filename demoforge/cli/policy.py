@@ -77,7 +77,9 @@ def train_policy_cmd(
 def _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads) -> None:
     from demoforge.flows.closed_loop import train_closed_loop
     from demoforge.lib.sim.robots import RobotError
+    from demoforge.lib.task_library import get_task
 
+    get_task(task)  # a typo: one line listing the tasks, before any flow starts
     robot, gripper = robot_choice(robot, gripper)
     try:
         run_flow(train_closed_loop, str(current_warehouse()), task=task, take=take, episodes=episodes, seed=seed,
@@ -167,7 +169,10 @@ def data_scaling_cmd(
     Wilson 95 % intervals: the view `report_data_scaling` (printed at the end, and in reports/REPORT.md)."""
     from demoforge.flows.closed_loop import data_scaling
     from demoforge.lib.sim.robots import RobotError
+    from demoforge.lib.task_library import get_task
 
+    for name in task:
+        get_task(name)  # a typo: one line listing the tasks, before any flow starts
     try:
         n = [int(x) for x in sizes.split(",") if x.strip()]
     except ValueError:

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
+from demoforge.lib.errors import UserError
 from demoforge.lib.geometry import transform_inverse
 from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, KeyframeSettings
 from demoforge.lib.trajectories.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
@@ -587,6 +588,13 @@ def register_variant(task: Task, tag: str) -> str:
     return key
 
 
+class UnknownTaskError(UserError, KeyError):
+    """A task name the library does not know (a user's `--task` typo: one line, exit 2)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
 def get_task(name: str) -> Task:
     try:
         return _TASKS[name]
@@ -596,4 +604,4 @@ def get_task(name: str) -> Task:
         return _VARIANTS[name]
     except KeyError:
         hint = " (variants must be registered first: register_variant)" if "@" in str(name) else ""
-        raise KeyError(f"unknown task {name!r}; known: {TASK_NAMES}{hint}") from None
+        raise UnknownTaskError(f"unknown task {name!r}; choose from {', '.join(TASK_NAMES)}{hint}") from None
