@@ -51,7 +51,6 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -158,9 +157,6 @@ class ArcticTake:
     @property
     def take(self) -> str:
         return self.seq
-
-    def K_at(self, t: int) -> np.ndarray:
-        return self.K[t] if self.K.ndim == 3 else self.K
 
     def reprojection_error_px(self) -> float:
         """Median distance (px) between ``joints_px`` and the projection of ``joints_cam`` with K over
@@ -444,8 +440,3 @@ class ArcticDataset:
                 valid[:, h] &= a
                 used.append(s)
         return valid, ("+".join(used) if used else "none (all frames with finite joints)")
-
-    def load_thesis_takes(self, subject: str | None = None, view: int = 0, stride: int = 1,
-                          takes: Sequence[str] = THESIS_TAKES, **kw) -> list[ArcticTake]:
-        """The thesis's 18 takes (subject None: per take the first subject that has it)."""
-        return [self.load(subject, s, view, stride, **kw) for s in takes]

@@ -141,12 +141,6 @@ def _orth(v: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return _unit(v - np.sum(v * ref, axis=-1, keepdims=True) * ref)
 
 
-def _rot_about(v: np.ndarray, axis: np.ndarray, ang: np.ndarray) -> np.ndarray:
-    """Rotate v about unit axis by ang (broadcast), Rodrigues."""
-    c, s = np.cos(ang)[..., None], np.sin(ang)[..., None]
-    return v * c + np.cross(axis, v) * s + axis * np.sum(axis * v, axis=-1, keepdims=True) * (1 - c)
-
-
 def _chain(base, f, n, lengths, angles):
     """Planar 3-link chain in the plane (f, n) from base; angles (..., 3) bend from f towards n.
 

@@ -89,11 +89,6 @@ def robot_scene(task_name: str, robot: Robot | GripperSpec | None = None) -> tup
     return xml[:i] + tail, dict(sec.assets)
 
 
-def robot_scene_xml(task_name: str, robot: Robot | GripperSpec | None = None) -> str:
-    """The MJCF of a task's scene with the robot added (robot_scene without the asset files)."""
-    return robot_scene(task_name, robot)[0]
-
-
 class SimScene:
     def __init__(self, task_name: str, robot: Robot, physics: PhysicsOptions):
         import mujoco

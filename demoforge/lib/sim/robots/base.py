@@ -85,10 +85,6 @@ class MotionPlan(abc.ABC):
     def apply(self, d, k: int) -> None:
         """Write control step k's targets (mocap poses, joint position commands) into MjData `d`."""
 
-    @property
-    def first_failure_frame(self) -> int | None:
-        return min((e.frame for e in self.events), default=None)
-
 
 class RobotBinding(abc.ABC):
     """A robot inside one compiled scene: what the executor and the scene's bookkeeping index.

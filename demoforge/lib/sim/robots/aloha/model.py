@@ -234,11 +234,6 @@ def _joint_range(name: str) -> tuple[float, float]:
     return lo, hi
 
 
-def joint_ranges() -> np.ndarray:
-    """(6, 2) the arm joints' ranges, rad, in JOINTS order."""
-    return np.array([_joint_range(n) for n in JOINTS])
-
-
 def kinematic_model_xml(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec) -> tuple[str, dict]:
     """(MJCF, assets) of the two arms and the table top, without finger joints: the inverse kinematics' model
     (its 12 joints in the order left then right, JOINTS within each; sites `<side>_hand_pinch`; the table for
