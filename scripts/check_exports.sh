@@ -36,6 +36,12 @@ if [ ! -x .venv-lerobot/bin/lerobot-train ] || ! .venv-lerobot/bin/python -c "im
     "$PY312" -m venv .venv-lerobot && .venv-lerobot/bin/pip install -q --upgrade pip \
         && .venv-lerobot/bin/pip install -q 'lerobot[dataset,training,diffusion]' || exit 2
 fi
+# demoforge's Gymnasium environment in lerobot's venv: its own dependencies only, at the project's pinned versions
+# (demoforge itself comes from PYTHONPATH; no Prefect, DuckDB, Open3D or OpenCV)
+ENV_DEPS=$(grep -E '^(mujoco|mink|qpsolvers|daqp|scipy)==' requirements/lock.txt | tr '\n' ' ')
+if ! .venv-lerobot/bin/python -c "import mujoco, mink, qpsolvers, daqp, scipy" 2>/dev/null; then
+    .venv-lerobot/bin/pip install -q $ENV_DEPS || exit 2
+fi
 if [ ! -x .venv-robomimic/bin/python ] || ! .venv-robomimic/bin/python -c "import robomimic, six" 2>/dev/null; then
     [ -n "$PY311" ] || { echo "check-exports: needs Python 3.11 (set PY311=/path/to/python3.11)" >&2; exit 2; }
     echo "creating .venv-robomimic ..."
@@ -73,6 +79,23 @@ step "lerobot-train ACT, 2 steps (camera images)" "${TRAIN[@]}" --dataset.root="
 step "lerobot-train ACT, 2 steps (ALOHA joint space: 14 joints + environment_state)" "${TRAIN[@]}" \
     --dataset.root="$WORK/lerobot_aloha" --policy.type=act --policy.pretrained_backbone_weights=null \
     --output_dir="$WORK/train_act_aloha"
+# closed loop: ACT trained long enough to learn (ACT_STEPS, default 2000) on a joint-space export of a larger sample,
+# then rolled out in demoforge's environment on held-out scenes
+step "sample warehouse for training (pouring, ${TRAIN_EPISODES:=60} augmented episodes)" \
+    .venv/bin/python scripts/check_exports_sample.py "$WORK/warehouse_train" "$WORK/takes_train" --episodes "$TRAIN_EPISODES"
+step "demoforge export lerobot --robot aloha --gripper 2f140 --unchecked ($TRAIN_EPISODES episodes, joint space)" \
+    env DEMOFORGE_WAREHOUSE="$WORK/warehouse_train" $DF export lerobot --task pouring --out "$WORK/lerobot_aloha_train" \
+    --robot aloha --gripper 2f140 --unchecked
+step "lerobot-train ACT, ${ACT_STEPS:=2000} steps (ALOHA joint space, chunks of 30)" .venv-lerobot/bin/lerobot-train \
+    --dataset.repo_id=demoforge/pouring --dataset.root="$WORK/lerobot_aloha_train" --dataset.video_backend=pyav \
+    --policy.type=act --policy.device=cpu --policy.push_to_hub=false --policy.pretrained_backbone_weights=null \
+    --policy.chunk_size=30 --policy.n_action_steps=30 --steps="$ACT_STEPS" --batch_size=32 --num_workers=0 \
+    --log_freq=200 --save_freq="$ACT_STEPS" --wandb.enable=false --output_dir="$WORK/train_act_aloha_long"
+.venv-lerobot/bin/python scripts/check_exports_lerobot_rollout.py \
+    "$WORK/train_act_aloha_long/checkpoints/last/pretrained_model" --scenes "${ROLLOUT_SCENES:-10}" \
+    > "$WORK/lerobot_rollout.log" 2>&1
+grep '^CHECK ' "$WORK/lerobot_rollout.log" | cut -c7- >> "$RESULTS" \
+    || echo '{"check": "lerobot ACT in demoforge'"'"'s Gymnasium environment", "ok": false, "detail": "see '"$WORK"'/lerobot_rollout.log"}' >> "$RESULTS"
 .venv-robomimic/bin/python scripts/check_exports_robomimic.py "$WORK/pouring.hdf5" "$WORK/rm" \
     > "$WORK/robomimic_checks.log" 2>&1
 grep '^CHECK ' "$WORK/robomimic_checks.log" | cut -c7- >> "$RESULTS"

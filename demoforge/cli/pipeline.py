@@ -40,6 +40,7 @@ def evaluate(
     variation_trials: int = typer.Option(2, "--variation-trials", envvar="DEMOFORGE_VARIATION_TRIALS", min=0, help="Scenes per task and variation kind of the Table 4 analogue (0 skips it)."),
     policy_epochs: int = typer.Option(6, envvar="DEMOFORGE_POLICY_EPOCHS", min=1, help="Training epochs of the learned policy (pouring)."),
     policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
+    scaling_scenes: int = typer.Option(6, envvar="DEMOFORGE_SCALING_SCENES", min=0, help="Held-out scenes of the small data-scaling table (closed-loop policies of the policy tasks trained on 1 and 50 episodes, with the first --grid-robot; 0 skips it; `demoforge data-scaling` runs the full one)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
     robot: Optional[List[str]] = typer.Option(None, "--robot", envvar="DEMOFORGE_ROBOTS", help="Robots every task's sample is executed with, side by side (repeatable; `name` or `name+hand`; default: grippers, aloha and aloha+2f140: the floating grippers and the ViperX arms with ALOHA's fingers and with the 2F-140). The stability check and the Table 3 / Table 4 / policy evaluations use the first."),
     detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
@@ -84,7 +85,7 @@ def evaluate(
             llm_tasks=llm_task or ("pouring",), trials=trials, grid_scenes=grid_scenes, llm_backend=llm_backend,
             llm_options={"model": llm_model} if llm_model else {}, llm_structured=structured,
             llm_number_format=number_format, variation_trials=variation_trials, policy_epochs=policy_epochs,
-            policy_trials=policy_trials, detectors=tuple(dict.fromkeys(detectors)),
+            policy_trials=policy_trials, scaling_scenes=scaling_scenes, detectors=tuple(dict.fromkeys(detectors)),
             robots=tuple(dict.fromkeys(robots)))
     except ValueError as e:
         raise fail(str(e))

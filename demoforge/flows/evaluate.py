@@ -8,6 +8,7 @@ from prefect import flow, get_run_logger
 
 from demoforge.runtime.artifacts import ProgressArtifact
 from demoforge.flows.augment import augment_take_flow
+from demoforge.flows.closed_loop import data_scaling
 from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
 from demoforge.flows.keypoint_eval import evaluate_keypoints
 from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot  # noqa: F401  (the CLI's choices)
@@ -134,6 +135,11 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
                           max_minutes=None, threads=2, n_waypoints=c.policy_waypoints)
             run_flow(evaluate_policy, warehouse, task=policy_task, take=take, trials=c.policy_trials, seed=c.seed,
                      checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
+    scaling_tasks = [t for t in c.policy_tasks if t in tasks]
+    if c.scaling_scenes > 0 and scaling_tasks and c.grid_robots:
+        name, _, hand = c.grid_robots[0].partition("+")
+        run_flow(data_scaling, warehouse, tasks=scaling_tasks, sizes=c.scaling_sizes, scenes=c.scaling_scenes,
+                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2)
     from demoforge.flows.variations import evaluate_variations
     from demoforge.lib.sim.variations import TABLE4_TASKS
     from demoforge.tasks.variations import VARIATION_STRATEGIES

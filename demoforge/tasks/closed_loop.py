@@ -15,10 +15,11 @@ import pyarrow as pa
 from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-CLOSED_LOOP_VERSION = "1"
+CLOSED_LOOP_VERSION = "2"
 CLOSED_LOOP_DIR = "_closed_loop"  # checkpoints beside the warehouse tables, like _policy
 SCENE_SEED_BASE = 1_000_000       # held-out scene seeds: seed * 10,000 + i above it; no database uses them
 BASELINES = ("replay_top1", "transform_demo")
+SUCCESS_CHECK_EVERY = 15          # frames: a rollout ends once the task's success predicate holds (checked every 0.5 s)
 
 
 def training_episode_ids(warehouse: str, task: str, take: str, robot_label: str, n: int, seed: int) -> np.ndarray:
@@ -113,7 +114,8 @@ def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper
                        database: dict, screening: Manifest, seed: int = 0, scenes: int = 50,
                        checkpoint: Manifest | None = None, max_steps: int = 900) -> Manifest:
     """Roll one method out on the held-out scenes of task/take: `closed_loop` (the checkpoint's policy stepping
-    DemoforgeEnv with temporal ensembling) or a baseline executed by the robot check; `closed_loop_trials` rows."""
+    DemoforgeEnv with temporal ensembling, ended at the task's success or after max_steps frames, as a policy
+    evaluation ends) or a baseline executed by the robot check; `closed_loop_trials` rows."""
     from tqdm.auto import tqdm
 
     from demoforge.envs.robot_env import DemoforgeEnv
@@ -135,7 +137,8 @@ def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper
             raise ValueError("method closed_loop needs a trained checkpoint")
         ck = checkpoint_row(checkpoint)
         policy = TemporalEnsemble(load_chunk_checkpoint(ck["path"]))
-        env = DemoforgeEnv(task, robot=arm.name, gripper=arm.gripper_name, max_steps=max_steps)
+        env = DemoforgeEnv(task, robot=arm.name, gripper=arm.gripper_name, max_steps=max_steps,
+                           check_success_every=SUCCESS_CHECK_EVERY)
         for sc in bar:
             out = rollout(env, policy, options={"scene": sc})
             ms = 1000 * policy.inference_s / max(out["frames"], 1)

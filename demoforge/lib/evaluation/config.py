@@ -49,7 +49,8 @@ class EvaluateConfig:
     it); trials: of those, the scenes of the three LLM strategies; llm_backend, llm_options,
     llm_structured, llm_number_format: the LLM (demoforge.flows.table3); variation_trials: scenes per
     task and variation kind of the Table 4 analogue; policy_tasks, policy_epochs, policy_waypoints,
-    policy_trials: the learned policy (0 trials skips it); detectors: the hand detectors each take is
+    policy_trials: the learned policy (0 trials skips it); scaling_scenes, scaling_sizes, scaling_steps: the small
+    data-scaling table of the policy tasks with the first grid robot (0 scenes skips it); detectors: the hand detectors each take is
     ingested with, side by side (the simulated one always); robots: the robots (`name` or `name+hand`)
     each task's sample is executed with, side by side (the stability check and the other evaluations
     use the first); grid_robots: the arm robots Table 3's LLM-free and policy columns are judged with
@@ -77,6 +78,9 @@ class EvaluateConfig:
     policy_epochs: int = 6
     policy_waypoints: int = 40
     policy_trials: int = 5
+    scaling_scenes: int = 6
+    scaling_sizes: tuple[int, ...] = (1, 50)
+    scaling_steps: int = 600
     detectors: tuple[str, ...] = DETECTORS
     robots: tuple[str, ...] = ROBOTS
     grid_robots: tuple[str, ...] = GRID_ROBOTS
@@ -84,13 +88,14 @@ class EvaluateConfig:
     def __post_init__(self):
         for name in ("tasks", "llm_tasks", "policy_tasks", "detectors", "robots", "grid_robots"):  # CLI or JSON lists
             object.__setattr__(self, name, _names(getattr(self, name)))
+        object.__setattr__(self, "scaling_sizes", tuple(int(n) for n in self.scaling_sizes))
         if not self.robots:
             raise ValueError("robots must name at least one robot")
         mirror_flags(self.mirror)  # refuses an unknown choice
         if int(self.takes) < 1 or int(self.episodes) < 1:
             raise ValueError(f"need takes >= 1 and episodes >= 1, got {self.takes} and {self.episodes}")
         counts = ("sim_episodes", "stability_episodes", "trials", "grid_scenes", "variation_trials",
-                  "policy_trials")
+                  "policy_trials", "scaling_scenes")
         negative = [n for n in counts if int(getattr(self, n)) < 0]
         if negative:
             raise ValueError(f"{negative[0]} must be >= 0, got {getattr(self, negative[0])}")

@@ -38,6 +38,7 @@ class ChunkTrainConfig:
     warmup_steps: int = 100
     grip_weight: float = 0.5
     state_noise: float = 0.01   # rad of Gaussian noise on the input joints
+    hold_s: float = 1.0         # s of rest appended to each episode (JointDemos.held)
     threads: int = 1
 
     def __post_init__(self):
@@ -83,6 +84,7 @@ def train_chunk_policy(demos: JointDemos, config: ChunkConfig | None = None, tra
     tc = train or ChunkTrainConfig()
     if len(demos) == 0:
         raise ValueError("no episodes to train on: the arms reach none of the selected episodes")
+    demos = demos.held(int(round(tc.hold_s * fps)))
     torch.set_num_threads(tc.threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng([int(seed), 43])

@@ -28,6 +28,7 @@ from torch import nn
 from demoforge.lib.policy.joint_demos import GRIPPER_COLUMNS
 
 PINCH_SCALE = 0.3  # m: the scale of the pinch points and of the keypoints relative to them
+DELTA_FLOOR = 1e-3  # rad: the smallest scale of a joint's change over a horizon
 STD_FLOOR = 1e-2  # a joint or keypoint coordinate that never moves in the data is scaled as if it moved 1 cm / rad
 
 
@@ -42,6 +43,7 @@ class ChunkConfig:
     ff_dim: int = 128
     head_dim: int = 512
     time_scale_s: float = 20.0  # the timestamp input is t / time_scale_s
+    use_time: bool = True       # without it the grippers open and close at the wrong moments
     pinch_features: bool = True  # also the hands' pinch points (forward kinematics of the state) and each keypoint
     robot: str = "aloha+2f140"   # relative to them: the approach becomes "move the hand to the keypoint"
     task: str = "pouring"        # (robot, task: whose kinematic model the forward kinematics use)
@@ -71,7 +73,7 @@ class ChunkPolicy(nn.Module):
         d = c.d_model
         self.joints = torch.as_tensor(joint_columns(c.state_dim))
         self.grippers = torch.as_tensor(GRIPPER_COLUMNS)
-        for name, shape in (("state_mean", (c.state_dim,)), ("state_std", (c.state_dim,)), ("delta_std", (c.state_dim,)),
+        for name, shape in (("state_mean", (c.state_dim,)), ("state_std", (c.state_dim,)), ("delta_std", (c.chunk, c.state_dim)),
                             ("kp_mean", (c.n_keypoints, 3)), ("kp_std", (c.n_keypoints, 3))):
             self.register_buffer(name, torch.zeros(shape) if name.endswith("mean") else torch.ones(shape))
         extra = 6 if c.pinch_features else 0
@@ -86,12 +88,14 @@ class ChunkPolicy(nn.Module):
 
     def fit_normalizer(self, states: np.ndarray, keypoints: np.ndarray, deltas: np.ndarray) -> None:
         """Means and scales from the training frames: states (F, 14), keypoints (F, K, 3), the targets'
-        changes from their frame's state (F, chunk, 14); the gripper columns stay as they are (0/1)."""
+        changes from their frame's state (F, chunk, 14), scaled per future step; the gripper columns stay as they
+        are (0/1)."""
         s, k = np.asarray(states, np.float64), np.asarray(keypoints, np.float64)
         mean, std = s.mean(0), np.maximum(s.std(0), STD_FLOOR)
-        dstd = np.maximum(np.sqrt((np.asarray(deltas, np.float64) ** 2).reshape(-1, s.shape[1]).mean(0)), STD_FLOOR)
+        # per future step: the next frame's change is as important as the one a second ahead, not 30 times smaller
+        dstd = np.maximum(np.sqrt((np.asarray(deltas, np.float64) ** 2).mean(0)), DELTA_FLOOR)
         g = list(GRIPPER_COLUMNS)
-        mean[g], std[g], dstd[g] = 0.0, 1.0, 1.0
+        mean[g], std[g], dstd[:, g] = 0.0, 1.0, 1.0
         self.delta_std.copy_(torch.as_tensor(dstd, dtype=torch.float32))
         self.state_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
         self.state_std.copy_(torch.as_tensor(std, dtype=torch.float32))
@@ -105,7 +109,7 @@ class ChunkPolicy(nn.Module):
                pinch: torch.Tensor | None = None) -> torch.Tensor:
         """The encoded tokens (B, 1 + K, d); pinch (B, 2, 3): the hands' pinch points, with ``pinch_features``."""
         c = self.config
-        s = [self.normalize_state(state), (time_s / c.time_scale_s)[:, None]]
+        s = [self.normalize_state(state), (time_s / c.time_scale_s)[:, None] * float(c.use_time)]
         k = [(keypoints - self.kp_mean) / self.kp_std]
         if c.pinch_features:
             s.append(pinch.flatten(1) / PINCH_SCALE)

@@ -45,6 +45,17 @@ class JointDemos:
         s = int(self.starts()[i])
         return self.states[s:s + self.lengths[i]], self.environment[s:s + self.lengths[i]]
 
+    def held(self, frames: int) -> "JointDemos":
+        """Each episode followed by `frames` frames of its last one: the arms at rest after the task, so that a
+        policy learns to stay there (an environment runs on until its step limit or the task's success)."""
+        if frames <= 0:
+            return self
+        starts = self.starts()
+        rows = np.concatenate([np.r_[np.arange(s, s + m), np.full(frames, s + m - 1)]
+                               for s, m in zip(starts, self.lengths)]) if len(self) else np.zeros(0, np.int64)
+        return JointDemos(self.states[rows], self.environment[rows], self.lengths + frames, self.keep, self.robot,
+                          self.task)
+
     def save(self, path) -> None:
         np.savez_compressed(path, states=self.states, environment=self.environment, lengths=self.lengths,
                             keep=self.keep, robot=self.robot, task=self.task)
