@@ -86,10 +86,12 @@ step "sample warehouse for training (pouring, ${TRAIN_EPISODES:=60} augmented ep
 step "demoforge export lerobot --robot aloha --gripper 2f140 --unchecked ($TRAIN_EPISODES episodes, joint space)" \
     env DEMOFORGE_WAREHOUSE="$WORK/warehouse_train" $DF export lerobot --task pouring --out "$WORK/lerobot_aloha_train" \
     --robot aloha --gripper 2f140 --unchecked
-step "lerobot-train ACT, ${ACT_STEPS:=2000} steps (ALOHA joint space, chunks of 30)" .venv-lerobot/bin/lerobot-train \
+# a CPU-sized ACT (lerobot's default, 512 wide with 4 encoder layers, takes seconds per step on 2 cores)
+step "lerobot-train ACT, ${ACT_STEPS:=2000} steps (ALOHA joint space, chunks of 30, 256 wide)" .venv-lerobot/bin/lerobot-train \
     --dataset.repo_id=demoforge/pouring --dataset.root="$WORK/lerobot_aloha_train" --dataset.video_backend=pyav \
     --policy.type=act --policy.device=cpu --policy.push_to_hub=false --policy.pretrained_backbone_weights=null \
-    --policy.chunk_size=30 --policy.n_action_steps=30 --steps="$ACT_STEPS" --batch_size=32 --num_workers=0 \
+    --policy.chunk_size=30 --policy.n_action_steps=30 --policy.dim_model=256 --policy.dim_feedforward=1024 \
+    --policy.n_encoder_layers=2 --policy.n_vae_encoder_layers=2 --steps="$ACT_STEPS" --batch_size=16 --num_workers=0 \
     --log_freq=200 --save_freq="$ACT_STEPS" --wandb.enable=false --output_dir="$WORK/train_act_aloha_long"
 .venv-lerobot/bin/python scripts/check_exports_lerobot_rollout.py \
     "$WORK/train_act_aloha_long/checkpoints/last/pretrained_model" --scenes "${ROLLOUT_SCENES:-10}" \

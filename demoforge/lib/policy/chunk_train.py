@@ -9,9 +9,6 @@ where its own errors take it. Same data, config, seed and thread count: the same
 
 from __future__ import annotations
 
-import hashlib
-import io
-import json
 import math
 import os
 import time
@@ -23,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from demoforge.lib.policy.checkpoints import load_model, save_model, weights_digest
 from demoforge.lib.policy.chunking import ChunkConfig, ChunkPolicy
 from demoforge.lib.policy.joint_demos import JointDemos
 
@@ -132,47 +130,19 @@ def train_chunk_policy(demos: JointDemos, config: ChunkConfig | None = None, tra
 
 
 def chunk_checkpoint_id(model: ChunkPolicy) -> str:
-    """A short id of the trained weights: sha256 of the config and every tensor's bytes."""
-    h = hashlib.sha256(json.dumps(model.config.to_dict(), sort_keys=True).encode())
-    for name, t in sorted(model.state_dict().items()):
-        h.update(name.encode())
-        h.update(t.detach().contiguous().numpy().tobytes())
-    return "cl-" + h.hexdigest()[:10]
+    """A short id of the trained weights."""
+    return "cl-" + weights_digest(model)[:10]
 
 
 def save_chunk_checkpoint(model: ChunkPolicy, folder: str | os.PathLike, meta: dict) -> Path:
     """Write model.pt (config + weights) and config.json (config + training metadata), each atomically."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    torch.save({"format": CHUNK_CHECKPOINT_FORMAT, "config": model.config.to_dict(), "state_dict": model.state_dict()},
-               buf)
-    pt = folder / "model.pt"
-    for path, data in ((pt, buf.getvalue()),
-                       (folder / "config.json",
-                        json.dumps({"format": CHUNK_CHECKPOINT_FORMAT, "checkpoint_id": chunk_checkpoint_id(model),
-                                    "config": model.config.to_dict(), **meta}, indent=2, default=float).encode())):
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    return pt
+    return save_model(model, folder, CHUNK_CHECKPOINT_FORMAT, chunk_checkpoint_id(model), meta)[0]
 
 
 def load_chunk_checkpoint(path: str | os.PathLike) -> ChunkPolicy:
     """A ChunkPolicy from a model.pt written by save_chunk_checkpoint (or the folder holding it)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "model.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"no closed-loop policy checkpoint at {path}: train one with "
-                                "`demoforge train-policy --closed-loop`")
-    blob = torch.load(path, map_location="cpu", weights_only=True)
-    if not isinstance(blob, dict) or blob.get("format") != CHUNK_CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not a demoforge closed-loop policy checkpoint ({CHUNK_CHECKPOINT_FORMAT})")
-    model = ChunkPolicy(ChunkConfig(**blob["config"]))
-    model.load_state_dict(blob["state_dict"])
-    model.eval()
-    return model
+    return load_model(path, CHUNK_CHECKPOINT_FORMAT, lambda c: ChunkPolicy(ChunkConfig(**c)),
+                      "demoforge train-policy --closed-loop")
 
 
 __all__ = ["CHUNK_CHECKPOINT_FORMAT", "ChunkTrainConfig", "ChunkTrainResult", "chunk_checkpoint_id",

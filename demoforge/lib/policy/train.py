@@ -6,9 +6,6 @@ alone; with the same data, config, seed and thread count the trained weights are
 
 from __future__ import annotations
 
-import hashlib
-import io
-import json
 import math
 import os
 import time
@@ -20,6 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from demoforge.lib.policy.checkpoints import load_model, save_model, weights_digest
 from demoforge.lib.policy.data import Normalizer, PolicyData, pose_features
 from demoforge.lib.policy.model import KeypointPolicy, PolicyConfig
 from demoforge.lib.policy.rotation6d import torch_geodesic
@@ -173,15 +171,6 @@ def train_policy(train: PolicyData, val: PolicyData, seed: int = 0, config: Poli
 
 # --------------------------------------------------------------------------------- checkpoints
 
-def weights_digest(model: KeypointPolicy) -> str:
-    """sha256 of the config and every tensor's bytes (in name order): equal digests = equal models."""
-    h = hashlib.sha256(json.dumps(model.config.to_dict(), sort_keys=True).encode())
-    for name, t in sorted(model.state_dict().items()):
-        h.update(name.encode())
-        h.update(t.detach().contiguous().numpy().tobytes())
-    return h.hexdigest()
-
-
 def checkpoint_id(model: KeypointPolicy) -> str:
     """A short id of the trained weights (the `model` of its llm_trials rows)."""
     return "kp-" + weights_digest(model)[:10]
@@ -190,31 +179,9 @@ def checkpoint_id(model: KeypointPolicy) -> str:
 def save_checkpoint(model: KeypointPolicy, folder: str | os.PathLike, meta: dict) -> tuple[Path, Path]:
     """Write model.pt (config + weights) and config.json (config + training metadata) into folder,
     each atomically (temporary file + rename)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    torch.save({"format": CHECKPOINT_FORMAT, "config": model.config.to_dict(), "state_dict": model.state_dict()}, buf)
-    pt, js = folder / "model.pt", folder / "config.json"
-    for path, data in ((pt, buf.getvalue()),
-                       (js, json.dumps({"format": CHECKPOINT_FORMAT, "checkpoint_id": checkpoint_id(model),
-                                        "config": model.config.to_dict(), **meta}, indent=2, default=float).encode())):
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    return pt, js
+    return save_model(model, folder, CHECKPOINT_FORMAT, checkpoint_id(model), meta)
 
 
 def load_checkpoint(path: str | os.PathLike) -> KeypointPolicy:
     """A KeypointPolicy from a model.pt written by save_checkpoint (or the folder holding it)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "model.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"no policy checkpoint at {path}: train one with `demoforge train-policy`")
-    blob = torch.load(path, map_location="cpu", weights_only=True)
-    if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not a demoforge policy checkpoint ({CHECKPOINT_FORMAT})")
-    model = KeypointPolicy(PolicyConfig(**blob["config"]))
-    model.load_state_dict(blob["state_dict"])
-    model.eval()
-    return model
+    return load_model(path, CHECKPOINT_FORMAT, lambda c: KeypointPolicy(PolicyConfig(**c)), "demoforge train-policy")
