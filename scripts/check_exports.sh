@@ -91,7 +91,7 @@ step "lerobot-train ACT, ${ACT_STEPS:=2000} steps (ALOHA joint space, chunks of 
     --dataset.repo_id=demoforge/pouring --dataset.root="$WORK/lerobot_aloha_train" --dataset.video_backend=pyav \
     --policy.type=act --policy.device=cpu --policy.push_to_hub=false --policy.pretrained_backbone_weights=null \
     --policy.chunk_size=30 --policy.n_action_steps=30 --policy.dim_model=256 --policy.dim_feedforward=1024 \
-    --policy.n_encoder_layers=2 --policy.n_vae_encoder_layers=2 --steps="$ACT_STEPS" --batch_size=16 --num_workers=0 \
+    --policy.n_encoder_layers=2 --policy.n_vae_encoder_layers=2 --policy.optimizer_lr=1e-4 --steps="$ACT_STEPS" --batch_size=16 --num_workers=0 \
     --log_freq=200 --save_freq="$ACT_STEPS" --wandb.enable=false --output_dir="$WORK/train_act_aloha_long"
 .venv-lerobot/bin/python scripts/check_exports_lerobot_rollout.py \
     "$WORK/train_act_aloha_long/checkpoints/last/pretrained_model" --scenes "${ROLLOUT_SCENES:-10}" \

@@ -139,7 +139,7 @@ def test_data_scaling_flow_writes_the_table_the_view_and_reuses_its_cache(prefec
     from demoforge.schemas.catalog import query
 
     wh = str(ingested_warehouse)
-    augment_take_flow(str(trash_take), wh, augment=AugmentOptions(n=16, n_mirrored=8, seed=2), show_progress=False)
+    augment_take_flow(str(trash_take), wh, augment=AugmentOptions(n=40, n_mirrored=20, seed=2), show_progress=False)
     data_scaling(wh, tasks=["trash_in_bin"], sizes=[1, 3], scenes=2, steps=20)
     ck = query("SELECT n_requested, n_episodes, frames, steps FROM closed_loop_checkpoints ORDER BY n_requested",
                wh).to_pylist()
@@ -150,12 +150,12 @@ def test_data_scaling_flow_writes_the_table_the_view_and_reuses_its_cache(prefec
     by = {}
     for r in rows:
         by.setdefault((r["method"], r["n_train_episodes"]), []).append(r)
-    assert sorted(k[0] for k in by) == ["closed_loop", "closed_loop", "replay_top1", "transform_demo"]
+    assert sorted(k[0] for k in by) == ["closed_loop", "closed_loop", "open_loop", "replay_top1", "transform_demo"]
     seeds = {k: sorted(r["scene_seed"] for r in v) for k, v in by.items()}
     assert len({tuple(s) for s in seeds.values()}) == 1 and len(next(iter(seeds.values()))) == 2  # the same scenes
     assert all(r["success"] or r["failure"] for r in rows)
     view = query("SELECT * FROM report_data_scaling", wh).to_pylist()
-    assert len(view) == 4 and all(v["scenes"] == 2 and 0 <= v["wilson_low"] <= v["success_rate"] <= v["wilson_high"] <= 1
+    assert len(view) == 5 and all(v["scenes"] == 2 and 0 <= v["wilson_low"] <= v["success_rate"] <= v["wilson_high"] <= 1
                                   for v in view)
     data_scaling(wh, tasks=["trash_in_bin"], sizes=[1, 3], scenes=2, steps=20)   # cached: nothing new
     assert query("SELECT count(*) AS n FROM closed_loop_checkpoints", wh).to_pylist()[0]["n"] == 2

@@ -12,12 +12,13 @@ from prefect import flow, get_run_logger
 import demoforge.lib  # noqa: F401
 from demoforge.flows.policy import _resolve_take
 from demoforge.flows.screening import check_robot
-from demoforge.tasks.closed_loop import BASELINES, closed_loop_train, closed_loop_trials
+from demoforge.tasks.closed_loop import BASELINES, OPEN_LOOP, closed_loop_train, closed_loop_trials
 from demoforge.tasks.common import Manifest, run_stage
-from demoforge.tasks.policy import database_inputs
+from demoforge.tasks.policy import database_inputs, policy_train
 from demoforge.tasks.screening import code_files, database_files, screen_database
 
 DEFAULT_SIZES = (1, 10, 100, 1000)
+OPEN_LOOP_EPOCHS, OPEN_LOOP_WAYPOINTS = 6, 40  # the open-loop policy as `make evaluate` trains it
 
 
 def _screening(warehouse: str, task: str, take: str, arms) -> Manifest:
@@ -83,7 +84,8 @@ def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Seq
                  gripper: str | None = "2f140", threads: int = 1, baselines: bool = True) -> list[Manifest]:
     """The data-scaling table: per task, a closed-loop policy trained on each number of episodes in `sizes`
     (1 = the original demonstration alone), each rolled out on the same `scenes` held-out scenes, and the
-    LLM-free baselines on them (`closed_loop_trials`; the view `report_data_scaling`)."""
+    LLM-free baselines and the open-loop keypoint policy (trained on all screened-in episodes) on them
+    (`closed_loop_trials`; the view `report_data_scaling`)."""
     if not sizes or min(sizes) < 1 or scenes < 1:
         raise ValueError("sizes must be numbers of episodes >= 1 and scenes at least 1")
     arms = check_robot(robot, gripper)
@@ -98,6 +100,13 @@ def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Seq
             ck = run_stage(closed_loop_train, warehouse, n_episodes=n, steps=steps, threads=threads, **common)
             out.append(run_stage(closed_loop_trials, warehouse, method="closed_loop", scenes=scenes, checkpoint=ck,
                                  **common))
-        for method in BASELINES if baselines else ():
+        if not baselines:
+            continue
+        for method in BASELINES:
             out.append(run_stage(closed_loop_trials, warehouse, method=method, scenes=scenes, **common))
+        policy = run_stage(policy_train, warehouse, task=task, take=take, warehouse=warehouse, database=database,
+                           seed=seed, epochs=OPEN_LOOP_EPOCHS, max_seconds=None, threads=threads,
+                           n_waypoints=OPEN_LOOP_WAYPOINTS, robot_label=arms.label, screening=screening)
+        out.append(run_stage(closed_loop_trials, warehouse, method=OPEN_LOOP, scenes=scenes, checkpoint=policy,
+                             **common))
     return out

@@ -6,7 +6,7 @@ import pyarrow as pa
 
 from demoforge.schemas.core import Column, table
 
-METHODS = ("closed_loop", "replay_top1", "transform_demo")
+METHODS = ("closed_loop", "open_loop", "replay_top1", "transform_demo")
 
 CLOSED_LOOP_CHECKPOINTS = table(
     "closed_loop_checkpoints",
@@ -48,12 +48,14 @@ CLOSED_LOOP_TRIALS = table(
         Column("take", pa.string(), "Source take of the episode database."),
         Column("robot", pa.string(), "The arm robot's label."),
         Column("gripper", pa.string(), "Its hands."),
-        Column("method", pa.string(), "`closed_loop` (the chunk policy in the environment), `replay_top1` (the "
+        Column("method", pa.string(), "`closed_loop` (the chunk policy in the environment), `open_loop` (the keypoint-to-trajectory policy's "
+               "waypoints for the scene, executed by the robot check), `replay_top1` (the "
                "nearest screened-in episode replayed), `transform_demo` (the demonstration carried to the scene)."),
-        Column("checkpoint_id", pa.string(), "The closed-loop policy (see `closed_loop_checkpoints`); `none` for a "
-               "baseline."),
-        Column("n_train_episodes", pa.int32(), "Episodes the policy was trained on; for a baseline, the episodes it "
-               "chooses from (the screened-in database and the original)."),
+        Column("checkpoint_id", pa.string(), "The closed-loop policy (see `closed_loop_checkpoints`), the open-loop "
+               "policy's (`policy_checkpoints`), `none` for a baseline."),
+        Column("n_train_episodes", pa.int32(), "Episodes the policy was trained on (the open-loop policy: all "
+               "screened-in valid episodes less its validation placements); for a baseline, the episodes it chooses "
+               "from (the screened-in database and the original)."),
         Column("scene_seed", pa.int64(), "Seed of the scene (the same seed, the same scene for every method)."),
         Column("scene_mirrored", pa.bool_(), "The scene has the demonstration's mirrored layout."),
         Column("success", pa.bool_(), "The task's success predicate held at the end, no failure."),

@@ -19,6 +19,7 @@ CLOSED_LOOP_VERSION = "2"
 CLOSED_LOOP_DIR = "_closed_loop"  # checkpoints beside the warehouse tables, like _policy
 SCENE_SEED_BASE = 1_000_000       # held-out scene seeds: seed * 10,000 + i above it; no database uses them
 BASELINES = ("replay_top1", "transform_demo")
+OPEN_LOOP = "open_loop"           # the keypoint-to-trajectory policy (lib/policy/model.py), executed by the robot check
 SUCCESS_CHECK_EVERY = 15          # frames: a rollout ends once the task's success predicate holds (checked every 0.5 s)
 
 
@@ -113,6 +114,42 @@ def _row(task, take, arm, method, checkpoint_id, n_train, scene, out, inference_
 def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper: str, method: str,
                        database: dict, screening: Manifest, seed: int = 0, scenes: int = 50,
                        checkpoint: Manifest | None = None, max_steps: int = 900) -> Manifest:
+    """See _trials; `checkpoint`: the closed-loop policy's (`closed_loop`) or the open-loop policy's
+    (`open_loop`: a `policy_checkpoints` manifest)."""
+    return _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpoint, max_steps)
+
+
+def _open_loop_rows(task, take, warehouse, arm, scenes, checkpoint: Manifest, bar) -> list[dict]:
+    """The open-loop policy's waypoints for each scene, upsampled to the scene layout's episode length (as
+    Table 3's `policy` column), executed by the robot check."""
+    from demoforge.lib.policy.train import load_checkpoint
+    from demoforge.lib.sim import SimOptions, execute
+    from demoforge.tasks.llm_eval import upsample
+    from demoforge.tasks.policy import checkpoint_row as policy_row
+    from demoforge.tasks.table3 import _database
+
+    ck = policy_row(checkpoint)
+    policy = load_checkpoint(ck["path"])
+    db = _database(warehouse, task, take, arm.label)
+    original = np.flatnonzero(db["kinds"] == "original")[0]
+    options, rows = SimOptions(robot=arm), []
+    for sc in bar:
+        t0 = time.perf_counter()
+        layout = db["kinds"] == ("mirrored" if sc["mirrored"] else "original")
+        n_steps = int(db["length"][layout][0] if layout.any() else db["length"][original])
+        kp = np.asarray(sc["keypoints"], float)
+        inference = time.perf_counter()
+        actions = upsample(policy.predict(kp, np.asarray(sc["initial"], float)), n_steps)
+        inference = time.perf_counter() - inference
+        res = execute(task, kp, actions, options=options)
+        out = {"success": res.success, "failure": res.failure, "detail": res.detail, "frames": res.n_frames,
+               "seconds": time.perf_counter() - t0}
+        rows.append(_row(task, take, arm, OPEN_LOOP, ck["checkpoint_id"], ck["n_train"], sc, out,
+                         1000 * inference / max(res.n_frames, 1)))
+    return rows
+
+
+def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpoint, max_steps) -> Manifest:
     """Roll one method out on the held-out scenes of task/take: `closed_loop` (the checkpoint's policy stepping
     DemoforgeEnv with temporal ensembling, ended at the task's success or after max_steps frames, as a policy
     evaluation ends) or a baseline executed by the robot check; `closed_loop_trials` rows."""
@@ -144,6 +181,10 @@ def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper
             ms = 1000 * policy.inference_s / max(out["frames"], 1)
             rows.append(_row(task, take, arm, method, ck["checkpoint_id"], ck["n_episodes"], sc, out, ms))
         env.close()
+    elif method == OPEN_LOOP:
+        if checkpoint is None:
+            raise ValueError("method open_loop needs a trained keypoint policy (policy_checkpoints)")
+        rows = _open_loop_rows(task, take, warehouse, arm, scenes, checkpoint, bar)
     elif method in BASELINES:
         from demoforge.lib.trajectories.augmentation import transform_demo
         from demoforge.lib.trajectories.retrieval import KeypointIndex
@@ -167,7 +208,7 @@ def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper
                    "seconds": time.perf_counter() - t0}
             rows.append(_row(task, take, arm, method, "none", len(db["ids"]), sc, out))
     else:
-        raise ValueError(f"unknown method {method!r}; choose from closed_loop, {', '.join(BASELINES)}")
+        raise ValueError(f"unknown method {method!r}; choose from closed_loop, {OPEN_LOOP}, {', '.join(BASELINES)}")
     schema = get_schema("closed_loop_trials").arrow
     written = write_table("closed_loop_trials", pa.Table.from_pylist(rows, schema=schema), warehouse)
     return Manifest.from_written("closed_loop_trials", written)
