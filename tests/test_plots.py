@@ -136,3 +136,21 @@ def test_report_plots_on_real_episodes(tmp_path):
     _png(reports / f"success_map_{TASK}_aloha_2f140.png")
     n_eps = len(info["actions"])
     assert f"all {n_eps:,} episodes" in text
+
+
+def test_data_scaling_plot_draws_one_panel_per_task_with_the_baselines(tmp_path):
+    import cv2
+
+    from demoforge.lib.evaluation.data_scaling import plot_data_scaling
+
+    def row(task, method, n, k, lo, hi):
+        return {"task": task, "robot": "aloha+2f140", "method": method, "n_train_episodes": n, "scenes": 50,
+                "successes": k, "success_rate": k / 50, "wilson_low": lo, "wilson_high": hi}
+
+    rows = [row("pouring", "closed_loop", 1, 0, 0.0, 0.07), row("pouring", "closed_loop", 100, 20, 0.28, 0.54),
+            row("pouring", "replay_top1", 6000, 43, 0.74, 0.93), row("trash_in_bin", "closed_loop", 10, 9, 0.1, 0.31)]
+    one = plot_data_scaling(rows[:3], tmp_path / "one.png")
+    two = plot_data_scaling(rows, tmp_path / "two.png")
+    w1, w2 = cv2.imread(str(one)).shape[1], cv2.imread(str(two)).shape[1]
+    assert w2 > 1.6 * w1                                      # a second task, a second panel
+    assert plot_data_scaling([rows[2]], tmp_path / "none.png") is None and not (tmp_path / "none.png").exists()
