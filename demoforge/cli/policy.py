@@ -158,14 +158,15 @@ def data_scaling_cmd(
     robot: str = typer.Option("aloha", "--robot", help="The arm robot."),
     gripper: Optional[str] = typer.Option("2f140", "--gripper", help="Its hands (2f140 or aloha)."),
     threads: int = typer.Option(1, min=1, help="torch CPU threads for training."),
-    baselines: bool = typer.Option(True, help="Also run the LLM-free baselines (replay_top1, transform_demo) on the "
-                                   "same scenes."),
+    baselines: bool = typer.Option(True, help="Also run the LLM-free baselines (replay_top1, transform_demo) and the "
+                                   "open-loop keypoint policy (trained on every screened-in episode) on the same scenes."),
 ) -> None:
     """The data-scaling table: is a generated episode worth anything to a learner?
 
     Per task, a closed-loop policy (train-policy --closed-loop) trained on each number of episodes in
     --sizes, each rolled out on the same --scenes held-out scenes in the task's Gymnasium environment with
-    the arms, beside the LLM-free baselines on those scenes. Rows: `closed_loop_trials`; the table with
+    the arms, beside the LLM-free baselines and the open-loop policy on those scenes. Rows: `closed_loop_trials`;
+    the table with
     Wilson 95 % intervals: the view `report_data_scaling` (printed at the end, and in reports/REPORT.md)."""
     from demoforge.flows.closed_loop import data_scaling
     from demoforge.lib.sim.robots import RobotError

@@ -111,8 +111,9 @@ def data_scaling_sections(warehouse: Path, reports: Path, stamp: str) -> list[st
                    "arms' joints and the objects' keypoints at every step, ACT-style) trained on 1 (the original "
                    "demonstration), 10, 100, ... generated episodes the arms' screening lets through, rolled out "
                    "step by step in the task's Gymnasium environment (demoforge.envs) on held-out scenes (thesis "
-                   "protocol, scene seeds no database uses), beside the LLM-free baselines executed on the same "
-                   "scenes. `n_train_episodes` of a baseline: the episodes it chooses from. Wilson 95 % intervals."),
+                   "protocol, scene seeds no database uses), beside the LLM-free baselines and the open-loop keypoint "
+                   "policy (`open_loop`, trained on every screened-in episode) executed on the same scenes. "
+                   "`n_train_episodes` of a baseline: the episodes it chooses from. Wilson 95 % intervals."),
           ""]
     png = plot_data_scaling(t.to_pylist(), reports / "data_scaling.png")
     if png is not None:
