@@ -40,6 +40,15 @@ def detector_problem(name: str) -> str | None:
     return None
 
 
+def _small_data_scaling(warehouse: str, c: EvaluateConfig, tasks: list[str]) -> None:
+    """The small data-scaling table of the policy tasks with the first grid robot (flows/closed_loop.py)."""
+    scaling_tasks = [t for t in c.policy_tasks if t in tasks]
+    if c.scaling_scenes > 0 and scaling_tasks and c.grid_robots:
+        name, _, hand = c.grid_robots[0].partition("+")
+        run_flow(data_scaling, warehouse, tasks=scaling_tasks, sizes=c.scaling_sizes, scenes=c.scaling_scenes,
+                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2)
+
+
 @flow(name="evaluate")
 def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = None) -> str:
     """Generate the default synthetic takes (all six tasks, original and mirrored), run every stage
@@ -135,11 +144,7 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
                           max_minutes=None, threads=2, n_waypoints=c.policy_waypoints)
             run_flow(evaluate_policy, warehouse, task=policy_task, take=take, trials=c.policy_trials, seed=c.seed,
                      checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
-    scaling_tasks = [t for t in c.policy_tasks if t in tasks]
-    if c.scaling_scenes > 0 and scaling_tasks and c.grid_robots:
-        name, _, hand = c.grid_robots[0].partition("+")
-        run_flow(data_scaling, warehouse, tasks=scaling_tasks, sizes=c.scaling_sizes, scenes=c.scaling_scenes,
-                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2)
+    _small_data_scaling(warehouse, c, tasks)
     from demoforge.flows.variations import evaluate_variations
     from demoforge.lib.sim.variations import TABLE4_TASKS
     from demoforge.tasks.variations import VARIATION_STRATEGIES

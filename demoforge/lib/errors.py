@@ -51,6 +51,13 @@ class UserError(ValueError):
     """Bad input or options: the message says which file or option and how to fix it."""
 
 
+class UnknownTaskError(UserError, KeyError):
+    """A task name the library does not know (a user's `--task` typo: one line, exit 2)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
 def _environment_error_types() -> tuple[type, ...]:
     import sys
 

@@ -63,6 +63,7 @@ VARIABLES: dict[str, str] = {
     "DEMOFORGE_VARIATION_TRIALS": "scenes per task and variation kind (Table 4)",
     "DEMOFORGE_POLICY_EPOCHS": "training epochs of the learned policy",
     "DEMOFORGE_POLICY_TRIALS": "scenes per kind the learned policy is judged on",
+    "DEMOFORGE_SCALING_SCENES": "held-out scenes of `make evaluate`'s small data-scaling table (0 skips it)",
 }
 
 #: Other ecosystems' names demoforge reads, because users already set them for other tools.

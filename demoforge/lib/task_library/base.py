@@ -25,7 +25,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
-from demoforge.lib.errors import UserError
+from demoforge.lib.errors import UnknownTaskError
 from demoforge.lib.geometry import transform_inverse
 from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, KeyframeSettings
 from demoforge.lib.trajectories.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
@@ -586,13 +586,6 @@ def register_variant(task: Task, tag: str) -> str:
     key = f"{task.name}@{tag}"
     _VARIANTS[key] = task
     return key
-
-
-class UnknownTaskError(UserError, KeyError):
-    """A task name the library does not know (a user's `--task` typo: one line, exit 2)."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0])
 
 
 def get_task(name: str) -> Task:
