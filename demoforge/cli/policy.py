@@ -181,7 +181,7 @@ def data_scaling_cmd(
     robot, gripper = robot_choice(robot, gripper)
     try:
         run_flow(data_scaling, str(current_warehouse()), tasks=list(task), sizes=n, scenes=scenes, seed=seed,
-                 steps=steps, robot=robot, gripper=gripper, threads=threads, baselines=baselines)
+                 steps=steps, robot=robot, gripper=gripper, threads=threads, baselines=baselines, open_loop=baselines)
     except (ValueError, RobotError) as e:
         raise fail(str(e))
     _print_rows("SELECT * FROM report_data_scaling")

@@ -81,11 +81,12 @@ def eval_closed_loop(warehouse: str, checkpoint: Manifest, task: str, take: str,
 @flow(name="data-scaling")
 def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Sequence[int] = DEFAULT_SIZES,
                  scenes: int = 50, seed: int = 0, steps: int = 3000, robot: str = "aloha",
-                 gripper: str | None = "2f140", threads: int = 1, baselines: bool = True) -> list[Manifest]:
+                 gripper: str | None = "2f140", threads: int = 1, baselines: bool = True,
+                 open_loop: bool = True) -> list[Manifest]:
     """The data-scaling table: per task, a closed-loop policy trained on each number of episodes in `sizes`
     (1 = the original demonstration alone), each rolled out on the same `scenes` held-out scenes, and the
-    LLM-free baselines and the open-loop keypoint policy (trained on all screened-in episodes) on them
-    (`closed_loop_trials`; the view `report_data_scaling`)."""
+    LLM-free baselines (`baselines`) and the open-loop keypoint policy (`open_loop`: trained on all screened-in
+    episodes) on them (`closed_loop_trials`; the view `report_data_scaling`)."""
     if not sizes or min(sizes) < 1 or scenes < 1:
         raise ValueError("sizes must be numbers of episodes >= 1 and scenes at least 1")
     arms = check_robot(robot, gripper)
@@ -100,10 +101,10 @@ def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Seq
             ck = run_stage(closed_loop_train, warehouse, n_episodes=n, steps=steps, threads=threads, **common)
             out.append(run_stage(closed_loop_trials, warehouse, method="closed_loop", scenes=scenes, checkpoint=ck,
                                  **common))
-        if not baselines:
-            continue
-        for method in BASELINES:
+        for method in BASELINES if baselines else ():
             out.append(run_stage(closed_loop_trials, warehouse, method=method, scenes=scenes, **common))
+        if not open_loop:
+            continue
         policy = run_stage(policy_train, warehouse, task=task, take=take, warehouse=warehouse, database=database,
                            seed=seed, epochs=OPEN_LOOP_EPOCHS, max_seconds=None, threads=threads,
                            n_waypoints=OPEN_LOOP_WAYPOINTS, robot_label=arms.label, screening=screening)

@@ -46,7 +46,8 @@ def _small_data_scaling(warehouse: str, c: EvaluateConfig, tasks: list[str]) -> 
     if c.scaling_scenes > 0 and scaling_tasks and c.grid_robots:
         name, _, hand = c.grid_robots[0].partition("+")
         run_flow(data_scaling, warehouse, tasks=scaling_tasks, sizes=c.scaling_sizes, scenes=c.scaling_scenes,
-                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2)
+                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2,
+                 open_loop=False)  # Table 3's `policy` column with the arms is the open-loop policy already
 
 
 @flow(name="evaluate")
