@@ -9,6 +9,11 @@ demoforge.envs imports no Prefect, DuckDB, Open3D or OpenCV.
 The scenes: `reset(seed=s)` under the thesis protocol of the scripted demonstration (seed 1) that the sample
 warehouse's database augments (scripts/check_exports_sample.py), seeds 1,000,000 + i (no database uses them).
 Prints one CHECK line (JSON) with the success rate and the failures, as scripts/check_exports.sh collects them.
+
+The export's gripper columns are the demonstrated opening; the robot check closes each hand 0.3 s (`lead`
+frames) before it (DemoforgeEnv.replay_actions). A policy imitating the export predicts the demonstrated
+opening, so each step here closes a hand when the newest predicted chunk closes it within the next `lead`
+frames: the same conversion, applied to the prediction. The joints: ACT's own temporal ensembling.
 """
 
 from __future__ import annotations
@@ -50,7 +55,8 @@ def main() -> int:
     policy.eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=args.pretrained)
     env = gymnasium.make(f"demoforge/{TASK}-aloha2f140-v0", protocol="thesis", demo_seed=DEMO_SEED,
-                         max_steps=args.max_steps).unwrapped
+                         max_steps=args.max_steps, check_success_every=15).unwrapped
+    lead, grippers = env.stepper.lead, env.gripper_cols
     outcomes = Counter()
     for i in range(args.scenes):
         obs, info = env.reset(seed=SCENE_SEED_BASE + i)
@@ -58,8 +64,12 @@ def main() -> int:
         while True:
             batch = {STATE: torch.as_tensor(obs[STATE])[None], ENV_STATE: torch.as_tensor(obs[ENV_STATE])[None]}
             with torch.inference_mode():
-                action = post(policy.select_action(pre(batch)))
-            obs, _, terminated, truncated, info = env.step(np.asarray(action, np.float32).reshape(-1))
+                chunk = policy.predict_action_chunk(pre(batch))                 # (1, chunk, 14), normalised
+                action = np.asarray(post(policy.temporal_ensembler.update(chunk)), np.float32).reshape(-1)
+                ahead = np.asarray(post(chunk[0, : lead + 1]), np.float32)     # the next lead + 1 frames
+            for g in grippers:
+                action[g] = 0.0 if (ahead[:, g] < 0.5).any() else 1.0
+            obs, _, terminated, truncated, info = env.step(action)
             if terminated or truncated:
                 break
         outcomes["success" if info["success"] else info["failure"]] += 1
