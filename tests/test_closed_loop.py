@@ -29,8 +29,7 @@ def demo(tmp_path_factory):
     mirrored = min(i for i, k in info["kind"].items() if k == "mirrored" and info["valid"][i])
     sel = load_episodes(str(root), TASK, only={("synth_pouring_s0000", 0), ("synth_pouring_s0000", mirrored)})
     env = DemoforgeEnv(TASK, robot="aloha", gripper="2f140")
-    demos = joint_demos(get_robot("aloha", "2f140"), get_task(TASK), sel.poses, sel.lengths, sel.keypoints,
-                        env.stepper.lead)
+    demos = joint_demos(get_robot("aloha", "2f140"), get_task(TASK), sel.poses, sel.lengths, sel.keypoints)
     return env, demos, sel
 
 

@@ -100,8 +100,7 @@ def _joint_demo():
     src = from_scripted_demo(spec, spec.scripted_demo(1))
     env = DemoforgeEnv("pouring", robot="aloha", gripper="2f140")
     acts = np.asarray(src.trajectory, np.float64)
-    demos = joint_demos(get_robot("aloha", "2f140"), spec, acts, np.array([len(acts)]), src.keypoints[None],
-                        env.stepper.lead)
+    demos = joint_demos(get_robot("aloha", "2f140"), spec, acts, np.array([len(acts)]), src.keypoints[None])
     return env, demos, src, acts
 
 

@@ -15,7 +15,7 @@ import pyarrow as pa
 from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
-CLOSED_LOOP_VERSION = "2"
+CLOSED_LOOP_VERSION = "3"  # 3: episodes drawn from the valid screened-in ones only
 CLOSED_LOOP_DIR = "_closed_loop"  # checkpoints beside the warehouse tables, like _policy
 SCENE_SEED_BASE = 1_000_000       # held-out scene seeds: seed * 10,000 + i above it; no database uses them
 BASELINES = ("replay_top1", "transform_demo")
@@ -24,16 +24,15 @@ SUCCESS_CHECK_EVERY = 15          # frames: a rollout ends once the task's succe
 
 
 def training_episode_ids(warehouse: str, task: str, take: str, robot_label: str, n: int, seed: int) -> np.ndarray:
-    """The episodes a policy of n episodes trains on: the original demonstration, then n - 1 screened-in
+    """The episodes a policy of n episodes trains on: the original demonstration, then n - 1 valid screened-in
     episodes drawn with the seed (the draws of a larger n start with those of a smaller one)."""
-    from demoforge.tasks.screening import screened_ids
     from demoforge.tasks.table3 import _database
 
-    db = _database(warehouse, task, take, None)
+    db = _database(warehouse, task, take, robot_label)  # valid, screened in, and the original
     original = int(db["ids"][db["kinds"] == "original"][0])
-    pool = np.setdiff1d(screened_ids(warehouse, task, take, robot_label), [original])
+    pool = np.setdiff1d(db["ids"], [original])
     if n - 1 > len(pool):
-        raise ValueError(f"{task}/{take} has {len(pool)} screened-in episodes for {robot_label}, fewer than the "
+        raise ValueError(f"{task}/{take} has {len(pool)} valid screened-in episodes for {robot_label}, fewer than the "
                          f"{n - 1} asked for: ask for fewer episodes or augment a larger database")
     drawn = np.random.default_rng([int(seed), 47]).permutation(pool)[:n - 1]
     return np.concatenate([[original], np.sort(drawn)]).astype(np.int64)
@@ -73,7 +72,7 @@ def closed_loop_train(task: str, take: str, warehouse: str, robot: str, gripper:
     sel = load_episodes(warehouse, task, take, only={(take, int(i)) for i in ids})
     t0 = time.perf_counter()
     with tqdm(total=len(ids), desc=f"{task}: {len(ids)} episodes in joint space", unit="episode", disable=None) as bar:
-        demos = joint_demos(arm, get_task(task), sel.poses, sel.lengths, sel.keypoints, int(round(arm.gripper.close_lead_s * 30.0)),
+        demos = joint_demos(arm, get_task(task), sel.poses, sel.lengths, sel.keypoints,
                             progress=lambda i: bar.update(i - bar.n))
     plan_s = time.perf_counter() - t0
     tc = ChunkTrainConfig(steps=steps, threads=threads)
@@ -119,32 +118,49 @@ def closed_loop_trials(task: str, take: str, warehouse: str, robot: str, gripper
     return _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpoint, max_steps)
 
 
-def _open_loop_rows(task, take, warehouse, arm, scenes, checkpoint: Manifest, bar) -> list[dict]:
-    """The open-loop policy's waypoints for each scene, upsampled to the scene layout's episode length (as
-    Table 3's `policy` column), executed by the robot check."""
-    from demoforge.lib.policy.train import load_checkpoint
+def _executed_rows(task, take, warehouse, arm, method, bar, source, checkpoint: Manifest | None) -> list[dict]:
+    """A method whose trajectory the robot check executes, on each scene: `replay_top1` (the nearest valid
+    screened-in episode), `transform_demo`, or `open_loop` (the keypoint policy's waypoints upsampled to the scene
+    layout's episode length, as Table 3's `policy` column)."""
     from demoforge.lib.sim import SimOptions, execute
-    from demoforge.tasks.llm_eval import upsample
-    from demoforge.tasks.policy import checkpoint_row as policy_row
-    from demoforge.tasks.table3 import _database
+    from demoforge.lib.trajectories.augmentation import transform_demo
+    from demoforge.lib.trajectories.retrieval import KeypointIndex
+    from demoforge.tasks.augment import episode_actions
+    from demoforge.tasks.table3 import _database, nearest_source
 
-    ck = policy_row(checkpoint)
-    policy = load_checkpoint(ck["path"])
     db = _database(warehouse, task, take, arm.label)
+    checkpoint_id, n_train, policy = "none", len(db["ids"]), None
+    if method == OPEN_LOOP:
+        from demoforge.lib.policy.train import load_checkpoint
+        from demoforge.tasks.llm_eval import upsample
+        from demoforge.tasks.policy import checkpoint_row as policy_row
+
+        if checkpoint is None:
+            raise ValueError("method open_loop needs a trained keypoint policy (policy_checkpoints)")
+        ck = policy_row(checkpoint)
+        checkpoint_id, n_train, policy = ck["checkpoint_id"], ck["n_train"], load_checkpoint(ck["path"])
+    else:
+        index = KeypointIndex(db["keypoints"], ids=db["ids"])
     original = np.flatnonzero(db["kinds"] == "original")[0]
     options, rows = SimOptions(robot=arm), []
     for sc in bar:
         t0 = time.perf_counter()
-        layout = db["kinds"] == ("mirrored" if sc["mirrored"] else "original")
-        n_steps = int(db["length"][layout][0] if layout.any() else db["length"][original])
         kp = np.asarray(sc["keypoints"], float)
-        inference = time.perf_counter()
-        actions = upsample(policy.predict(kp, np.asarray(sc["initial"], float)), n_steps)
-        inference = time.perf_counter() - inference
+        inference = 0.0
+        if method == OPEN_LOOP:
+            layout = db["kinds"] == ("mirrored" if sc["mirrored"] else "original")
+            n_steps = int(db["length"][layout][0] if layout.any() else db["length"][original])
+            actions = upsample(policy.predict(kp, np.asarray(sc["initial"], float)), n_steps)
+            inference = time.perf_counter() - t0
+        elif method == "replay_top1":
+            top = int(np.asarray(index.query(kp, k=1).ids).ravel()[0])
+            actions = episode_actions(warehouse, task, take, [top])[top]
+        else:
+            actions = transform_demo(nearest_source(source, kp), np.asarray(sc["object_poses"], float))
         res = execute(task, kp, actions, options=options)
         out = {"success": res.success, "failure": res.failure, "detail": res.detail, "frames": res.n_frames,
                "seconds": time.perf_counter() - t0}
-        rows.append(_row(task, take, arm, OPEN_LOOP, ck["checkpoint_id"], ck["n_train"], sc, out,
+        rows.append(_row(task, take, arm, method, checkpoint_id, n_train, sc, out,
                          1000 * inference / max(res.n_frames, 1)))
     return rows
 
@@ -152,12 +168,12 @@ def _open_loop_rows(task, take, warehouse, arm, scenes, checkpoint: Manifest, ba
 def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpoint, max_steps) -> Manifest:
     """Roll one method out on the held-out scenes of task/take: `closed_loop` (the checkpoint's policy stepping
     DemoforgeEnv with temporal ensembling, ended at the task's success or after max_steps frames, as a policy
-    evaluation ends) or a baseline executed by the robot check; `closed_loop_trials` rows."""
+    evaluation ends), or what the robot check executes of the open-loop policy or a baseline (_executed_rows);
+    `closed_loop_trials` rows."""
     from tqdm.auto import tqdm
 
     from demoforge.envs.robot_env import DemoforgeEnv
     from demoforge.envs.rollout import rollout
-    from demoforge.lib.sim import SimOptions, execute
     from demoforge.lib.sim.robots import get_robot
     from demoforge.tasks.augment import load_demo_source
 
@@ -181,32 +197,8 @@ def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpo
             ms = 1000 * policy.inference_s / max(out["frames"], 1)
             rows.append(_row(task, take, arm, method, ck["checkpoint_id"], ck["n_episodes"], sc, out, ms))
         env.close()
-    elif method == OPEN_LOOP:
-        if checkpoint is None:
-            raise ValueError("method open_loop needs a trained keypoint policy (policy_checkpoints)")
-        rows = _open_loop_rows(task, take, warehouse, arm, scenes, checkpoint, bar)
-    elif method in BASELINES:
-        from demoforge.lib.trajectories.augmentation import transform_demo
-        from demoforge.lib.trajectories.retrieval import KeypointIndex
-        from demoforge.tasks.augment import episode_actions
-        from demoforge.tasks.table3 import _database, nearest_source
-
-        db = _database(warehouse, task, take, arm.label)
-        index = KeypointIndex(db["keypoints"], ids=db["ids"])
-        options = SimOptions(robot=arm)
-        for sc in bar:
-            t0 = time.perf_counter()
-            kp = np.asarray(sc["keypoints"], float)
-            if method == "replay_top1":
-                top = int(np.asarray(index.query(kp, k=1).ids).ravel()[0])
-                actions = episode_actions(warehouse, task, take, [top])[top]
-            else:
-                actions = transform_demo(nearest_source(source, kp), np.asarray(sc["object_poses"], float))
-            res = execute(task, kp, actions, options=options)
-            out = {"success": res.success, "failure": res.failure, "detail": res.detail,
-                   "frames": res.n_frames,
-                   "seconds": time.perf_counter() - t0}
-            rows.append(_row(task, take, arm, method, "none", len(db["ids"]), sc, out))
+    elif method == OPEN_LOOP or method in BASELINES:
+        rows = _executed_rows(task, take, warehouse, arm, method, bar, source, checkpoint)
     else:
         raise ValueError(f"unknown method {method!r}; choose from closed_loop, {OPEN_LOOP}, {', '.join(BASELINES)}")
     schema = get_schema("closed_loop_trials").arrow

@@ -86,14 +86,14 @@ class ChunkPolicy(nn.Module):
         self.head = nn.Sequential(nn.LayerNorm((c.n_keypoints + 1) * d), nn.Linear((c.n_keypoints + 1) * d, c.head_dim),
                                   nn.GELU(), nn.Linear(c.head_dim, c.chunk * c.state_dim))
 
-    def fit_normalizer(self, states: np.ndarray, keypoints: np.ndarray, deltas: np.ndarray) -> None:
-        """Means and scales from the training frames: states (F, 14), keypoints (F, K, 3), the targets'
-        changes from their frame's state (F, chunk, 14), scaled per future step; the gripper columns stay as they
-        are (0/1)."""
+    def fit_normalizer(self, states: np.ndarray, keypoints: np.ndarray, delta_rms: np.ndarray) -> None:
+        """Means and scales from the training frames: states (F, 14), keypoints (F, K, 3), the root mean square
+        of the targets' changes from their frame's state per future step (chunk, 14); the gripper columns stay as
+        they are (0/1)."""
         s, k = np.asarray(states, np.float64), np.asarray(keypoints, np.float64)
         mean, std = s.mean(0), np.maximum(s.std(0), STD_FLOOR)
         # per future step: the next frame's change is as important as the one a second ahead, not 30 times smaller
-        dstd = np.maximum(np.sqrt((np.asarray(deltas, np.float64) ** 2).mean(0)), DELTA_FLOOR)
+        dstd = np.maximum(np.asarray(delta_rms, np.float64), DELTA_FLOOR)
         g = list(GRIPPER_COLUMNS)
         mean[g], std[g], dstd[:, g] = 0.0, 1.0, 1.0
         self.delta_std.copy_(torch.as_tensor(dstd, dtype=torch.float32))

@@ -75,12 +75,12 @@ def commanded_grippers(states: np.ndarray, lengths: np.ndarray, lead: int) -> np
     return out
 
 
-def joint_demos(robot, task, poses: np.ndarray, lengths: np.ndarray, keypoints: np.ndarray, lead: int,
+def joint_demos(robot, task, poses: np.ndarray, lengths: np.ndarray, keypoints: np.ndarray,
                 progress: Callable[[int], None] | None = None, fps: float = 30.0) -> JointDemos:
     """The episodes poses (F, 2, 8) with lengths (N,) and start keypoints (N, K, 3) as `robot` (an arm robot)
-    executes them; lead: the close lead in frames (EpisodeStepper.lead)."""
+    executes them, each close commanded the robot's close lead early (as EpisodeStepper.lead)."""
     js = joint_episodes(robot, task.name, poses, lengths, keypoints, progress=progress, fps=fps)
-    states = commanded_grippers(js.joints, js.lengths, lead)
+    states = commanded_grippers(js.joints, js.lengths, int(round(robot.gripper.close_lead_s * fps)))
     pinch = np.array(js.poses, np.float64)
     pinch[:, :, 7] = states[:, list(GRIPPER_COLUMNS)]  # the keypoints follow the commanded hands, as the env's do
     env = episode_object_keypoints(pinch, js.lengths, np.asarray(keypoints)[js.keep], task.keypoint_object)
