@@ -123,14 +123,16 @@ def augment(
     table_clearance: float = typer.Option(0.010, "--table-clearance", help="As for `demoforge ingest`, m; negative = off."),
     allow_untrusted_hands: bool = typer.Option(False, "--allow-untrusted-hands", help="Build the database even from a hand tracked in too few frames (see the hand_presence table)."),
     accept_bad_depth: bool = typer.Option(False, "--accept-bad-depth", help="As for `demoforge ingest`."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Also screen every episode for this robot's arms (aloha; as `demoforge screen`): the `episode_screening` table."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Draw the placements for this robot's arms (aloha): those its screening rejects are drawn again (--redraw-rounds), then every episode is screened (as `demoforge screen`: the `episode_screening` table)."),
     gripper: Optional[str] = gripper_option(),
+    redraw_rounds: int = typer.Option(8, "--redraw-rounds", min=0, help="With --robot: rounds of drawing again the placements the arms cannot serve (0: draw as without --robot, only screen)."),
 ) -> None:
     """Segment an ingested demonstration and generate the task's episode database (thesis 3.2-3.3).
 
     The episodes come from the take's ingest with the mapping options given here (the same defaults as
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these. With
-    --robot aloha, each episode is then screened for the arms (`demoforge screen`)."""
+    --robot aloha, the placements the arms cannot serve are drawn again (the same distribution, restricted to
+    what the arms' screening passes) and each episode is then screened for the arms (`demoforge screen`)."""
     from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
 
@@ -159,7 +161,8 @@ def augment(
                                        table_clearance=None if table_clearance < 0 else table_clearance,
                                        accept_bad_depth=accept_bad_depth)
         result = run_flow(augment_take_flow, str(path), str(current_warehouse()), task=task, augment=augment_options,
-                          ingest=ingest_options, allow_untrusted_hands=allow_untrusted_hands)
+                          ingest=ingest_options, allow_untrusted_hands=allow_untrusted_hands,
+                          robot=robot, gripper=gripper, redraw_rounds=redraw_rounds)
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     typer.echo(f"episodes: {result['episodes'].path}")

@@ -11,13 +11,12 @@ from prefect import flow
 import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import check_demonstration, ingest_take
 from demoforge.lib.ingest.options import IngestOptions
-from demoforge.lib.takes import open_take
+from demoforge.lib.takes import open_take, take_task_name
 from demoforge.lib.takes.sources import take_root
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, run_stage
-from demoforge.tasks.ingest import take_task_name
 
 
 @flow(name="augment-take")
@@ -31,6 +30,9 @@ def augment_take_flow(
     show_progress: bool = True,
     allow_untrusted_hands: bool = False,
     database: str | None = None,
+    robot: str | None = None,
+    gripper: str | None = None,
+    redraw_rounds: int = 8,
 ) -> dict[str, Manifest | None]:
     """Ingest the take (cached), segment each arm, and generate the task's episodes from it.
 
@@ -45,6 +47,8 @@ def augment_take_flow(
     manual_segments: {arm: [boundary frames]} overrides the automatic segmentation of that arm.
     database: the episodes' key in `episodes.take` (default: the take's id), to keep a second database
     of the same take.
+    robot, gripper: an arm robot (aloha): the placements its arms cannot serve (its screening) are drawn again,
+    up to redraw_rounds rounds (0: drawn as without a robot).
     """
     aug = augment or AugmentOptions()
     ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
@@ -59,7 +63,9 @@ def augment_take_flow(
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
-                         seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}))
+                         seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}),
+                         **({"robot": robot, "gripper": gripper, "redraw_rounds": redraw_rounds}
+                            if robot is not None and redraw_rounds > 0 else {}))
     # the robot executing the demonstration every episode is built from: when it fails, so will the
     # episodes, and the user hears it at once instead of after a whole-database robot check
     demo_check = check_demonstration(take_root(path), warehouse, task, take_task_name(open_take(path), task),

@@ -108,10 +108,13 @@ def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
 @stage_task(name="augment_take", version=AUGMENT_VERSION)
 def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
-                 options: dict | None = None, database: str | None = None) -> Manifest:
+                 options: dict | None = None, database: str | None = None, robot: str | None = None,
+                 gripper: str | None = None, redraw_rounds: int = 8) -> Manifest:
     """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes.
     database: the key written to `episodes.take` (default: the take's id); another key keeps a second
-    database of the same take (other augmentation options) beside the first."""
+    database of the same take (other augmentation options) beside the first. robot (an arm robot, e.g.
+    "aloha" with its gripper): the placements the arms' screening rejects are drawn again, up to
+    redraw_rounds rounds (lib/trajectories/augmentation/servable.py)."""
     from demoforge.lib.trajectories.augmentation import generate_episodes
     from demoforge.lib.takes import open_take
 
@@ -122,7 +125,10 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     opts = dict(options or {})
     ws = spec.workspace(source.keypoints, source.trajectory[..., :3]) if callable(spec.workspace) else spec.workspace
     opts.setdefault("workspace", np.asarray(ws))
-    batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
+    if robot is None:
+        batch = generate_episodes(source, n=n, n_mirrored=n_mirrored, seed=seed, **opts)
+    else:
+        batch = _servable_batch(source, name, robot, gripper, n, n_mirrored, seed, redraw_rounds, opts)
     key = database or take.take_id
     before = _episode_file_digests(warehouse, name, key)
     written = write_table("episodes", episodes_columns(name, key, seed, batch), warehouse)
@@ -139,6 +145,35 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
             get_run_logger().warning("%s/%s: the episodes changed; removed %d robot-check file(s) (sim_results, "
                                      "sim_stability) of the previous episodes", name, take.take_id, gone)
     return Manifest.from_written("episodes", written)
+
+
+def _servable_batch(source, task: str, robot: str, gripper: str | None, n: int, n_mirrored: int, seed: int,
+                    rounds: int, opts: dict):
+    """The database drawn where the robot's arms can serve it (every redraw screened as `screen` does)."""
+    from prefect import get_run_logger
+    from tqdm.auto import tqdm
+
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.sim.robots.aloha.screening import screen_episodes
+    from demoforge.lib.trajectories.augmentation.servable import generate_servable
+
+    arms = get_robot(robot, gripper)
+
+    def serves(batch, rows):
+        return screen_episodes(arms, task, batch.episode_actions(rows), batch.lengths[rows],
+                               batch.keypoints[rows]).executable
+
+    log = get_run_logger()
+    with tqdm(total=n + 1, desc=f"{task}: placements {arms.label} serves", unit="episode", disable=None) as bar:
+        def progress(r: int, missing: int, ok: int) -> None:
+            bar.set_postfix_str(f"redraw round {r}, {missing} drawn again")
+            bar.update(ok - bar.n)
+
+        draw = generate_servable(source, serves, n=n, n_mirrored=n_mirrored, seed=seed, rounds=rounds,
+                                 progress=progress, **opts)
+    log.info("%s: %d of %d episodes' placements served by %s (%.1f %%) after %d redraw round(s), %d judged",
+             task, int(draw.served.sum()), len(draw.served), arms.label, 100 * draw.share, draw.rounds, draw.judged)
+    return draw.batch
 
 
 def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str]:

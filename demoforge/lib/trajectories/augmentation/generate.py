@@ -144,6 +144,16 @@ def sample_params(rng: np.random.Generator, n: int, n_objects: int, groups: np.n
     return g[:, groups, :]
 
 
+def draw_placements(src: DemoSource, n: int, n_mirrored: int, rng: np.random.Generator,
+                    translation_range=((-0.15, 0.15), (-0.12, 0.12)), yaw_range=(0.0, 0.0), independent: bool = False,
+                    stack_radius: float = 0.06) -> np.ndarray:
+    """(n, n_obj, 3) [dx, dy, dyaw] of n episodes, the n - n_mirrored plain ones first (generate_episodes'
+    draw; the mirrored source's groups are the plain one's)."""
+    groups, _ = _pivots(src, independent, stack_radius)
+    return np.concatenate([sample_params(rng, n - n_mirrored, src.n_objects, groups, translation_range, yaw_range),
+                           sample_params(rng, n_mirrored, src.n_objects, groups, translation_range, yaw_range)])
+
+
 def check_episodes(actions: np.ndarray, keypoints: np.ndarray, lengths: np.ndarray, workspace: np.ndarray,
                    safety_distance: float, keypoint_object: np.ndarray | None = None,
                    groups: np.ndarray | None = None, min_object_distance: float = 0.0):
@@ -187,26 +197,32 @@ def generate_episodes(demo_source: DemoSource, n: int = 10_000, n_mirrored: int 
                       independent: bool = False, safety_distance: float = 0.04, mode: str = "object",
                       n_transition: int = 15, follow_objects: bool = False, stack_radius: float = 0.06,
                       min_object_distance: float = 0.1, dtype=np.float64, materialize: bool = False,
-                      workers: int = 2) -> EpisodeBatch:
+                      workers: int = 2, placements: np.ndarray | None = None) -> EpisodeBatch:
     """Original (episode 0) + n augmented episodes: n - n_mirrored translated, n_mirrored mirrored and
     translated, each uniform in translation_range ((dx0, dx1), (dy0, dy1)) metres and yaw_range radians
     (one draw for the whole scene, or per object group if independent).  workspace: (2, 3) xyz box
     (default: the source's, i.e. the task library's box of the task; else unbounded).  Validity is computed for
-    every episode; actions are materialised now if materialize, else on first access of .actions."""
+    every episode; actions are materialised now if materialize, else on first access of .actions.
+    placements: (n, n_obj, 3) [dx, dy, dyaw] of episodes 1..n instead of the seed's draw (the plain ones
+    first), e.g. some of them drawn again (servable.py)."""
     src = demo_source
     if workspace is None:
         workspace = src.workspace if src.workspace is not None else np.array([[-np.inf] * 3, [np.inf] * 3])
     workspace = np.asarray(workspace, float)
     if not 0 <= n_mirrored <= n:
         raise ValueError(f"need 0 <= n_mirrored <= n, got n={n}, n_mirrored={n_mirrored}")
-    rng = np.random.default_rng(seed)
     n_plain = n - n_mirrored
     msrc = mirror_source(src)
     groups, piv = _pivots(src, independent, stack_radius)
     _, piv_m = _pivots(msrc, independent, stack_radius)
     n_obj = src.n_objects
-    p_plain = sample_params(rng, n_plain, n_obj, groups, translation_range, yaw_range)
-    p_mirr = sample_params(rng, n_mirrored, n_obj, groups, translation_range, yaw_range)
+    if placements is None:
+        placements = draw_placements(src, n, n_mirrored, np.random.default_rng(seed), translation_range, yaw_range,
+                                     independent, stack_radius)
+    placements = np.asarray(placements, float)
+    if placements.shape != (n, n_obj, 3):
+        raise ValueError(f"placements must be ({n}, {n_obj}, 3), got {placements.shape}")
+    p_plain, p_mirr = placements[:n_plain], placements[n_plain:]
     plan = make_plan(src, mode, n_transition, follow_objects)
     plan_m = make_plan(msrc, mode, n_transition, follow_objects)
     L = max(plan.length, plan_m.length)
