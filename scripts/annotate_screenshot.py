@@ -25,7 +25,7 @@ def main() -> None:
     ap.add_argument("--frame", type=int, default=0, help="frame shown")
     args = ap.parse_args()
 
-    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from tests.cdp import Browser
 
     session = AnnotationSession(args.take, args.warehouse)

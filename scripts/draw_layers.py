@@ -22,7 +22,8 @@ from tests.import_graph import find_modules, imported, room  # noqa: E402
 
 SHELL = ("demoforge.cli", "demoforge.runtime", "demoforge.bench")
 LAYER_ROWS = [("command line", ["demoforge.cli"]), ("application shell", ["demoforge.runtime", "demoforge.bench"]),
-              ("flows/", ["demoforge.flows"]), ("tasks/", ["demoforge.tasks"]), ("schemas/", ["demoforge.schemas"])]
+              ("flows/", ["demoforge.flows"]), ("report/", ["demoforge.report"]), ("tasks/", ["demoforge.tasks"]),
+              ("schemas/", ["demoforge.schemas"])]
 
 
 MODULES = find_modules(ROOT)

@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 
 from demoforge.lib.llm.number_format import get_number_format
 from demoforge.lib.llm.prompting import ANSWER_PREFIX, order_by_similarity, parse_actions, resample_actions
-from demoforge.tasks.augment import episode_actions
+from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.table3 import LLM_STRATEGIES, _database
 
 

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(wh: str, n: int, task: str = "pouring") -> None:
     import cv2
 
-    from demoforge.tasks.export import load_episodes, take_cameras
+    from demoforge.schemas.reads.episodes import load_episodes, take_cameras
     from demoforge.lib.sim.executor import SimOptions
     from demoforge.lib.sim.render import _resimulate_states, episode_frames
 

@@ -55,7 +55,7 @@ SWEEP = [KeyframeSettings(p, r, s) for s in (0.0, 1.0, 2.0, 3.0) for p, r in ((0
 def warehouse_episodes(warehouse: str, task: str, n: int, seed: int) -> tuple[list, str]:
     """n valid episodes (keypoints, actions) drawn at random from the warehouse's first database of task."""
     from demoforge.schemas.catalog import query
-    from demoforge.tasks.augment import episode_actions
+    from demoforge.schemas.reads.episodes import episode_actions
 
     dbs = query("SELECT take, count(*) AS n FROM episodes WHERE task = ? AND valid GROUP BY take ORDER BY take",
                 warehouse, [task])

@@ -74,7 +74,7 @@ def episodes(args):
                 d = get_task(t).scripted_demo(s, mirror=mirror)
                 yield t, "scripted", d.gripper_actions(), get_task(t).keypoints_world(d.placement.object_poses)
         if args.warehouse:
-            from demoforge.tasks.export import load_episodes
+            from demoforge.schemas.reads.episodes import load_episodes
 
             sel = load_episodes(args.warehouse, t)
             pick = np.sort(np.random.default_rng(1).choice(len(sel.lengths), args.episodes, replace=False))

@@ -23,7 +23,7 @@ def handedness_rows(wh: str) -> list[dict]:
     from demoforge.lib.takes import open_take
     from demoforge.schemas.catalog import query
     from demoforge.schemas.core import read_table, read_table_file
-    from demoforge.tasks.ingest import arrays
+    from demoforge.schemas.reads.per_hand import arrays
 
     out = []
     for r in query("SELECT path FROM takes ORDER BY take", wh).to_pylist():
@@ -59,7 +59,7 @@ def error_breakdown(wh: str) -> list[dict]:
     from demoforge.lib.takes import open_take
     from demoforge.schemas.catalog import query
     from demoforge.schemas.core import read_table, read_table_file
-    from demoforge.tasks.ingest import arrays
+    from demoforge.schemas.reads.per_hand import arrays
 
     cats: dict[str, dict[str, list]] = {}
     for r in query("SELECT path FROM takes ORDER BY take", wh).to_pylist():

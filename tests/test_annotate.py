@@ -276,7 +276,7 @@ def test_ingest_folder_lists_unannotated_takes_as_needing_annotation(prefect_api
 
 def test_custom_task_is_annotated_ingested_and_augmented(prefect_api, pouring_take, raw_take, tmp_path):
     """A task the library does not know: keypoints named by the user, arms stated on the page."""
-    from demoforge.flows.annotate import AnnotationSession
+    from demoforge.runtime.annotate import AnnotationSession
     from demoforge.flows.augment import augment_take_flow
     from demoforge.schemas.catalog import query
 
@@ -323,7 +323,7 @@ def _write_gt_predictions(take: Path, out: Path) -> None:
     """Detector predictions for a take without ground truth: the synthetic take's exact joints."""
     import pyarrow.parquet as pq
 
-    from demoforge.tasks.ingest import arrays
+    from demoforge.schemas.reads.per_hand import arrays
 
     T, a = arrays(pq.read_table(take / "ground_truth" / "gt_hand_joints.parquet"), "joints_camera", "joints_px",
                   "present")
@@ -341,7 +341,7 @@ def test_server_loads_an_existing_file_serves_frames_and_refuses_bad_saves(pouri
 
     import cv2
 
-    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
 
     take = tmp_path / "take"
     shutil.copytree(pouring_take, take, ignore=shutil.ignore_patterns("ground_truth"))
@@ -418,7 +418,7 @@ def _take_files(take: Path) -> dict:
 def test_every_route_of_the_annotation_server_passes_the_request_gate(pouring_take, tmp_path):
     """A web page in another tab, DNS rebinding, a missing or wrong token, a body that is not JSON or is
     too large: refused (403 / 415 / 413) on every route the server has, and nothing is written."""
-    from demoforge.flows.annotate import PAGE_ROUTE, ROUTES, AnnotationSession, start_server
+    from demoforge.runtime.annotate import PAGE_ROUTE, ROUTES, AnnotationSession, start_server
     from demoforge.lib.annotate.request_gate import MAX_BODY_BYTES
 
     take = tmp_path / "take"
@@ -517,9 +517,9 @@ def test_annotate_command_serves_its_take_and_task_until_ctrl_c(raw_take, tmp_pa
 
 def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
     """Open the page in headless Chromium, click the 11 keypoints, edit a pre-filled range, save."""
-    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from demoforge.flows.ingest import ingest_take
-    from demoforge.tasks.ingest import arrays
+    from demoforge.schemas.reads.per_hand import arrays
     from tests.cdp import Browser, chromium_path
 
     assert chromium_path() is not None, "chromium is not installed: run scripts/setup.sh (apt-get install chromium)"

@@ -56,7 +56,8 @@ ALLOWED = {
     "envs": {"lib", "envs"},
     "schemas": {"lib", "schemas"},
     "tasks": {"lib", "envs", "schemas", "tasks"},
-    "flows": {"lib", "envs", "schemas", "tasks", "flows", "runtime"},
+    "report": {"lib", "schemas", "runtime", "report"},
+    "flows": {"lib", "envs", "schemas", "tasks", "flows", "runtime", "report"},
 }
 
 

@@ -146,7 +146,7 @@ def test_frame_on_plane_recovers_a_pose_from_its_plane_and_edge(height, pitch, y
 
 
 def test_a_recording_without_a_pose_is_calibrated_on_the_annotate_page(takes, tmp_path):
-    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from demoforge.lib.takes.sources.writers import write_record3d
 
     rec = write_record3d(takes["plain"], tmp_path / "phone.r3d")

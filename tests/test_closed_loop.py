@@ -21,7 +21,7 @@ def demo(tmp_path_factory):
     from demoforge.envs.robot_env import DemoforgeEnv
     from demoforge.lib.sim.robots import get_robot
     from demoforge.lib.task_library import get_task
-    from demoforge.tasks.export import load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
 
     root = tmp_path_factory.mktemp("closed_loop") / "warehouse"
     root.mkdir()

@@ -41,7 +41,8 @@ def exported(tmp_path_factory):
     from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
     from demoforge.schemas.core import write_table
     from demoforge.tasks.augment import episode_steps_columns, episodes_columns
-    from demoforge.tasks.export import export_lerobot, load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
+    from demoforge.tasks.export import export_lerobot
 
     root = tmp_path_factory.mktemp("envs")
     wh = root / "warehouse"
@@ -152,7 +153,7 @@ def test_an_exported_episode_replayed_in_the_env_gets_its_robot_check_verdict(ex
     success, or the same failure class (the scripted faults fail their predicate)."""
     from demoforge.lib.sim import execute
     from demoforge.lib.sim.failures import FAILURES
-    from demoforge.tasks.sim import sim_options
+    from demoforge.lib.sim import sim_options
 
     env = gymnasium.make(demoforge.envs.env_id(task, "aloha2f140")).unwrapped
     verdicts = []

@@ -210,7 +210,7 @@ def _reference_episode_quantiles(x: np.ndarray) -> dict:
 
 
 def test_lerobot_splits_data_files_and_validator_rejects_broken_datasets(episode_wh, tmp_path):
-    from demoforge.tasks.export import load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
     from demoforge.lib.exports.lerobot import (
         LeRobotFormatError, validate_lerobot_dataset, write_lerobot_dataset,
     )
@@ -348,7 +348,7 @@ def test_backprojected_points_reproject_onto_their_pixels(seed, stride):
 
 
 def test_view_take_and_episode_recordings_hold_the_scene(episode_wh, tmp_path):
-    from demoforge.flows.export import write_view
+    from demoforge.flows.view import write_view
     from demoforge.lib.exports.rerun_view import read_recording
     from demoforge.lib.task_library import get_task
 
@@ -556,7 +556,8 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
     image statistics are LeRobot's per-channel ones."""
     import cv2
 
-    from demoforge.tasks.export import export_lerobot, load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
+    from demoforge.tasks.export import export_lerobot
     from demoforge.lib.sim.render import episode_frames
 
     import shutil
@@ -604,7 +605,7 @@ def test_lerobot_export_with_images_holds_the_rendered_episodes(episode_wh, tmp_
 def test_carried_keypoints_vectorised_equal_the_per_episode_segmentation_rule(episode_wh):
     """Over a real augmented database (translated and mirrored episodes, one call), the vectorised
     carry equals demoforge.lib.trajectories.segmentation's per-episode functions (infer_object_arm + object_keypoints_over_time)."""
-    from demoforge.tasks.export import load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
     from demoforge.lib.exports.object_state import episode_object_keypoints, object_arms
     from demoforge.lib.trajectories.segmentation import infer_object_arm, object_keypoints_over_time
     from demoforge.lib.task_library import get_task
@@ -675,7 +676,8 @@ def test_joint_space_export_reproduces_the_poses_and_keeps_only_checked_reachabl
     from demoforge.lib.sim.robots.aloha.model import REST
     from demoforge.lib.sim.robots.retiming import at
     from demoforge.schemas.core import write_table
-    from demoforge.tasks.export import export_lerobot, load_episodes
+    from demoforge.schemas.reads.episodes import load_episodes
+    from demoforge.tasks.export import export_lerobot
 
     wh, info = arm_episode_wh
     with pytest.raises(ExportError, match="demoforge simulate --task pouring --robot aloha"):

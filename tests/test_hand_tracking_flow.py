@@ -19,7 +19,7 @@ from demoforge.lib.ingest.options import IngestOptions
 
 def _gt(take: Path):
     from demoforge.schemas.core import read_table_file
-    from demoforge.tasks.ingest import arrays
+    from demoforge.schemas.reads.per_hand import arrays
 
     _, gt = arrays(read_table_file("gt_hand_joints", take / "ground_truth" / "gt_hand_joints.parquet"),
                    "joints_camera", "joints_px", "present")

@@ -16,7 +16,7 @@ def test_llm_eval_flow_parses_judges_and_records(prefect_api, ingested_warehouse
     from demoforge.lib.llm.prompting import format_actions, resample_actions
     from demoforge.lib.sim import FAILURES
     from demoforge.lib.task_library import get_task
-    from demoforge.tasks.augment import episode_actions
+    from demoforge.schemas.reads.episodes import episode_actions
 
     spec = get_task("trash_in_bin")
     take_poses = spec.scripted_demo(0).placement.object_poses  # the synthetic take's scene (seed 0)

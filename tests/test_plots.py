@@ -95,7 +95,7 @@ def test_success_map_rates_per_cell(tmp_path):
 
 def test_report_plots_on_real_episodes(tmp_path):
     """The report's section from a warehouse with real augmented episodes and physics results."""
-    from demoforge.tasks.report_plots import report_plots
+    from demoforge.report.episode_pictures import report_plots
     from demoforge.schemas.core import write_table
     from tests.test_exports import TAKE, TASK, build_episode_warehouse
 

@@ -9,8 +9,9 @@ import typer
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
-from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, llm_backend_options,
-                                number_format_option, structured_option, waypoints_option)
+from demoforge.cli.root import (TASK_HELP, api_mode_option, base_url_option, current_warehouse, detector_option, fail,
+                                llm_backend_option, llm_backend_options, number_format_option, structured_option,
+                                waypoints_option)
 
 app = typer.Typer()
 
@@ -18,7 +19,7 @@ app = typer.Typer()
 @app.command("evaluate-keypoints")
 def evaluate_keypoints_cmd(
     dataset: str = typer.Option("synthetic", "--dataset", help="synthetic (the warehouse's synthetic takes), arctic, or real_photos."),
-    detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Default: simulated (synthetic/ARCTIC), mediapipe (real photos)."),
+    detector: Optional[str] = detector_option(None, help="Default: simulated (synthetic/ARCTIC), mediapipe (real photos)."),
     arctic_root: Optional[Path] = typer.Option(None, "--arctic-root", envvar="DEMOFORGE_ARCTIC_ROOT", help="Where ARCTIC was downloaded."),
     take: Optional[List[str]] = typer.Option(None, "--take", help="Only these takes/sequences (default: the thesis's 18 ARCTIC takes)."),
     subject: Optional[str] = typer.Option(None, help="ARCTIC subject (default: the first that has the sequence)."),
@@ -48,7 +49,7 @@ def evaluate_keypoints_cmd(
 
 @app.command("evaluate-detection")
 def evaluate_detection_cmd(
-    detector: str = typer.Option("mediapipe", "--detector", "-d", help="A real detector: mediapipe."),
+    detector: str = detector_option("mediapipe", help="A real detector: mediapipe."),
     mode: Optional[List[str]] = typer.Option(None, "--mode", help="MediaPipe running mode(s), repeatable: auto (video mode for takes; default) or image."),
     take: Optional[List[str]] = typer.Option(None, "--take", help="Only these synthetic takes (default: all in the warehouse)."),
 ) -> None:
@@ -86,9 +87,9 @@ def evaluate_detection_cmd(
 
 @app.command("llm-eval")
 def llm_eval_cmd(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database provides the examples. " + TASK_HELP),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval, replay_top1, transform_demo (repeatable; default all)."),
-    backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL)."),
+    backend: str = llm_backend_option(),
     model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model name for the openai backend."),
     trials: int = typer.Option(3, envvar="DEMOFORGE_TRIALS", min=1, help="Query scenes per take and strategy (the thesis: 10)."),
     seed: int = typer.Option(0, help="Seed of the query scenes and of the random strategy."),

@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail, gripper_option, robot_choice, robot_option
+from demoforge.cli.root import TASK_HELP, current_warehouse, fail, gripper_option, robot_choice, robot_option
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -26,7 +26,7 @@ def export_cmd(
         help="`lerobot`: a LeRobotDataset v3.0 folder (meta/info.json, meta/stats.json, meta/tasks.parquet, "
              "meta/episodes/, data/chunk-000/file-000.parquet ...). `robomimic`: one hdf5 file "
              "(data/demo_i/actions, obs/, next_obs/, src_* provenance attributes, mask/ splits)."),
-    task: str = typer.Option(..., "--task", "-t", help="Task whose episode database to export, e.g. pouring."),
+    task: str = typer.Option(..., "--task", "-t", help="Task whose episode database to export. " + TASK_HELP),
     out: Path = typer.Option(..., "--out", "-o",
                              help="Output: a folder for lerobot, a .hdf5 file for robomimic. An earlier export "
                                   "of the same kind there is replaced atomically; anything else is refused."),
@@ -68,8 +68,7 @@ def export_cmd(
     reach; an episode they cannot reach within 1 cm and 5 degrees is never written), images as
     observation.images.top.
     """
-    from demoforge.flows.export import export_lerobot_flow, export_robomimic_flow
-    from demoforge.tasks.export import preflight_export
+    from demoforge.flows.export import export_lerobot_flow, export_robomimic_flow, preflight_export
     from demoforge.lib.exports import ExportError
 
     if not 0 <= valid_fraction < 1:
@@ -137,8 +136,7 @@ def view_cmd(
     gripper frames and trajectories, its object keypoints, and the demonstration's path for
     comparison. The take must be ingested first (`demoforge ingest TAKE`).
     """
-    from demoforge.tasks.export import preflight_view
-    from demoforge.flows.export import view_flow
+    from demoforge.flows.view import preflight_view, view_flow
     from demoforge.lib.exports import ExportError
     from demoforge.lib.takes import TakeError
 

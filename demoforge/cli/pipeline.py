@@ -13,8 +13,9 @@ from demoforge.lib.settings import read_settings
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.takes import _open_take_or_fail
-from demoforge.cli.root import (current_warehouse, fail, gripper_option, number_format_option, robot_choice,
-                                robot_option, structured_option, warn)
+from demoforge.cli.root import (TASK_HELP, current_warehouse, detector_option, fail, gripper_option,
+                                llm_backend_option, number_format_option, robot_choice, robot_option, robot_spec,
+                                structured_option, warn)
 
 app = typer.Typer()
 
@@ -22,7 +23,7 @@ app = typer.Typer()
 @app.command()
 def evaluate(
     reports: Path = typer.Option(Path("reports"), "--reports", help="Folder for REPORT.md, CSVs and figures."),
-    task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six)."),
+    task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Only these tasks (default: all six). " + TASK_HELP),
     takes: int = typer.Option(1, "--takes", min=1, envvar="DEMOFORGE_TAKES", help="Synthetic takes per task and mirror flag."),
     seed: int = typer.Option(0, envvar="DEMOFORGE_SEED", help="First seed of the synthetic takes."),
     mirror: str = typer.Option("both", envvar="DEMOFORGE_MIRROR", help="Synthetic takes: both (plain and mirrored), no (plain only) or yes (mirrored only)."),
@@ -33,7 +34,7 @@ def evaluate(
     trials: int = typer.Option(1, envvar="DEMOFORGE_TRIALS", min=0, help="Table 3 query scenes of the three LLM strategies on --llm-task (the first of --grid-scenes; thesis: 10; on 2 cores the local model takes about 50 s per trial with thesis numbers, 30-38 s with --number-format compact; 0 skips them). `make table3` runs the full grid."),
     grid_scenes: int = typer.Option(5, envvar="DEMOFORGE_GRID_SCENES", min=0, help="Table 3 query scenes (protocol thesis, first take) of the LLM-free baselines and the learned policy (0 skips Table 3)."),
     llm_task: Optional[List[str]] = typer.Option(None, "--llm-task", envvar="DEMOFORGE_LLM_TASKS", help="Tasks of the prompting evaluation (default: pouring)."),
-    llm_backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (offline Gemma 3 270M) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
+    llm_backend: str = llm_backend_option("--llm-backend", help="local: offline Gemma 3 270M; openai: OPENAI_BASE_URL, OPENAI_API_KEY."),
     llm_model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model of the openai backend."),
     structured: Optional[bool] = structured_option(),
     number_format: Optional[str] = number_format_option(),
@@ -42,8 +43,8 @@ def evaluate(
     policy_trials: int = typer.Option(5, envvar="DEMOFORGE_POLICY_TRIALS", min=0, help="Scenes per kind the learned policy is judged on (0 skips training it)."),
     scaling_scenes: int = typer.Option(6, envvar="DEMOFORGE_SCALING_SCENES", min=0, help="Held-out scenes of the small data-scaling table (closed-loop policies of the policy tasks trained on 1 and 50 episodes, with the first --grid-robot; 0 skips it; `demoforge data-scaling` runs the full one)."),
     fresh: bool = typer.Option(False, "--fresh", help="Skip the whole-run check and let every stage confirm its own cache entry."),
-    robot: Optional[List[str]] = typer.Option(None, "--robot", envvar="DEMOFORGE_ROBOTS", help="Robots every task's sample is executed with, side by side (repeatable; `name` or `name+hand`; default: grippers, aloha and aloha+2f140: the floating grippers and the ViperX arms with ALOHA's fingers and with the 2F-140). The stability check and the Table 3 / Table 4 / policy evaluations use the first."),
-    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; default: simulated and mediapipe). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
+    robot: Optional[List[str]] = typer.Option(None, "--robot", envvar="DEMOFORGE_ROBOTS", help="Robots every task's sample is executed with, side by side (repeatable; `name` or `name+hand`, one of: {robot_labels}; default: grippers, aloha and aloha+2f140: the floating grippers and the ViperX arms with ALOHA's fingers and with the 2F-140). The stability check and the Table 3 / Table 4 / policy evaluations use the first."),
+    detector: Optional[List[str]] = typer.Option(None, "--detector", "-d", envvar="DEMOFORGE_DETECTORS", help="Hand detectors every take is ingested with, side by side (repeatable; those the main job runs: simulated and mediapipe, the default; registered: {detectors}). The simulated detector's ingest is always made (the later stages build on it); `--detector simulated` alone skips MediaPipe and the ingested-demonstration checks (about 15 s per take)."),
 ) -> None:
     """The main job: generate the default synthetic takes, run every stage, write reports/REPORT.md.
 
@@ -61,15 +62,10 @@ def evaluate(
     if mirror not in MIRROR_CHOICES:
         raise fail(f"--mirror must be {', '.join(MIRROR_CHOICES[:-1])} or {MIRROR_CHOICES[-1]}, got {mirror!r}")
     from demoforge.flows.evaluate import detector_problem
-    from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot
-    from demoforge.lib.sim.robots import RobotError, get_robot
+    from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig
+    from demoforge.lib.robot_spec import RobotError
 
     robots = [r for part in (robot or ROBOTS) for r in str(part).replace(",", " ").split()]
-    for label in robots:
-        try:
-            get_robot(*parse_robot(label))
-        except RobotError as e:
-            raise fail(f"--robot {label}: {e}")
 
     detectors = [d for part in (detector or DETECTORS) for d in str(part).replace(",", " ").split()]
     bad = [d for d in detectors if d not in DETECTORS]
@@ -87,6 +83,8 @@ def evaluate(
             llm_number_format=number_format, variation_trials=variation_trials, policy_epochs=policy_epochs,
             policy_trials=policy_trials, scaling_scenes=scaling_scenes, detectors=tuple(dict.fromkeys(detectors)),
             robots=tuple(dict.fromkeys(robots)))
+    except RobotError as e:  # EvaluateConfig parses the labels (RobotSpec.parse), once
+        raise fail(f"--robot: {e}")
     except ValueError as e:
         raise fail(str(e))
     warehouse, reports_dir = current_warehouse(), reports.resolve()
@@ -110,7 +108,7 @@ def evaluate(
 def augment(
     path: Path = typer.Argument(..., help="The demonstration's take folder or recording."),
     task: Optional[str] = typer.Option(None, help="Task of the take (synthetic takes know theirs)."),
-    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector used to ingest it."),
+    detector: str = detector_option(help="Detector used to ingest it."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes to generate."),
     mirrored: int = typer.Option(5_000, help="How many of them are mirrored (arms' roles swapped)."),
     seed: int = typer.Option(0, help="Sampling seed."),
@@ -202,7 +200,7 @@ def _say_demo_check(check, path: Path) -> None:
 
 @app.command()
 def retrieve(
-    task: str = typer.Option(..., "--task", "-t", help="Task whose episodes to search."),
+    task: str = typer.Option(..., "--task", "-t", help="Task whose episodes to search. " + TASK_HELP),
     scene: Path = typer.Option(..., "--scene", exists=True, dir_okay=False, help='JSON {"object_keypoints": 11 x 3 world m}.'),
     k: int = typer.Option(3, "-k", min=1, help="How many episodes."),
     strategy: str = typer.Option("retrieval", help="retrieval (top-k keypoint MSE), random, or single (the original demo)."),
@@ -236,7 +234,7 @@ def _episodes_option(episodes: str) -> int | str:
 
 @app.command()
 def simulate(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check. " + TASK_HELP),
     episodes: str = typer.Option("100", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
     take: Optional[str] = typer.Option(None, help="Episode database (source take); default: the task's first."),
     workers: int = typer.Option(2, min=1, help="Worker processes."),
@@ -253,11 +251,12 @@ def simulate(
     `joint_limit`) or whose arm links hit the table, an object or the other arm (`link_collision`)."""
     from demoforge.flows.sim import simulate_episodes
 
-    robot, gripper = robot_choice(robot, gripper)
+    spec = robot_spec(robot, gripper)  # checked once, here; the flow and its stages take it as it is
+    robot, gripper = spec.robot, spec.gripper
     n = _episodes_option(episodes)
     try:
         run_flow(simulate_episodes, str(current_warehouse()), task=task, episodes=n, take=take, chunk_size=chunk_size,
-                 workers=workers, seed=seed, robot=robot, gripper=gripper, screened_for=screened_for)
+                 workers=workers, seed=seed, robot=spec, screened_for=screened_for)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
@@ -274,7 +273,7 @@ def simulate(
 
 @app.command()
 def stability(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episodes to check. " + TASK_HELP),
     episodes: str = typer.Option("40", "--episodes", "-n", help="How many (the original first, then a seeded sample of valid ones), or `all`."),
     repeats: int = typer.Option(5, min=2, help="Executions per episode: the scene as it is, then repeats - 1 shifted copies."),
     jitter: float = typer.Option(1e-4, help="Standard deviation of the rigid shift of the whole scene along the table, in metres "
@@ -291,11 +290,12 @@ def stability(
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
     from demoforge.flows.sim import check_stability
 
-    robot, gripper = robot_choice(robot, gripper)
+    spec = robot_spec(robot, gripper)
+    robot, gripper = spec.robot, spec.gripper
     n = _episodes_option(episodes)
     try:
         run_flow(check_stability, str(current_warehouse()), task=task, episodes=n, repeats=repeats, jitter_m=jitter,
-                 take=take, chunk_size=chunk_size, workers=workers, seed=seed, robot=robot, gripper=gripper)
+                 take=take, chunk_size=chunk_size, workers=workers, seed=seed, robot=spec)
     except ValueError as e:
         raise fail(str(e))
     from demoforge.schemas.catalog import query
@@ -306,7 +306,7 @@ def stability(
 
 @app.command("render-episode")
 def render_episode_cmd(
-    task: str = typer.Option(..., "--task", "-t"),
+    task: str = typer.Option(..., "--task", "-t", help=TASK_HELP),
     episode: int = typer.Option(..., "--episode", "-e", help="Episode id (see the `episodes` table)."),
     out: Path = typer.Option(Path("episode.mp4"), "--out", "-o", help="Output MP4."),
     take: Optional[str] = typer.Option(None, help="Episode database (source take)."),
@@ -316,10 +316,9 @@ def render_episode_cmd(
     """Render an offscreen video of the robot executing one episode."""
     from demoforge.flows.sim import render_episode_video
 
-    robot, gripper = robot_choice(robot, gripper)
     try:
-        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take, robot=robot,
-                                   gripper=gripper)
+        row = render_episode_video(str(current_warehouse()), task, episode, out, take=take,
+                                   robot=robot_spec(robot, gripper))
     except ValueError as e:
         raise fail(str(e))
     typer.echo(f"{out}: {'success' if row['success'] else 'failed: ' + str(row['failure'])} ({row['detail']})")
@@ -330,7 +329,7 @@ def serve(
     inbox: Path = typer.Option(Path("takes/inbox"), help="Folder the scheduled deployment ingests takes from (created if missing)."),
     every: float = typer.Option(10.0, "--every", help="Minutes between scheduled ingests of the inbox."),
     reports: Path = typer.Option(Path("reports"), "--reports", help="Report folder of the evaluate deployment."),
-    detector: str = typer.Option("simulated", "--detector", "-d", help="Detector of the scheduled ingest."),
+    detector: str = detector_option(help="Detector of the scheduled ingest."),
     augment: bool = typer.Option(False, "--augment", help="Scheduled ingest also generates episode databases."),
     limit: int = typer.Option(1, min=1, help="Flow runs executed at the same time."),
 ) -> None:

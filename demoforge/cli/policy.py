@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail, robot_choice
+from demoforge.cli.root import TASK_HELP, current_warehouse, fail, gripper_option, robot_option, robot_spec
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -22,7 +22,7 @@ def _print_rows(sql: str, params: list | None = None) -> None:
 
 @app.command("train-policy")
 def train_policy_cmd(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database to learn from."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task whose episode database to learn from. " + TASK_HELP),
     take: Optional[str] = typer.Option(None, help="Episode database (source take); needed only when the task has several."),
     seed: int = typer.Option(0, help="Seed of the weights, the batch order and the train/validation split: same seed, same checkpoint."),
     epochs: int = typer.Option(40, min=1, help="Passes over the training episodes."),
@@ -40,8 +40,8 @@ def train_policy_cmd(
     episodes: int = typer.Option(100, min=1, help="--closed-loop: episodes to train on (1 = the original demonstration "
                                  "alone; else it and episodes the screening lets through, drawn with --seed)."),
     steps: int = typer.Option(3000, min=1, help="--closed-loop: optimizer steps (batches of 256 frames)."),
-    robot: str = typer.Option("aloha", "--robot", help="--closed-loop: the arm robot whose joint space it acts in."),
-    gripper: Optional[str] = typer.Option("2f140", "--gripper", help="--closed-loop: the arms' hands (2f140 or aloha)."),
+    robot: str = robot_option(default="aloha", help="--closed-loop: the arm robot whose joint space it acts in (one of: {robots})."),
+    gripper: Optional[str] = gripper_option(default="2f140"),
 ) -> None:
     """Train the keypoint-to-trajectory policy (a small Transformer) on a task's augmented episodes.
 
@@ -76,15 +76,14 @@ def train_policy_cmd(
 
 def _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads) -> None:
     from demoforge.flows.closed_loop import train_closed_loop
-    from demoforge.lib.sim.robots import RobotError
     from demoforge.lib.task_library import get_task
 
     get_task(task)  # a typo: one line listing the tasks, before any flow starts
-    robot, gripper = robot_choice(robot, gripper)
+    spec = robot_spec(robot, gripper)
     try:
         run_flow(train_closed_loop, str(current_warehouse()), task=task, take=take, episodes=episodes, seed=seed,
-                 steps=steps, robot=robot, gripper=gripper, threads=threads)
-    except (ValueError, RobotError) as e:
+                 steps=steps, robot=spec, gripper=None, threads=threads)
+    except ValueError as e:  # a RobotError too
         raise fail(str(e))
     _print_rows("SELECT checkpoint_id, robot, n_requested, n_episodes, frames, steps, round(plan_seconds, 1) AS plan_s, "
                 "round(train_seconds, 1) AS train_s, round(final_loss, 4) AS final_loss FROM closed_loop_checkpoints "
@@ -93,7 +92,7 @@ def _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, thread
 
 @app.command("eval-policy")
 def eval_policy_cmd(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task of the policy."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task of the policy. " + TASK_HELP),
     trials: int = typer.Option(10, min=1, help="Scenes per kind."),
     seed: int = typer.Option(0, help="Seed of the scenes (the same seed gives llm-eval's query scenes)."),
     take: Optional[str] = typer.Option(None, help="Episode database the policy was trained on; needed only when the task has several."),
@@ -136,27 +135,27 @@ def eval_policy_cmd(
 
 def _eval_closed_loop(task: str, checkpoint: Optional[str], scenes: int, seed: int) -> None:
     from demoforge.flows.closed_loop import eval_closed_loop, stored_checkpoint
-    from demoforge.lib.sim.robots import RobotError
+    from demoforge.lib.robot_spec import RobotSpec
 
     try:
         manifest, row = stored_checkpoint(str(current_warehouse()), task, checkpoint)
         run_flow(eval_closed_loop, str(current_warehouse()), checkpoint=manifest, task=task, take=row["take"],
-                 scenes=scenes, seed=seed, robot=row["robot"].split("+")[0], gripper=row["gripper"])
-    except (ValueError, RobotError) as e:
+                 scenes=scenes, seed=seed, robot=RobotSpec.parse(row["robot"]), gripper=None)  # the row's label
+    except ValueError as e:  # a RobotError too
         raise fail(str(e))
     _print_rows("SELECT * FROM report_data_scaling WHERE task = ?", [task])
 
 
 @app.command("data-scaling")
 def data_scaling_cmd(
-    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Tasks (repeatable)."),
+    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Tasks (repeatable). " + TASK_HELP),
     sizes: str = typer.Option("1,10,100,1000", help="Numbers of episodes to train on, comma-separated (1 = the "
                               "original demonstration alone)."),
     scenes: int = typer.Option(50, min=1, help="Held-out scenes per task (thesis protocol, seeds no database uses)."),
     seed: int = typer.Option(0, help="Seed of the episode draws, the training and the scenes."),
     steps: int = typer.Option(3000, min=1, help="Optimizer steps per policy."),
-    robot: str = typer.Option("aloha", "--robot", help="The arm robot."),
-    gripper: Optional[str] = typer.Option("2f140", "--gripper", help="Its hands (2f140 or aloha)."),
+    robot: str = robot_option(default="aloha", help="The arm robot (one of: {robots})."),
+    gripper: Optional[str] = gripper_option(default="2f140"),
     threads: int = typer.Option(1, min=1, help="torch CPU threads for training."),
     baselines: bool = typer.Option(True, help="Also run the LLM-free baselines (replay_top1, transform_demo) and the "
                                    "open-loop keypoint policy (trained on every screened-in episode) on the same scenes."),
@@ -169,7 +168,6 @@ def data_scaling_cmd(
     the table with
     Wilson 95 % intervals: the view `report_data_scaling` (printed at the end, and in reports/REPORT.md)."""
     from demoforge.flows.closed_loop import data_scaling
-    from demoforge.lib.sim.robots import RobotError
     from demoforge.lib.task_library import get_task
 
     for name in task:
@@ -178,10 +176,10 @@ def data_scaling_cmd(
         n = [int(x) for x in sizes.split(",") if x.strip()]
     except ValueError:
         raise fail(f"--sizes must be comma-separated numbers of episodes, e.g. 1,10,100, got {sizes!r}")
-    robot, gripper = robot_choice(robot, gripper)
+    spec = robot_spec(robot, gripper)
     try:
         run_flow(data_scaling, str(current_warehouse()), tasks=list(task), sizes=n, scenes=scenes, seed=seed,
-                 steps=steps, robot=robot, gripper=gripper, threads=threads, baselines=baselines, open_loop=baselines)
-    except (ValueError, RobotError) as e:
+                 steps=steps, robot=spec, gripper=None, threads=threads, baselines=baselines, open_loop=baselines)
+    except ValueError as e:  # a RobotError too
         raise fail(str(e))
     _print_rows("SELECT * FROM report_data_scaling")

@@ -25,6 +25,12 @@ class _ErrorsAtTheBoundary(TyperGroup):
     whichever command or flow raised it; a crash is a short summary with the hint to rerun with
     --debug (exit code 1); with --debug both keep their full traceback."""
 
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name, command, rest = super().resolve_command(ctx, args)
+        if command is not None and any(a in ctx.help_option_names for a in rest):
+            list_choices(command)  # the registries' names, in the help about to be shown
+        return name, command, rest
+
     def invoke(self, ctx: click.Context):
         from demoforge.lib.errors import is_user_error, one_line, release_frames
 
@@ -184,40 +190,136 @@ def api_mode_option():
     return typer.Option("chat", "--api-mode", help="openai backend: chat (/chat/completions with the prompt's messages) or completions (/completions with the prompt text, for base models).")
 
 
+# The choices an option's --help lists, from the registries themselves: a `{token}` in an option's help is
+# replaced when that help is shown (_ErrorsAtTheBoundary.resolve_command), so a plain run of a command never
+# loads the detectors, the robots' models or the task library just to word its help.
+def _hands_text() -> str:
+    from demoforge.lib.robot_spec import available_robots, gripper_choices
+
+    return "; ".join(f"{r}: {' or '.join(gripper_choices(r))}" for r in available_robots())
+
+
+def _task_names() -> tuple[str, ...]:
+    from demoforge.lib.task_library import TASK_NAMES
+
+    return tuple(TASK_NAMES)
+
+
+def _detector_names() -> list[str]:
+    from demoforge.lib.perception.detectors import available_detectors
+
+    return available_detectors()
+
+
+def _backend_names() -> tuple[str, ...]:
+    from demoforge.lib.llm import BACKENDS
+
+    return BACKENDS.names()
+
+
+def _robot_names() -> tuple[str, ...]:
+    from demoforge.lib.robot_spec import available_robots
+
+    return available_robots()
+
+
+def _robot_labels() -> tuple[str, ...]:
+    from demoforge.lib.robot_spec import robot_labels
+
+    return robot_labels()
+
+
+CHOICES = {
+    "{robots}": lambda: ", ".join(_robot_names()),
+    "{robot_labels}": lambda: ", ".join(_robot_labels()),
+    "{grippers}": _hands_text,
+    "{detectors}": lambda: ", ".join(_detector_names()),
+    "{llm_backends}": lambda: ", ".join(_backend_names()),
+    "{tasks}": lambda: ", ".join(_task_names()),
+}
+
+
+def list_choices(command) -> None:
+    """Replace the `{token}`s of CHOICES in the help of `command`'s options by the registered names."""
+    for param in getattr(command, "params", ()):
+        text = getattr(param, "help", None)
+        if text and "{" in text:
+            for token, names in CHOICES.items():
+                if token in text:
+                    text = text.replace(token, names())
+            param.help = text
+
+
+def check_choice(option: str, value: str, names) -> str:
+    """`value` if it is one of `names`, else the one-line error naming the option and the choices (exit 2)."""
+    names = tuple(names)
+    if value not in names:
+        raise fail(f"{option} must be one of {', '.join(names)}, got {value!r}")
+    return value
+
+
+def _check_detector(value):
+    for v in ([] if value is None else [value] if isinstance(value, str) else value):
+        check_choice("--detector", v, _detector_names())
+    return value
+
+
+def _check_backend(value: str | None) -> str | None:
+    if value is not None:
+        check_choice("--backend", value.strip().lower(), _backend_names())
+    return value
+
+
+TASK_HELP = "One of: {tasks}."
+
+
+def detector_option(default: str | None = "simulated", help: str = ""):
+    """--detector/-d: a hand detector of the registry (demoforge.lib.perception.detectors), checked while parsing."""
+    return typer.Option(default, "--detector", "-d", callback=_check_detector,
+                        help=(help + " " if help else "") + "One of: {detectors}.")
+
+
+def llm_backend_option(flag: str = "--backend", help: str = ""):
+    """The LLM backend (demoforge.lib.llm.BACKENDS), checked while parsing; $DEMOFORGE_LLM_BACKEND."""
+    return typer.Option("local", flag, envvar="DEMOFORGE_LLM_BACKEND", callback=_check_backend,
+                        help="One of: {llm_backends}. " + (help or "local: Gemma 3 270M via llama.cpp, offline; openai: "
+                                                           "OPENAI_BASE_URL, OPENAI_API_KEY, DEMOFORGE_LLM_MODEL; fake: "
+                                                           "scripted answers, for tests."))
+
+
 # The robot options of every command that runs a robot (simulate, stability, render-episode, table3,
-# evaluate, export): declared once, checked while parsing.
-ROBOT_HELP = ("The robot that executes the episodes: grippers (two free-floating Robotiq 2F-140-class grippers "
-              "following the poses: every pose is reachable) or aloha (two ViperX 300 6-DOF arms driven in joint "
-              "space through inverse kinematics: unreachable poses, joint limits and arm-link collisions fail).")
-GRIPPER_HELP = ("The hands of --robot aloha: aloha (ALOHA's own fingers, 69 mm between the pads: the bottle (70 mm), "
-                "cup, container and vase are wider) or 2f140 (the Robotiq 2F-140 on the wrists, opening 110 mm). "
-                "Default: the robot's own.")
+# export): declared once; robot_spec() turns them into the one demoforge.lib.robot_spec.RobotSpec the
+# command passes down.
+ROBOT_HELP = ("The robot that executes the episodes, one of: {robots}. grippers: two free-floating Robotiq "
+              "2F-140-class grippers following the poses (every pose is reachable); aloha: two ViperX 300 6-DOF arms "
+              "driven in joint space through inverse kinematics (unreachable poses, joint limits and arm-link "
+              "collisions fail).")
+GRIPPER_HELP = ("The robot's hands ({grippers}; default: the robot's own, the first). ALOHA's own fingers (aloha) "
+                "have 69 mm between the pads: the bottle (70 mm), cup, container and vase are wider; 2f140 is the "
+                "Robotiq 2F-140, opening 110 mm.")
 
 
-def _check_robot(name: str) -> str:
-    from demoforge.lib.sim.robots import available_robots
-
-    if name not in available_robots():
-        raise fail(f"--robot must be one of {', '.join(available_robots())}, got {name!r}")
-    return name
+def robot_option(envvar: str | None = None, default: str = "grippers", help: str = ROBOT_HELP):
+    return typer.Option(default, "--robot", envvar=envvar, help=help)
 
 
-def robot_option(envvar: str | None = None):
-    return typer.Option("grippers", "--robot", envvar=envvar, callback=_check_robot, help=ROBOT_HELP)
+def gripper_option(envvar: str | None = None, default: str | None = None):
+    return typer.Option(default, "--gripper", envvar=envvar, help=GRIPPER_HELP)
 
 
-def gripper_option(envvar: str | None = None):
-    return typer.Option(None, "--gripper", envvar=envvar, help=GRIPPER_HELP)
+def robot_spec(robot: str, gripper: str | None):
+    """The RobotSpec of --robot and --gripper, checked here once (one line naming the choices, exit 2)."""
+    from demoforge.lib.robot_spec import RobotError, RobotSpec
+
+    try:
+        return RobotSpec.from_options(robot, gripper)
+    except RobotError as e:
+        if e.kind == "robot":
+            raise fail(f"--robot must be one of {', '.join(e.choices)}, got {robot!r}")
+        raise fail(f"--gripper {gripper!r}: the {robot} robot carries {' or '.join(e.choices)}")
 
 
 def robot_choice(robot: str, gripper: str | None) -> tuple[str, str]:
-    """(robot, hand) after checking that the robot carries that hand (one line naming the choices)."""
-    from demoforge.lib.sim.robots import RobotError, gripper_choices
-
-    try:
-        choices = gripper_choices(robot)
-    except RobotError as e:
-        raise fail(str(e))
-    if gripper is not None and gripper not in choices:
-        raise fail(f"--gripper {gripper!r}: the {robot} robot carries {' or '.join(choices)}")
-    return robot, gripper or choices[0]
+    """(robot, hand) of robot_spec: for the commands that pass them on as two strings."""
+    spec = robot_spec(robot, gripper)
+    return spec.robot, spec.gripper

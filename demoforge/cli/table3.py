@@ -7,9 +7,9 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import (api_mode_option, base_url_option, current_warehouse, fail, gripper_option,
-                                llm_backend_options, number_format_option, robot_choice, robot_option,
-                                structured_option, waypoints_option)
+from demoforge.cli.root import (TASK_HELP, api_mode_option, base_url_option, current_warehouse, fail, gripper_option,
+                                llm_backend_option, llm_backend_options, number_format_option, robot_option,
+                                robot_spec, structured_option, waypoints_option)
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -17,14 +17,14 @@ app = typer.Typer()
 
 @app.command("table3")
 def table3_cmd(
-    task: str = typer.Option("pouring", "--task", "-t", help="Task of the grid (the thesis: pouring)."),
+    task: str = typer.Option("pouring", "--task", "-t", help="Task of the grid (the thesis: pouring). " + TASK_HELP),
     protocol: Optional[List[str]] = typer.Option(None, "--protocol", "-p", help="thesis (default: query scenes from each take's own augmentation sampler, held-out seeds) or novel (the task library's independent placements with yaw, against a database built to cover them). Repeatable."),
     takes: int = typer.Option(5, min=1, help="Synthetic takes (seeds seed, seed+1, ...), each with its own database."),
     take_dir: Optional[List[Path]] = typer.Option(None, "--take-dir", exists=True, file_okay=False, help="Take folders to build the databases from instead of synthetic takes (your own recordings, annotated; repeatable; --takes is then their count)."),
     scenes: int = typer.Option(10, min=1, help="Query scenes per take (the thesis: 10)."),
     llm_scenes: Optional[int] = typer.Option(None, min=0, help="Scenes of the three LLM strategies (default: all `scenes`; a trial of the local model takes 14-50 s on 2 cores, by CPU, examples and number format)."),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="single, random, retrieval (the LLM prompts), replay_original, replay_top1, knn_blend, transform_demo (LLM-free), policy (repeatable; default all)."),
-    backend: str = typer.Option("local", envvar="DEMOFORGE_LLM_BACKEND", help="local (Gemma 3 270M via llama.cpp, offline) or openai (OPENAI_BASE_URL, OPENAI_API_KEY)."),
+    backend: str = llm_backend_option(),
     model: Optional[str] = typer.Option(None, envvar="DEMOFORGE_LLM_MODEL", help="Model name for the openai backend."),
     seed: int = typer.Option(0, help="Seed of the takes, databases, query scenes, random examples and policy."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=10, help="Episodes per database (the thesis: 10,000)."),
@@ -57,14 +57,15 @@ def table3_cmd(
                    f"strategies {', '.join(ALL_STRATEGIES)}")
     if llm_scenes is not None and llm_scenes > scenes:
         raise fail(f"--llm-scenes ({llm_scenes}) cannot exceed --scenes ({scenes})")
-    robot, gripper = robot_choice(robot, gripper)
+    spec = robot_spec(robot, gripper)
+    robot, gripper = spec.robot, spec.gripper
     try:
         run_flow(table3, str(current_warehouse()), task=task, protocols=protocols, scenes=scenes,
                  takes=len(take_dir) if take_dir else takes, take_dirs=[str(p) for p in take_dir] if take_dir else None,
                  llm_scenes=llm_scenes, strategies=strategy or list(ALL_STRATEGIES), backend=backend,
                  backend_options=llm_backend_options(backend, model, base_url, api_mode), seed=seed, episodes=episodes,
                  policy_epochs=policy_epochs, n_waypoints=waypoints, structured=structured,
-                 number_format=number_format, robot=robot, gripper=gripper)
+                 number_format=number_format, robot=spec)
     except ValueError as e:
         raise fail(str(e))
     where = "WHERE task = ? AND list_contains(?, protocol) AND robot = ? AND gripper = ?"

@@ -9,14 +9,14 @@ import typer
 
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
-from demoforge.cli.root import current_warehouse, fail, warn
+from demoforge.cli.root import TASK_HELP, current_warehouse, detector_option, fail, warn
 
 app = typer.Typer()
 
 
 @app.command()
 def synth(
-    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Task(s) to generate (repeatable), or `all`."),
+    task: List[str] = typer.Option(["pouring"], "--task", "-t", help="Task(s) to generate (repeatable), or `all`. " + TASK_HELP),
     takes: int = typer.Option(1, "--takes", "-n", min=1, help="Takes per task (seeds seed, seed+1, ...)."),
     seed: int = typer.Option(0, help="First seed; a take is fully determined by (task, seed, mirror)."),
     mirror: bool = typer.Option(False, "--mirror", help="Write the mirrored variant (hands' roles swapped)."),
@@ -110,7 +110,7 @@ def annotate(
     can be calibrated on the page (a board on the table, or the table plane and two clicks on its
     robot-side edge), as `demoforge calibrate` does.
     """
-    from demoforge.flows.annotate import AnnotationSession, server_url, start_server
+    from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from demoforge.lib.takes import TakeError
 
     _open_take_or_fail(path, require_pose=False, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic)
@@ -140,7 +140,7 @@ def annotate(
 @app.command()
 def ingest(
     path: Path = typer.Argument(..., help=TAKE_HELP),
-    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed, hamer (local checkpoint)."),
+    detector: str = detector_option(help="simulated: synthetic takes; hamer: a local checkpoint."),
     predictions: Optional[Path] = typer.Option(None, help="For --detector precomputed: thesis-code keypoint JSON, or Parquet/NPZ predictions."),
     task: Optional[str] = typer.Option(None, help="Task of the take (needed later to augment a recorded take)."),
     state_method: str = typer.Option("auto", help="Open/close when the take has no labelled ranges: auto, otsu or threshold."),
@@ -239,7 +239,7 @@ def _echo_hand_presence(presence) -> None:
 @app.command("ingest-folder")
 def ingest_folder_cmd(
     folder: Path = typer.Argument(..., help="Folder whose takes to ingest: take folders (with camera.json) and recordings (.bag, .db3, .r3d, .mcap, bag and Record3D folders), at any depth."),
-    detector: str = typer.Option("simulated", "--detector", "-d", help="simulated (synthetic takes), mediapipe, precomputed."),
+    detector: str = detector_option(help="simulated: synthetic takes."),
     task: Optional[str] = typer.Option(None, help="Task of the takes (synthetic takes know theirs)."),
     augment: bool = typer.Option(False, "--augment", help="Also generate each take's episode database."),
     episodes: int = typer.Option(10_000, "--episodes", "-n", min=1, help="Episodes per take with --augment."),

@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from demoforge.cli.root import current_warehouse, fail
+from demoforge.cli.root import TASK_HELP, current_warehouse, fail
 from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
@@ -14,7 +14,7 @@ app = typer.Typer()
 
 @app.command("variations")
 def variations_cmd(
-    task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Task (repeatable; default pouring, mix_bowl, trash_in_bin: the thesis's Table 4 tasks). Each needs an episode database (`demoforge augment`)."),
+    task: Optional[List[str]] = typer.Option(None, "--task", "-t", help="Task (repeatable; default pouring, mix_bowl, trash_in_bin: the thesis's Table 4 tasks). Each needs an episode database (`demoforge augment`). " + TASK_HELP),
     strategy: Optional[List[str]] = typer.Option(None, "--strategy", "-s", help="replay_top1 (the nearest database episode by keypoint MSE, replayed), transform_demo (the ingested demonstration transformed to the scene) or transform_scripted (a synthetic take's ground-truth demonstration transformed: no ingest error) (repeatable; default replay_top1 and transform_demo)."),
     kind: Optional[List[str]] = typer.Option(None, "--kind", "-k", help="nominal (the task's own placements), clutter (2-3 solid distractor bodies on the table), object (resized or reshaped objects of the same category), spatial (every object shifted 4-8 cm and turned 0.3-0.7 rad) (repeatable; default all four)."),
     trials: int = typer.Option(2, min=1, help="Scenes per task and variation kind (the thesis: 2-3)."),

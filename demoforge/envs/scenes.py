@@ -4,8 +4,8 @@
 * ``thesis``: a scene from the augmentation sampler of a database built from a demonstration (the
   thesis's 5.3.1; augmentation_queries: the database's distribution, a held-out seed stream, only draws
   the augmentation accepts, half of them mirrored by default as the thesis's databases). The
-  demonstration: ``source`` (a DemoSource, e.g. demoforge.tasks.augment.load_demo_source of an ingested
-  take) or, by default, the task library's scripted demonstration ``demo_seed`` (0: the demonstration of
+  demonstration: ``source`` (a DemoSource, e.g. demoforge.schemas.reads.demonstration.load_demo_source of
+  an ingested take) or, by default, the task library's scripted demonstration ``demo_seed`` (0: the demonstration of
   the synthetic take ``synth_<task>_s0000`` that ``make evaluate`` builds its databases from, as scripted:
   without the ingest's noise). ``generation``: the database's generate_episodes options (default: the
   thesis's, as ``make evaluate`` uses them).

@@ -11,13 +11,12 @@ from prefect import flow
 import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import check_demonstration, ingest_take
 from demoforge.lib.ingest.options import IngestOptions
-from demoforge.lib.takes import open_take
+from demoforge.lib.takes import open_take, take_task_name
 from demoforge.lib.takes.sources import take_root
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.runtime.runners import run_flow
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, run_stage
-from demoforge.tasks.ingest import take_task_name
 
 
 @flow(name="augment-take")

@@ -10,6 +10,7 @@ from typing import Sequence
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.robot_spec import RobotSpec
 from demoforge.flows.policy import _resolve_take
 from demoforge.flows.screening import check_robot
 from demoforge.tasks.closed_loop import BASELINES, OPEN_LOOP, closed_loop_train, closed_loop_trials
@@ -21,6 +22,12 @@ DEFAULT_SIZES = (1, 10, 100, 1000)
 OPEN_LOOP_EPOCHS, OPEN_LOOP_WAYPOINTS = 6, 40  # the open-loop policy as `make evaluate` trains it
 
 
+def _arms(robot: RobotSpec | str, gripper: str | None):
+    """The arm robot of a RobotSpec, a label or a robot's name and hand (a given spec keeps its own hand)."""
+    spec = robot if isinstance(robot, RobotSpec) else RobotSpec.of(robot, gripper)
+    return check_robot(spec.robot, spec.gripper)
+
+
 def _screening(warehouse: str, task: str, take: str, arms) -> Manifest:
     return run_stage(screen_database, warehouse, task=task, take=take, warehouse=warehouse,
                      source=database_files(warehouse, task, take), code=code_files(), robot=arms.name,
@@ -29,13 +36,13 @@ def _screening(warehouse: str, task: str, take: str, arms) -> Manifest:
 
 @flow(name="train-closed-loop-policy")
 def train_closed_loop(warehouse: str, task: str = "pouring", take: str | None = None, episodes: int = 100,
-                      seed: int = 0, steps: int = 3000, robot: str = "aloha", gripper: str | None = "2f140",
-                      threads: int = 1) -> Manifest:
+                      seed: int = 0, steps: int = 3000, robot: RobotSpec | str = "aloha",
+                      gripper: str | None = "2f140", threads: int = 1) -> Manifest:
     """Train the closed-loop chunk policy on `episodes` episodes of the task's database (the original
     demonstration and episodes its screening for the arms lets through), in the arms' joint space."""
     if episodes < 1 or steps < 1 or threads < 1:
         raise ValueError("episodes, steps and threads must be at least 1")
-    arms = check_robot(robot, gripper)
+    arms = _arms(robot, gripper)
     take = _resolve_take(warehouse, task, take)
     screening = _screening(warehouse, task, take, arms)
     m = run_stage(closed_loop_train, warehouse, task=task, take=take, warehouse=warehouse, robot=arms.name,
@@ -69,9 +76,9 @@ def stored_checkpoint(warehouse: str, task: str, checkpoint_id: str | None = Non
 
 @flow(name="eval-closed-loop-policy")
 def eval_closed_loop(warehouse: str, checkpoint: Manifest, task: str, take: str, scenes: int = 50, seed: int = 0,
-                     robot: str = "aloha", gripper: str | None = "2f140", max_steps: int = 900) -> Manifest:
+                     robot: RobotSpec | str = "aloha", gripper: str | None = "2f140", max_steps: int = 900) -> Manifest:
     """Roll a trained closed-loop policy out on `scenes` held-out scenes of its database's distribution."""
-    arms = check_robot(robot, gripper)
+    arms = _arms(robot, gripper)
     return run_stage(closed_loop_trials, warehouse, task=task, take=take, warehouse=warehouse, robot=arms.name,
                      gripper=arms.gripper_name, method="closed_loop", database=database_inputs(warehouse, task, take),
                      screening=_screening(warehouse, task, take, arms), seed=seed, scenes=scenes,
@@ -80,7 +87,7 @@ def eval_closed_loop(warehouse: str, checkpoint: Manifest, task: str, take: str,
 
 @flow(name="data-scaling")
 def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Sequence[int] = DEFAULT_SIZES,
-                 scenes: int = 50, seed: int = 0, steps: int = 3000, robot: str = "aloha",
+                 scenes: int = 50, seed: int = 0, steps: int = 3000, robot: RobotSpec | str = "aloha",
                  gripper: str | None = "2f140", threads: int = 1, baselines: bool = True,
                  open_loop: bool = True) -> list[Manifest]:
     """The data-scaling table: per task, a closed-loop policy trained on each number of episodes in `sizes`
@@ -89,7 +96,7 @@ def data_scaling(warehouse: str, tasks: Sequence[str] = ("pouring",), sizes: Seq
     episodes) on them (`closed_loop_trials`; the view `report_data_scaling`)."""
     if not sizes or min(sizes) < 1 or scenes < 1:
         raise ValueError("sizes must be numbers of episodes >= 1 and scenes at least 1")
-    arms = check_robot(robot, gripper)
+    arms = _arms(robot, gripper)
     out = []
     for task in tasks:
         take = _resolve_take(warehouse, task, None)

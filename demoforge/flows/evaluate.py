@@ -11,10 +11,10 @@ from demoforge.flows.augment import augment_take_flow
 from demoforge.flows.closed_loop import data_scaling
 from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
 from demoforge.flows.keypoint_eval import evaluate_keypoints
-from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig, parse_robot  # noqa: F401  (the CLI's choices)
+from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig  # noqa: F401  (the CLI's choices)
 from demoforge.flows.screening import screen_task
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
-from demoforge.flows.report import write_report
+from demoforge.report.writer import write_report
 from demoforge.runtime.runners import run_flow
 from demoforge.flows.sim import check_stability, simulate_episodes
 from demoforge.flows.synth import synthesize_takes
@@ -25,10 +25,13 @@ def detector_problem(name: str) -> str | None:
     """Why a detector cannot run here (its package or model file is missing), or None."""
     import importlib.util
 
-    from demoforge.lib.perception.detectors import available_detectors
+    from demoforge.lib.errors import UnknownNameError
+    from demoforge.lib.perception.detectors import DETECTORS
 
-    if name not in available_detectors():
-        return f"unknown detector {name!r}; choose from {', '.join(available_detectors())}"
+    try:
+        DETECTORS.check(name)
+    except UnknownNameError as e:
+        return str(e)
     if name == "mediapipe":  # checked without loading it: a run served from the cache never does
         from demoforge.lib.perception.detectors.mediapipe_backend import default_model_path
 
@@ -44,9 +47,8 @@ def _small_data_scaling(warehouse: str, c: EvaluateConfig, tasks: list[str]) -> 
     """The small data-scaling table of the policy tasks with the first grid robot (flows/closed_loop.py)."""
     scaling_tasks = [t for t in c.policy_tasks if t in tasks]
     if c.scaling_scenes > 0 and scaling_tasks and c.grid_robots:
-        name, _, hand = c.grid_robots[0].partition("+")
         run_flow(data_scaling, warehouse, tasks=scaling_tasks, sizes=c.scaling_sizes, scenes=c.scaling_scenes,
-                 seed=c.seed, steps=c.scaling_steps, robot=name, gripper=hand or None, threads=2,
+                 seed=c.seed, steps=c.scaling_steps, robot=c.grid_robot_specs[0], gripper=None, threads=2,
                  open_loop=False)  # Table 3's `policy` column with the arms is the open-loop policy already
 
 
@@ -98,19 +100,16 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
             run_flow(augment_take_flow, m.path, warehouse, augment=AugmentOptions.half_mirrored(c.episodes, c.seed))
             task = name.split("_s")[0].removeprefix("synth_")
             first_take[task] = m.path
-            for label in c.grid_robots:  # every episode checked for the arms, without physics
-                robot, hand = parse_robot(label)
-                run_flow(screen_task, warehouse, task=task, take=name, robot=robot, gripper=hand)
+            for spec in c.grid_robot_specs:  # every episode checked for the arms, without physics
+                run_flow(screen_task, warehouse, task=task, take=name, robot=spec.robot, gripper=spec.gripper)
             # the sample every robot executes: drawn from the episodes the (first) arms' screening lets through
             screened_for = c.grid_robots[0] if c.grid_robots else None
-            for label in c.robots if c.sim_episodes else ():
-                robot, hand = parse_robot(label)
+            for spec in c.robot_specs if c.sim_episodes else ():
                 run_flow(simulate_episodes, warehouse, task=task, episodes=c.sim_episodes, take=name, seed=c.seed,
-                         robot=robot, gripper=hand, screened_for=screened_for)
+                         robot=spec, screened_for=screened_for)
             if c.stability_episodes and c.stability_repeats >= 2:
-                robot, hand = parse_robot(c.robots[0])
                 run_flow(check_stability, warehouse, task=task, episodes=c.stability_episodes,
-                         repeats=c.stability_repeats, take=name, seed=c.seed, robot=robot, gripper=hand)
+                         repeats=c.stability_repeats, take=name, seed=c.seed, robot=c.robot_specs[0])
         else:
             run_flow(ingest_take, m.path, warehouse)
         if len(detectors) > 1:
@@ -126,14 +125,12 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
                      strategies=[s for s in ALL_STRATEGIES if s != POLICY or with_policy], seed=c.seed,
                      episodes=c.episodes, policy_epochs=c.policy_epochs, policy_waypoints=c.policy_waypoints,
                      take_dirs=[first_take[llm_task]], structured=c.llm_structured, number_format=c.llm_number_format)
-            for label in c.grid_robots:  # the arms beside it: the columns without an LLM
-                robot, hand = parse_robot(label)
+            for spec in c.grid_robot_specs:  # the arms beside it: the columns without an LLM
                 run_flow(table3, warehouse, task=llm_task, protocols=["thesis"], takes=1, scenes=c.grid_scenes,
                          llm_scenes=0, strategies=[s for s in ALL_STRATEGIES if s not in LLM_STRATEGIES
                                                    and (s != POLICY or with_policy)],
                          seed=c.seed, episodes=c.episodes, policy_epochs=c.policy_epochs,
-                         policy_waypoints=c.policy_waypoints, take_dirs=[first_take[llm_task]], robot=robot,
-                         gripper=hand)
+                         policy_waypoints=c.policy_waypoints, take_dirs=[first_take[llm_task]], robot=spec)
     from demoforge.flows.policy import evaluate_policy, train_policy
     from demoforge.tasks.policy import checkpoint_row
 

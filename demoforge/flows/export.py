@@ -1,5 +1,5 @@
-"""The export and view flows (`demoforge export`, `demoforge view`); the reading and writing they
-compose is in demoforge.tasks.export."""
+"""The export flows (`demoforge export`) and the checks the command makes before a run; the stages they
+compose are in demoforge.tasks.export, the episodes they read in demoforge.schemas.reads.episodes."""
 
 from __future__ import annotations
 
@@ -7,10 +7,13 @@ from pathlib import Path
 from prefect import flow
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.exports import ExportError
+from demoforge.lib.exports.robomimic import is_demoforge_robomimic
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.schemas.reads.episodes import check_files, checked_episodes, episode_files, take_cameras
 from demoforge.tasks.common import Manifest, run_stage
-from demoforge.tasks.export import (
-    refuse_to_replace_foreign_output, check_files, episode_files, export_lerobot_stage, export_robomimic_stage, write_view,
-)
+from demoforge.tasks.export import export_lerobot_stage, export_robomimic_stage
 
 
 @flow(name="export-lerobot")
@@ -21,8 +24,6 @@ def export_lerobot_flow(warehouse: str, task: str, out: str, take: str | None = 
     """A task's episodes as a LeRobotDataset v3.0 folder at ``out`` (replaces an earlier export there):
     the grippers' poses, or an arm robot's joint values (`robot`, `gripper`) of the episodes its check
     passed (all it reaches with `unchecked`)."""
-    from demoforge.lib.sim.robots import get_robot
-
     arm = get_robot(robot, gripper)
     out_p = Path(out).resolve()
     refuse_to_replace_foreign_output(out_p, "meta/info.json")
@@ -47,9 +48,33 @@ def export_robomimic_flow(warehouse: str, task: str, out: str, take: str | None 
                      limit=limit, valid_fraction=valid_fraction, seed=seed)
 
 
-@flow(name="view")
-def view_flow(warehouse: str, target: str, out: str, take: str | None = None, point_stride: int = 8,
-              frame_step: int = 1, images: bool = True, depth_images: bool = False,
-              overwrite: bool = False) -> dict:
-    """A Rerun recording (.rrd) of a take or an episode, saved offline."""
-    return write_view(warehouse, target, out, take, point_stride, frame_step, images, depth_images, overwrite)
+def refuse_to_replace_foreign_output(out: Path, marker: str | None) -> None:
+    """An existing --out is only replaced when it is an export of the same kind (never a random folder)."""
+    if not out.exists():
+        return
+    if marker is None and out.is_file():
+        if is_demoforge_robomimic(out):
+            return
+    if marker is not None and (out / marker).is_file():
+        return
+    raise ExportError(f"{out} exists and is not a demoforge export of this kind; choose another --out")
+
+
+def preflight_export(warehouse: str, task: str, out: str, fmt: str, take: str | None = None,
+                     with_images: bool = False, robot: str = "grippers", gripper: str | None = None,
+                     unchecked: bool = False) -> None:
+    """The checks that need no Prefect run: known task, episodes present, --out not someone else's,
+    with images every source take's camera, and for an arm robot's export (unless unchecked) episodes
+    whose check with it passed."""
+    if task not in TASK_NAMES:
+        raise ExportError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
+    if fmt == "robomimic" and Path(out).suffix not in (".hdf5", ".h5"):
+        raise ExportError(f"--out {out} must end in .hdf5 (or .h5) for robomimic")
+    refuse_to_replace_foreign_output(Path(out).resolve(), "meta/info.json" if fmt == "lerobot" else None)
+    files = episode_files(warehouse, task, take)
+    if robot != "grippers" and not unchecked:
+        arm = get_robot(robot, gripper)
+        checked_episodes(warehouse, task, arm.name, arm.gripper_name, take)
+    if with_images:
+        take_cameras(warehouse, [take] if take else sorted({f.parent.name.split("=", 1)[1] for f in files
+                                                            if f.parent.name.startswith("take=")}))

@@ -8,10 +8,10 @@ from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
 from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.takes import take_task_name
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.ingest import (
     align_keypoints, detect_hands, hand_presence, index_frames, map_grippers, object_keypoints, take_media_key,
-    take_task_name,
 )
 from demoforge.tasks.ingest_drawing import overlay_video
 from demoforge.tasks.ingest_evaluation import ingest_metrics
@@ -38,15 +38,14 @@ def ingest_take(
     variant: None (where augment and every later stage read the take) or {"detector": detector} to keep
     this detector's rows beside those (demoforge.schemas.core.variant_parts; see ingest_side_by_side).
     """
-    from demoforge.lib.perception.detectors import available_detectors
+    from demoforge.lib.perception.detectors import DETECTORS
     from demoforge.lib.takes import open_take
     from demoforge.lib.takes.sources import take_root
 
     logger = get_run_logger()
     opts = options or IngestOptions()
     detector = opts.detector
-    if detector not in available_detectors():
-        raise ValueError(f"unknown detector {detector!r}; choose one of: {', '.join(available_detectors())}")
+    DETECTORS.check(detector)  # an unknown name: one line listing the registered detectors
     if variant is not None and variant != {"detector": detector}:
         raise ValueError(f"variant must be None or {{'detector': {detector!r}}}, got {variant!r}")
     var = {"variant": dict(variant)} if variant else {}  # absent, not None: the stages' keys stay as they were

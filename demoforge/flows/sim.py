@@ -12,6 +12,9 @@ import numpy as np
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.robot_spec import RobotSpec
+from demoforge.lib.sim import sim_options
+from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
 from demoforge.tasks.sim import simulate_chunk, stability_chunk
 
@@ -79,36 +82,35 @@ def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str,
     return take, source
 
 
-def _robot_args(task: str, robot: str, gripper: str | None) -> tuple[dict, str]:
-    """The chunk stages' robot arguments with the scene fingerprint (an unknown robot or hand: RobotError),
-    and the robot's label for the progress bars."""
+def _robot_args(task: str, spec: RobotSpec) -> dict:
+    """The chunk stages' robot arguments (strings, as their cache keys have them) with the scene fingerprint."""
     from demoforge.lib.sim import scene_fingerprint
-    from demoforge.tasks.sim import sim_options
 
-    opt = sim_options(robot, gripper)
-    return ({"robot": opt.robot.name, "gripper": opt.robot.gripper_name, "scene": scene_fingerprint(task, opt)},
-            opt.robot.label)
+    return {"robot": spec.robot, "gripper": spec.gripper, "scene": scene_fingerprint(task, sim_options(spec))}
 
 
 @flow(name="simulate-episodes")
 def simulate_episodes(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = "all",
                       take: str | None = None, chunk_size: int = 100, workers: int = 2, seed: int = 0,
-                      show_progress: bool = True, robot: str = "grippers", gripper: str | None = None,
+                      show_progress: bool = True, robot: RobotSpec | str = "grippers", gripper: str | None = None,
                       screened_for: str | None = None) -> list[Manifest]:
-    """Execute episodes of a task's database in MuJoCo with `robot` (and hand `gripper`; default its own)
-    (results: `sim_results`), chunk by chunk; screened_for: draw them from the episodes that arm robot's
+    """Execute episodes of a task's database in MuJoCo with `robot` (a RobotSpec, its label, or a robot's
+    name with hand `gripper`, default its own; an unknown one: RobotError) (results: `sim_results`), chunk by chunk; screened_for: draw them from the episodes that arm robot's
     screening lets through (pick_episodes), the same episodes for every robot.
 
     Each chunk is one cached stage: a run that crashed resumes where it stopped, and a re-run with
     the same episodes costs nothing. Its rows carry the run's selection (selection_name) and the robot:
     a sample and a whole-database run of the same task, or two robots, keep their own files."""
-    robot_args, label = _robot_args(task, robot, gripper)
+    spec = RobotSpec.of(robot, gripper)
+    if screened_for is not None:
+        screened_for = RobotSpec.parse(screened_for).label
+    robot_args = _robot_args(task, spec)
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed, screened_for)
     selection = selection_name(episodes, ids, seed, screened_for)
     common = dict(task=task, take=take, selection=selection, warehouse=warehouse, source=source,
                   workers=workers, show_progress=show_progress, **robot_args)
-    return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection} ({label})",
+    return _run_chunks(simulate_chunk, warehouse, common, ids, chunk_size, f"{task}: {selection} ({spec.label})",
                        artifact=(f"simulate-{task}", f"{task}: chunks of {chunk_size} episodes executed in MuJoCo"))
 
 
@@ -149,7 +151,7 @@ def _run_bar(desc: str, total: int, show: bool):
 @flow(name="check-stability")
 def check_stability(warehouse: str, task: str = "pouring", episodes: int | str | list[int] = 40, repeats: int = 5,
                     jitter_m: float = 1e-4, take: str | None = None, chunk_size: int = 20, workers: int = 2,
-                    seed: int = 0, show_progress: bool = True, robot: str = "grippers",
+                    seed: int = 0, show_progress: bool = True, robot: RobotSpec | str = "grippers",
                     gripper: str | None = None) -> list[Manifest]:
     """Execute each selected episode `repeats` times, the scene shifted rigidly along the table by
     `jitter_m` (standard deviation, metres) in every repeat but the first; rows in `sim_stability`, the
@@ -157,26 +159,25 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
     from demoforge.lib.sim.stability import scene_offsets
 
     scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
-    robot_args, label = _robot_args(task, robot, gripper)
+    spec = RobotSpec.of(robot, gripper)
+    robot_args = _robot_args(task, spec)
     take, source = _episode_database(warehouse, task, take)
     ids = pick_episodes(warehouse, task, take, episodes, seed)
     run = stability_run_name(selection_name(episodes, ids, seed), repeats, jitter_m, seed)
     common = dict(task=task, take=take, run=run, repeats=int(repeats), jitter_m=float(jitter_m), seed=int(seed),
                   warehouse=warehouse, source=source, workers=workers, show_progress=show_progress, **robot_args)
-    return _run_chunks(stability_chunk, warehouse, common, ids, chunk_size, f"{task}: stability {run} ({label})")
+    return _run_chunks(stability_chunk, warehouse, common, ids, chunk_size, f"{task}: stability {run} ({spec.label})")
 
 
 def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | Path, take: str | None = None,
-                         robot: str = "grippers", gripper: str | None = None) -> dict:
+                         robot: RobotSpec | str = "grippers", gripper: str | None = None) -> dict:
     """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
     from dataclasses import replace
 
     from demoforge.lib.sim.render import render_episode
     from demoforge.schemas.catalog import query
-    from demoforge.tasks.augment import episode_actions
-    from demoforge.tasks.sim import sim_options
 
-    opt = replace(sim_options(robot, gripper), stop_on_hard_failure=False)  # the whole episode, past a failure
+    opt = replace(sim_options(RobotSpec.of(robot, gripper)), stop_on_hard_failure=False)  # the whole episode, past a failure
 
     t = query("SELECT take, object_keypoints FROM episodes WHERE task = ? AND episode_id = ? "
               "AND (? IS NULL OR take = ?) ORDER BY take LIMIT 1", warehouse, [task, int(episode_id), take, take])

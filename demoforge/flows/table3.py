@@ -8,8 +8,11 @@ from typing import Sequence
 from prefect import flow, get_run_logger
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.robot_spec import RobotSpec
+from demoforge.lib.sim import sim_options
 from demoforge.flows.screening import screen_task
 from demoforge.runtime.runners import run_flow
+from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.llm_eval import keyframe_key
 from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY, table3_trials
@@ -46,7 +49,7 @@ def table3(
     number_format: str | None = None,
     take_dirs: Sequence[str] | None = None,
     show_progress: bool = True,
-    robot: str = "grippers",
+    robot: RobotSpec | str = "grippers",
     gripper: str | None = None,
 ) -> list[Manifest]:
     """For each of `takes` synthetic takes of `task` (seeds seed, seed+1, ...; or the given take_dirs)
@@ -57,13 +60,13 @@ def table3(
     from its own sampler with held-out seeds. novel: the task library's placements (objects placed and
     turned independently) against a second database of the take built to cover them (independent
     objects, translation and yaw ranges spanning the placement sampler, no mirrored episodes).
-    Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped. `robot`,
-    `gripper`: the robot that executes every prediction (lib/sim/robots; default the floating grippers).
+    Every cell is cached (LLM answers too): an interrupted grid resumes where it stopped. `robot`
+    (a RobotSpec, its label, or a robot's name with hand `gripper`): the robot that executes every prediction
+    (lib/sim/robots; default the floating grippers).
     """
     from tqdm import tqdm
 
     from demoforge.lib.sim import scene_fingerprint
-    from demoforge.tasks.sim import sim_options
 
     from demoforge.flows.synth import synthesize_takes
     from demoforge.lib.task_library import TASK_NAMES, get_task
@@ -89,9 +92,10 @@ def table3(
         paths = [m.path for m in run_flow(synthesize_takes, warehouse, tasks=[task], takes=takes, seed=seed,
                                           mirror="no", show_progress=show_progress)]
     spec = get_task(task)
-    opt = sim_options(robot, gripper)  # an unknown robot or hand: RobotError, before any work
-    judge = {} if opt.robot.name == "grippers" else {  # the grippers' cells keep their cache keys
-        "robot": opt.robot.name, "gripper": opt.robot.gripper_name, "scene_key": scene_fingerprint(task, opt)}
+    arm = RobotSpec.of(robot, gripper)  # an unknown robot or hand: RobotError, before any work
+    opt = sim_options(arm)
+    judge = {} if arm.robot == "grippers" else {  # the grippers' cells keep their cache keys
+        "robot": arm.robot, "gripper": arm.gripper, "scene_key": scene_fingerprint(task, opt)}
     cells = [s for s in strategies if s not in LLM_STRATEGIES or llm_scenes > 0]
     out: list[Manifest] = []
     bar = tqdm(total=len(paths) * len(protocols) * len(cells), desc=f"table3 {task}", unit="cell",
@@ -102,14 +106,14 @@ def table3(
                 db, q, ck = _prepare(warehouse, spec, path, protocol, scenes, seed, episodes,
                                      POLICY in strategies, policy_epochs, policy_waypoints, policy_threads, show_progress)
                 if judge:  # an arm robot retrieves from (and learns from) the episodes its screening lets through
-                    judge["screening"] = run_flow(screen_task, warehouse, task=task, take=db["database"], robot=robot,
-                                                  gripper=gripper)
+                    judge["screening"] = run_flow(screen_task, warehouse, task=task, take=db["database"], robot=arm.robot,
+                                                  gripper=arm.gripper)
                     if ck is not None:
                         from demoforge.flows.policy import train_policy
 
                         ck = run_flow(train_policy, warehouse, task=task, take=db["database"], seed=seed,
                                       epochs=policy_epochs, max_minutes=None, threads=policy_threads,
-                                      n_waypoints=policy_waypoints, robot_label=opt.robot.label,
+                                      n_waypoints=policy_waypoints, robot_label=arm.label,
                                       screening=judge["screening"])
                 for strategy in cells:
                     bar.set_postfix_str(f"{protocol} take {i} {strategy}")
@@ -145,7 +149,6 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
         augmentation_queries, covering_options, placement_queries,
     )
     from demoforge.schemas.core import column_numpy, read_table
-    from demoforge.tasks.augment import demo_arrays, load_demo_source
 
     take_id = open_take(path).take_id
     name = database_name(take_id, protocol)

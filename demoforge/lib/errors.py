@@ -5,7 +5,8 @@ message names the file or option and the fix. Everything else is a crash of demo
 traceback. The rule, in one place so the CLI and the Prefect log filter agree:
 
 - :class:`UserError` and its subclasses (``TakeError``, ``QueryRefused``, ``ExportError``, the
-  HaMeR checkpoint/MANO errors) are user errors (``SchemaError`` is not: a stage writing rows that
+  HaMeR checkpoint/MANO errors, :class:`UnknownNameError`: an unknown robot, hand, task, take source,
+  hand detector or LLM backend) are user errors (``SchemaError`` is not: a stage writing rows that
   break its table's contract is a bug);
 - so are the failures of what the user pointed demoforge at: an LLM backend (``LLMError``: a dead,
   slow or failing server, a missing model), a detector that cannot run (``DetectorError``) and a
@@ -51,7 +52,20 @@ class UserError(ValueError):
     """Bad input or options: the message says which file or option and how to fix it."""
 
 
-class UnknownTaskError(UserError, KeyError):
+class UnknownNameError(UserError):
+    """A name that a registry (demoforge.lib.registry: robots, hands, take sources, hand detectors, LLM
+    backends) does not know; the one-line message lists the names it does. ``kind``, ``name`` and
+    ``choices`` say the same for a caller that words it another way (the CLI names its option)."""
+
+    def __init__(self, message: str, *, kind: str = "", name: str = "", choices: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.kind, self.name, self.choices = kind, name, tuple(choices)
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class UnknownTaskError(UnknownNameError, KeyError):
     """A task name the library does not know (a user's `--task` typo: one line, exit 2)."""
 
     def __str__(self) -> str:  # KeyError would quote the message

@@ -5,6 +5,7 @@ succeed), side by side (demoforge.flows.ingest.ingest_side_by_side)."""
 import pyarrow as pa
 
 from demoforge.schemas.core import Column, table
+from demoforge.schemas.report_section import ReportSection
 
 INGESTED_DEMO_CHECKS = table(
     "ingested_demo_checks",
@@ -41,3 +42,14 @@ REPORT_INGESTED_DEMOS_SQL = """
     FROM ingested_demo_checks GROUP BY task, detector
     ORDER BY task, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
 """
+
+REPORT_INGESTED_DEMOS = ReportSection(
+    "report_ingested_demos", "Robot success on the ingested demonstrations, per detector",
+    computed_from=("ingested_demo_checks",),
+    stamp="detectors",
+    intro=("Each take's ingested gripper trajectory (undetected frames held at the nearest detected pose) "
+           "executed by the robot in MuJoCo with the take's object keypoints, per detector "
+           "(`ingested_demo_checks`; `failures`: why the others failed). Goal: the MediaPipe ingests succeed at "
+           "least 90 % as often as the simulated detector's."),
+    sql=REPORT_INGESTED_DEMOS_SQL,
+)

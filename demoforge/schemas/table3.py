@@ -8,6 +8,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from demoforge.schemas.core import DATA_FILE, Column, keypoints3d, register_migration, table, write_table
+from demoforge.schemas.report_section import OMIT, ReportSection
 
 TABLE3_TRIALS = table(
     "table3_trials",
@@ -85,6 +86,27 @@ REPORT_TABLE3_GRID_SQL = f"""
     ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, take_index
 """
 
+REPORT_TABLE3_GRID = ReportSection(
+    "report_table3_grid", "Table 3 (thesis layout), per protocol",
+    computed_from=("table3_trials",),
+    stamp="table3",
+    intro=("The thesis's Table 3 (pouring: 5 takes x 10 query scenes; its figures: One Demo 6 %, 3 Random 24 %, "
+           "3 Retrieved 96 %) in its layout, successes/scenes in the MuJoCo check per take and the pooled rate "
+           "on the Average row. Protocol `thesis`: every take has its own database and its query scenes are "
+           "drawn from that database's own augmentation sampler with held-out seeds (in its distribution, never "
+           "one of its episodes: the thesis's 5.3.1). Protocol `novel`: the task library's placements (each "
+           "object placed and turned independently) against a second database of the take built to cover them. "
+           "Prompts: `one_demo` (the original demonstration as the only example), `random_3`, `retrieved_3` "
+           "(top 3 by keypoint MSE). LLM-free: `replay_original` (the demonstration replayed unchanged: One "
+           "Demo without an LLM), `replay_top1` (the nearest episode replayed), `knn_blend` (the 3 nearest "
+           "episodes carried to the scene in their objects' frames and averaged), `transform_demo` (the "
+           "demonstration, or its mirror image, carried to the scene); `policy`: the learned policy trained on "
+           "that take's database. A grid run with fewer LLM scenes than scenes shows it in the denominators."),
+    if_empty="_No Table 3 grid in this warehouse yet: `make table3`._",
+    empty_title="Table 3 (thesis layout)",
+    sql=REPORT_TABLE3_GRID_SQL,
+)
+
 #: The `report_table3_intervals` view: per task, protocol and strategy the pooled successes with a
 #: Wilson 95 % score interval (z = 1.96), parse failures and latency.
 REPORT_TABLE3_INTERVALS_SQL = f"""
@@ -105,6 +127,16 @@ REPORT_TABLE3_INTERVALS_SQL = f"""
     FROM w ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, {STRATEGY_ORDER}
 """
 
+REPORT_TABLE3_INTERVALS = ReportSection(
+    "report_table3_intervals", "Table 3: success rates with Wilson 95 % intervals",
+    computed_from=("table3_trials",),
+    stamp="table3",
+    intro=("Pooled over the takes; `nearest_episode_rms_mm`: how far the scenes lie from their nearest database "
+           "episode (RMS over the keypoints)."),
+    if_empty=OMIT,
+    sql=REPORT_TABLE3_INTERVALS_SQL,
+)
+
 #: The `report_table3_failures` view: outcomes per task, protocol and strategy.
 REPORT_TABLE3_FAILURES_SQL = f"""
     SELECT task, protocol, robot, gripper, strategy,
@@ -112,6 +144,14 @@ REPORT_TABLE3_FAILURES_SQL = f"""
     FROM table3_trials GROUP BY task, protocol, robot, gripper, strategy, outcome
     ORDER BY task, protocol DESC, robot <> 'grippers', robot, gripper, {STRATEGY_ORDER}, trials DESC, outcome
 """
+
+REPORT_TABLE3_FAILURES = ReportSection(
+    "report_table3_failures", "Table 3: why trials failed",
+    computed_from=("table3_trials",),
+    stamp="table3",
+    if_empty=OMIT,
+    sql=REPORT_TABLE3_FAILURES_SQL,
+)
 
 
 def migrate_table3_v1(root: str | os.PathLike) -> int:

@@ -8,41 +8,12 @@ import numpy as np
 import pyarrow as pa
 
 import demoforge.lib  # noqa: F401
-from demoforge.schemas.core import read_table, write_table
+from demoforge.lib.takes import take_task_name
+from demoforge.schemas.core import write_table
+from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source, require_task
 from demoforge.tasks.common import Manifest, stage_task
-from demoforge.tasks.ingest import arrays, take_task_name
 
 AUGMENT_VERSION = "1"
-
-
-def demo_arrays(take_id: str, task: str, warehouse: str) -> tuple[np.ndarray, np.ndarray]:
-    """The take's gripper trajectory (T, 2, 8) with undetected frames filled, and its object keypoints."""
-    from demoforge.lib.trajectories.segmentation import fill_invalid_poses
-
-    part = dict(task=task, take=take_id)
-    _, gp = arrays(read_table("gripper_poses", warehouse, **part), "pose", "valid")
-    traj = fill_invalid_poses(gp["pose"], gp["valid"])
-    ok = read_table("object_keypoints", warehouse, **part).sort_by("keypoint")
-    kp = np.array(ok.column("point_world").to_pylist(), float)
-    if not np.isfinite(kp).all():
-        bad = [n for n, v in zip(ok.column("name").to_pylist(), ok.column("valid").to_pylist()) if not v]
-        raise ValueError(f"take {take_id}: object keypoints without depth: {bad}; fix the annotation "
-                         "(click points on valid depth) before augmenting")
-    return traj, kp
-
-
-def _require_task(task: str, take=None):
-    """The task library's Task, or for a custom task the TaskDefinition of the take's annotations.json."""
-    from demoforge.lib.task_library import TASK_NAMES, get_task
-
-    if task in TASK_NAMES:
-        return get_task(task)
-    defined = getattr(getattr(take, "annotations", None), "task", None)
-    if defined is not None and not defined.library and defined.name == task:
-        return defined
-    raise ValueError(f"task {task!r} is not in the task library ({', '.join(TASK_NAMES)}); ingest the "
-                     "take with --task NAME so its objects and keypoints are known, or annotate it as a task "
-                     "of your own (demoforge annotate TAKE --task custom --keypoints ...)")
 
 
 @stage_task(name="segment_take", version=AUGMENT_VERSION)
@@ -57,7 +28,7 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    spec = _require_task(name, take)
+    spec = require_task(name, take)
     traj, kp = demo_arrays(take.take_id, name, warehouse)
     manual_arms = {int(k): list(v) for k, v in (manual or {}).items()}
     segs = segment_trajectory(traj, kp, spec.keypoint_object, manual=manual_arms or None)
@@ -84,27 +55,6 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     return Manifest.from_written("segments", written)
 
 
-def load_demo_source(take_id: str, task: str, warehouse: str, take=None):
-    """The ingested demonstration as the augmentation's DemoSource: gripper trajectory, object
-    keypoints and segments from the warehouse, object models from the task library (a custom task:
-    its annotated first frame). The arm of each object is the one annotations.json states, else
-    inferred from which hand holds it."""
-    from demoforge.lib.trajectories.augmentation import DemoSource
-    from demoforge.lib.trajectories.segmentation import Segment, infer_object_arm
-
-    spec = _require_task(task, take)
-    traj, kp = demo_arrays(take_id, task, warehouse)
-    rows = read_table("segments", warehouse, task=task, take=take_id).to_pylist()
-    segs = [Segment(r["arm"], r["kind"], r["start"], r["end"], r["object"]) for r in rows]
-    ko = np.asarray(spec.keypoint_object, int)
-    local = spec.keypoints_local(kp) if callable(spec.keypoints_local) else spec.keypoints_local
-    defined = getattr(getattr(take, "annotations", None), "task", None)
-    stated = defined.object_arm_index() if defined is not None and defined.name == task else None
-    return DemoSource(task=task, trajectory=traj, keypoints=kp, keypoint_object=ko, keypoints_local=local,
-                      segments=segs, object_arm=stated if stated is not None else infer_object_arm(traj, kp, ko),
-                      workspace=None if callable(spec.workspace) else spec.workspace)
-
-
 @stage_task(name="augment_take", version=AUGMENT_VERSION)
 def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
@@ -120,7 +70,7 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
 
     take = open_take(take_dir)
     name = take_task_name(take, task)
-    spec = _require_task(name, take)
+    spec = require_task(name, take)
     source = load_demo_source(take.take_id, name, warehouse, take)
     opts = dict(options or {})
     ws = spec.workspace(source.keypoints, source.trajectory[..., :3]) if callable(spec.workspace) else spec.workspace
@@ -215,15 +165,3 @@ def episode_steps_columns(task: str, take: str, batch) -> dict:
     return {"task": pa.array([task]).take(np.zeros(rows, np.int64)),
             "take": pa.array([take]).take(np.zeros(rows, np.int64)),
             "episode_id": ep, "step": step, "action": action.astype(np.float32, copy=False)}
-
-
-def episode_actions(warehouse: str, task: str, take: str, ids) -> dict[int, np.ndarray]:
-    """{episode_id: (length, 2, 8) actions} of the given episodes, read from `episode_steps`."""
-    from demoforge.schemas.catalog import placeholders, query
-
-    id_list = [int(i) for i in ids]
-    t = query("SELECT episode_id, action FROM episode_steps WHERE task = ? AND take = ? "
-              f"AND episode_id IN ({placeholders(len(id_list))}) ORDER BY episode_id, step", warehouse, [task, take, *id_list])
-    eid = np.asarray(t.column("episode_id").to_numpy())
-    act = np.asarray(t.column("action").to_pylist(), float)
-    return {int(i): act[eid == i] for i in np.unique(eid)}

@@ -13,6 +13,8 @@ import numpy as np
 import pyarrow as pa
 
 from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, write_table
+from demoforge.schemas.reads.demonstration import load_demo_source
+from demoforge.schemas.reads.episodes import episode_actions, load_episodes
 from demoforge.tasks.common import Manifest, stage_task
 
 CLOSED_LOOP_VERSION = "3"  # 3: episodes drawn from the valid screened-in ones only
@@ -65,7 +67,6 @@ def closed_loop_train(task: str, take: str, warehouse: str, robot: str, gripper:
     from demoforge.lib.policy.joint_demos import joint_demos
     from demoforge.lib.sim.robots import get_robot
     from demoforge.lib.task_library import get_task
-    from demoforge.tasks.export import load_episodes
 
     arm = get_robot(robot, gripper)
     ids = training_episode_ids(warehouse, task, take, arm.label, n_episodes, seed)
@@ -125,7 +126,6 @@ def _executed_rows(task, take, warehouse, arm, method, bar, source, checkpoint: 
     from demoforge.lib.sim import SimOptions, execute
     from demoforge.lib.trajectories.augmentation import transform_demo
     from demoforge.lib.trajectories.retrieval import KeypointIndex
-    from demoforge.tasks.augment import episode_actions
     from demoforge.tasks.table3 import _database, nearest_source
 
     db = _database(warehouse, task, take, arm.label)
@@ -175,7 +175,6 @@ def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpo
     from demoforge.envs.robot_env import DemoforgeEnv
     from demoforge.envs.rollout import rollout
     from demoforge.lib.sim.robots import get_robot
-    from demoforge.tasks.augment import load_demo_source
 
     arm = get_robot(robot, gripper)
     source = load_demo_source(take, task, warehouse)

@@ -1,7 +1,7 @@
 """Prefect tasks of the ingest stage (thesis 3.1): each reads its inputs, calls lib/, writes one table.
 
 Per-frame, per-hand arrays (T, 2, ...) are stored one row per (frame, hand), frame-major with the
-left hand first; :func:`rows` and :func:`arrays` convert between the two.
+left hand first; demoforge.schemas.reads.per_hand's ``rows`` and ``arrays`` convert between the two.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ import pyarrow as pa
 
 import demoforge.lib  # noqa: F401
 from demoforge.lib.errors import UserError
-from demoforge.schemas.core import column_numpy, read_table, write_table
+from demoforge.lib.takes import take_task_name
+from demoforge.schemas.core import read_table, write_table
+from demoforge.schemas.reads.per_hand import HANDS, arrays, rows
 from demoforge.tasks.common import Manifest, stage_task
 
-HANDS = ("left", "right")
 INGEST_VERSION = "1"
 ANNOTATIONS = "annotations.json"
 
@@ -48,45 +49,6 @@ def take_media_key(take_dir: Path) -> str:
             h.update(rel.encode())
             h.update(digest.encode())
     return h.hexdigest()
-
-
-def take_task_name(take: Any, task: str | None) -> str:
-    """The task a take belongs to: given explicitly, else the task section of annotations.json, else
-    the synthetic take.json's, else unknown."""
-    if task:
-        return task
-    annotated = getattr(getattr(take, "annotations", None), "task", None)  # written by `demoforge annotate`
-    if annotated is not None:
-        return annotated.name
-    return str((take.meta or {}).get("task") or "unknown")
-
-
-def rows(take: str, task: str, T: int, **columns: Any) -> dict[str, Any]:
-    """(T, 2, ...) arrays -> one row per frame and hand, frame-major, left first."""
-    out: dict[str, Any] = {
-        "take": [take] * (2 * T), "task": [task] * (2 * T),
-        "frame": np.repeat(np.arange(T, dtype=np.int32), 2), "hand": list(HANDS) * T,
-    }
-    for name, value in columns.items():
-        if isinstance(value, np.ndarray) and value.ndim >= 2 and value.shape[:2] == (T, 2):
-            out[name] = value.reshape((2 * T,) + value.shape[2:])
-        else:
-            out[name] = value
-    return out
-
-
-def arrays(table: pa.Table, *names: str) -> tuple[int, dict[str, np.ndarray]]:
-    """Rows of one take (any order) -> T and {name: (T, 2, ...)} arrays."""
-    frame = np.asarray(table.column("frame").to_numpy())
-    hand = np.array([HANDS.index(h) for h in table.column("hand").to_pylist()], dtype=np.int64)
-    T = int(frame.max()) + 1 if frame.size else 0
-    out = {}
-    for n in names:
-        values = column_numpy(table, n)
-        full = np.empty((T, 2) + values.shape[1:], dtype=values.dtype)
-        full[frame, hand] = values
-        out[n] = full
-    return T, out
 
 
 # --- 1. frames -----------------------------------------------------------------------------------

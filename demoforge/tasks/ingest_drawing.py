@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import read_table
+from demoforge.schemas.reads.per_hand import HANDS, arrays
 from demoforge.tasks.common import Manifest, stage_task
-from demoforge.tasks.ingest import HANDS, INGEST_VERSION, arrays, take_task_name
+from demoforge.tasks.ingest import INGEST_VERSION
 
 
 @stage_task(name="overlay_video", version=INGEST_VERSION, key_optional=("variant",))

@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import read_table, write_table
+from demoforge.schemas.reads.per_hand import HANDS, arrays
 from demoforge.tasks.common import Manifest, stage_task
-from demoforge.tasks.ingest import HANDS, INGEST_VERSION, arrays, take_task_name
+from demoforge.tasks.ingest import INGEST_VERSION
 
 
 @stage_task(name="ingest_metrics", version=f"{INGEST_VERSION}/depth-coverage-1", key_optional=("variant",))

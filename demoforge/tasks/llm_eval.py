@@ -11,6 +11,8 @@ import pyarrow as pa
 
 import demoforge.lib  # noqa: F401
 from demoforge.schemas.core import write_table
+from demoforge.schemas.reads.demonstration import load_demo_source
+from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, stage_task
 
 LLM_EVAL_VERSION = "6"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: keyframes of the smoothed sequences, the default; 5: no all-zero quaternion; 6: no dead end in the decoder
@@ -67,7 +69,6 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     `structured`: constrained answers (see llm_predict; None: on for the local backend). `keyframes`:
     (pos_tol_m, rot_tol_rad, smooth_sigma_steps) of keyframe prompts (None: the task's settings; the
     flows pass them, so a change of the task's settings is a change of the key)."""
-    from demoforge.tasks.augment import episode_actions
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
 
@@ -196,6 +197,5 @@ def decode_answer(prompt, answer: np.ndarray, n_steps: int) -> np.ndarray:
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:
     """The LLM-free baseline: the original demonstration carried to the new scene by the augmentation transform."""
     from demoforge.lib.trajectories.augmentation import transform_demo
-    from demoforge.tasks.augment import load_demo_source
 
     return transform_demo(load_demo_source(take, task, warehouse), poses)

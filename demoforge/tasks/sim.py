@@ -9,7 +9,11 @@ import numpy as np
 import pyarrow as pa
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.sim import sim_options
+from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import write_table
+from demoforge.schemas.reads.episodes import episode_actions
+from demoforge.schemas.reads.per_hand import arrays
 from demoforge.tasks.common import Manifest, stage_task
 
 # 2: settle phase stopped at rest, constraint islands off (lib/sim)
@@ -22,7 +26,6 @@ def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     """(ids, kinds, object keypoints (n, K, 3), {id: actions (L, 2, 8)}) of episodes of a take's database."""
     from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
     from demoforge.schemas.catalog import placeholders, query
-    from demoforge.tasks.augment import episode_actions
 
     ids = [int(i) for i in episode_ids]
     ep = query("SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = ? AND take = ? "
@@ -34,14 +37,6 @@ def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     kinds = ep.column("kind").to_pylist()
     kps = np.asarray(ep.column("object_keypoints").to_pylist(), float)
     return eids, kinds, kps, episode_actions(warehouse, task, take, eids)
-
-
-def sim_options(robot: str = "grippers", gripper: str | None = None):
-    """The simulator's options for a robot by name (lib/sim/robots; an unknown name is a RobotError)."""
-    from demoforge.lib.sim import SimOptions
-    from demoforge.lib.sim.robots import get_robot
-
-    return SimOptions(robot=get_robot(robot, gripper))
 
 
 def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool, options=None) -> list:
@@ -155,7 +150,6 @@ def check_ingested_demo(take_dir: Path, task: str | None, warehouse: str, grippe
     from demoforge.lib.sim import execute
     from demoforge.lib.trajectories.segmentation import fill_invalid_poses
     from demoforge.schemas.core import read_table, read_table_file
-    from demoforge.tasks.ingest import arrays, take_task_name
 
     take = open_take(take_dir)
     name = take_task_name(take, task)

@@ -10,7 +10,10 @@ import numpy as np
 import pyarrow as pa
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.sim import sim_options
 from demoforge.schemas.core import get_schema, write_table
+from demoforge.schemas.reads.demonstration import load_demo_source
+from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, stage_task
 
 TABLE3_VERSION = "7"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples; 5: keyframes of the smoothed sequences, the default; 6: no all-zero quaternion; 7: no dead end in the decoder
@@ -76,8 +79,6 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
 
     from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
     from demoforge.lib.sim import execute
-    from demoforge.tasks.augment import episode_actions, load_demo_source
-    from demoforge.tasks.sim import sim_options
 
     opt = sim_options(robot or "grippers", gripper)
     from demoforge.tasks.llm_eval import keyframe_settings, llm_predict, upsample

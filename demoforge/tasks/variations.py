@@ -14,6 +14,8 @@ import pyarrow as pa
 import demoforge.lib  # noqa: F401
 import demoforge.schemas.variations  # noqa: F401  (registers variation_trials)
 from demoforge.schemas.core import table_files, write_table
+from demoforge.schemas.reads.demonstration import load_demo_source
+from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, stage_task
 
 VARIATION_TRIALS_VERSION = "1"
@@ -54,8 +56,6 @@ class _Strategies:
             self.index = KeypointIndex(np.asarray(ep.column("object_keypoints").to_pylist(), float),
                                        ids=np.asarray(ep.column("episode_id").to_numpy()))
         if "transform_demo" in strategies:
-            from demoforge.tasks.augment import load_demo_source
-
             self.source = load_demo_source(take, task, warehouse)
         if "transform_scripted" in strategies:
             self.scripted = _scripted_source(warehouse, task, take)
@@ -66,8 +66,6 @@ class _Strategies:
         from demoforge.lib.trajectories.augmentation import estimate_object_poses, transform_demo
 
         if strategy == "replay_top1":
-            from demoforge.tasks.augment import episode_actions
-
             hit = self.index.query(keypoints, k=1)
             eid = int(hit.ids[0, 0])
             return episode_actions(self.warehouse, self.task, self.take, [eid])[eid], eid, float(hit.mse[0, 0])

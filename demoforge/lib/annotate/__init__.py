@@ -1,7 +1,7 @@
 """Annotating a recorded take: the task definition (named object keypoints, which arm acts on which
 object), the ``annotations.json`` format and its atomic write, the automatic open/close suggestion
 shown on the timeline, and the rule for when a take counts as annotated. Pure logic: the local web
-page that uses it is served by :mod:`demoforge.flows.annotate` (the page itself is ``page.html`` here).
+page that uses it is served by :mod:`demoforge.runtime.annotate` (the page itself is ``page.html`` here).
 """
 
 from demoforge.lib.annotate.model import (  # noqa: F401

@@ -14,7 +14,7 @@ refuses, as local web tools do (Jupyter's token, Host and Origin checks):
 - a body that is not ``Content-Type: application/json`` (415), has no length (411) or is larger
   than ``max_body_bytes`` (413).
 
-Pure logic: the server (:mod:`demoforge.flows.annotate`) asks :meth:`RequestGate.check` before it
+Pure logic: the server (:mod:`demoforge.runtime.annotate`) asks :meth:`RequestGate.check` before it
 looks at the route, so a route added later is gated without anyone thinking of it.
 """
 

@@ -11,25 +11,20 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
+from demoforge.lib.robot_spec import RobotSpec
 from demoforge.lib.synth import MIRROR_CHOICES, mirror_flags
 
-__all__ = ["DETECTORS", "GRID_ROBOTS", "ROBOTS", "EvaluateConfig", "MIRROR_CHOICES", "parse_robot"]
+__all__ = ["DETECTORS", "GRID_ROBOTS", "ROBOTS", "EvaluateConfig", "MIRROR_CHOICES"]
 
 # The hand detectors every take is ingested with, side by side: the simulated one (the ground truth
 # through an error model; every later stage builds on its ingest) and MediaPipe, a real detector.
 DETECTORS = ("simulated", "mediapipe")
-# The robots every task's sample is executed with, side by side (lib/sim/robots; `robot` or
-# `robot+hand`): the floating grippers, the ALOHA arms with their own fingers and with the 2F-140.
+# The robots every task's sample is executed with, side by side (their labels: demoforge.lib.robot_spec.RobotSpec):
+# the floating grippers, the ALOHA arms with their own fingers and with the 2F-140.
 ROBOTS = ("grippers", "aloha", "aloha+2f140")
 # The arms Table 3's LLM-free and policy columns are judged with too, beside the first robot: the 2F-140 fits
 # every object of the library (ALOHA's own fingers do not open around the bottle)
 GRID_ROBOTS = ("aloha+2f140",)
-
-
-def parse_robot(label: str) -> tuple[str, str | None]:
-    """`aloha+2f140` -> ("aloha", "2f140"); `aloha` -> ("aloha", None: its own hand)."""
-    name, _, hand = str(label).partition("+")
-    return name, hand or None
 
 
 def _names(value: Sequence[str] | str | None) -> tuple[str, ...] | None:
@@ -91,6 +86,8 @@ class EvaluateConfig:
         object.__setattr__(self, "scaling_sizes", tuple(int(n) for n in self.scaling_sizes))
         if not self.robots:
             raise ValueError("robots must name at least one robot")
+        for name in ("robots", "grid_robots"):  # checked here, once: an unknown robot or hand is a RobotError
+            object.__setattr__(self, name, tuple(dict.fromkeys(RobotSpec.parse(r).label for r in getattr(self, name) or ())))
         mirror_flags(self.mirror)  # refuses an unknown choice
         if int(self.takes) < 1 or int(self.episodes) < 1:
             raise ValueError(f"need takes >= 1 and episodes >= 1, got {self.takes} and {self.episodes}")
@@ -99,6 +96,15 @@ class EvaluateConfig:
         negative = [n for n in counts if int(getattr(self, n)) < 0]
         if negative:
             raise ValueError(f"{negative[0]} must be >= 0, got {getattr(self, negative[0])}")
+
+    @property
+    def robot_specs(self) -> tuple[RobotSpec, ...]:
+        """`robots` as RobotSpecs (the first: the stability check's and the single-robot evaluations')."""
+        return tuple(RobotSpec.parse(r) for r in self.robots)
+
+    @property
+    def grid_robot_specs(self) -> tuple[RobotSpec, ...]:
+        return tuple(RobotSpec.parse(r) for r in self.grid_robots)
 
     def replace(self, **changes: Any) -> "EvaluateConfig":
         return dataclasses.replace(self, **changes)

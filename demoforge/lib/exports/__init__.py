@@ -4,9 +4,9 @@
 - :mod:`demoforge.lib.exports.robomimic`: a robomimic hdf5 file.
 - :mod:`demoforge.lib.exports.rerun_view`: an offline Rerun recording (.rrd) of a take or an episode.
 
-Pure functions over arrays: reading the warehouse is the flows' job (flows/export.py). Every writer
-publishes its output atomically (:func:`atomic_dir`, :func:`atomic_file`): a crash or a refused
-input never leaves a half-written export where the user asked for one.
+Pure functions over arrays: reading the warehouse is the read layer's job (schemas/reads/episodes.py).
+Every writer publishes its output atomically (:func:`atomic_dir`, :func:`atomic_file`): a crash or a
+refused input never leaves a half-written export where the user asked for one.
 """
 
 from __future__ import annotations

@@ -13,9 +13,9 @@ A backend gets a :class:`demoforge.lib.llm.prompting.Prompt` and uses ``prompt.m
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
+from demoforge.lib.registry import Registry
 from demoforge.lib.llm.base import (Completion, FakeBackend, LLMBackend, LLMBudgetExceeded, LLMError,
                                     LLMRequestError, LLMTimeoutError, Sampling)
 
@@ -35,22 +35,19 @@ __all__ = [
 
 DEFAULT_BACKEND = "local"
 
-BACKENDS: dict[str, str] = {
+#: name -> the backend's class, imported on first use (llama.cpp, the HTTP client); an unknown name is an
+#: UnknownNameError (a user error, and a ValueError) listing the names
+BACKENDS: Registry[type[LLMBackend]] = Registry("LLM backend", {
     "local": "demoforge.lib.llm.local_backend:LocalBackend",
     "openai": "demoforge.lib.llm.openai_backend:OpenAIBackend",
     "fake": "demoforge.lib.llm.base:FakeBackend",
-}
+})
 
 
 def get_backend(name: str = DEFAULT_BACKEND, cache_dir: Any = None, **options: Any) -> LLMBackend:
-    """A backend by registry name, built with ``options``; with ``cache_dir`` wrapped in
-    :class:`demoforge.lib.llm.cache.CachedBackend`.  Unknown names raise ValueError listing the choices."""
-    key = (name or "").strip().lower()
-    if key not in BACKENDS:
-        raise ValueError(f"unknown LLM backend {name!r}; choices: {', '.join(sorted(BACKENDS))}")
-    mod_name, cls_name = BACKENDS[key].split(":")
-    cls = getattr(importlib.import_module(mod_name), cls_name)
-    backend = cls(**options)
+    """A backend by registry name (any case), built with ``options``; with ``cache_dir`` wrapped in
+    :class:`demoforge.lib.llm.cache.CachedBackend`. An unknown name is an UnknownNameError listing the names."""
+    backend = BACKENDS.get((name or "").strip().lower())(**options)
     if cache_dir is not None:
         from demoforge.lib.llm.cache import CachedBackend  # lazy: the package's import stays free of numpy
 

@@ -151,10 +151,9 @@ class PinchKinematics:
     joint-space export's poses)."""
 
     def __init__(self, robot_label: str, task: str):
-        from demoforge.lib.sim.robots import get_robot
+        from demoforge.lib.sim.robots import resolve_robot
 
-        name, _, hand = robot_label.partition("+")
-        ik = get_robot(name, hand or None).ik(task)
+        ik = resolve_robot(robot_label).ik(task)  # the label parsed by RobotSpec
         self.model, self.data, self.sites = ik.model, mujoco.MjData(ik.model), ik.sites
 
     def __call__(self, states: np.ndarray) -> np.ndarray:

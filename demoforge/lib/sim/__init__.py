@@ -6,16 +6,17 @@ floating parallel-jaw grippers, or ALOHA's two ViperX 300 arms (inverse kinemati
     r.success, r.failure, r.detail
 
 robots/: the robot interface and registry (grippers, aloha); gripper.py: the parallel gripper (MJCF,
-parameters, g -> finger command mapping); scene.py: compiled scene
-cache; executor.py: execute / execute_many; failures.py: failure classification; render.py: MP4;
-stability.py: verdicts under micrometre shifts; variations.py, variation_scene.py: the Table 4
-analogue's varied scenes.
+parameters, g -> finger command mapping); scene.py: compiled scene cache; executor.py: execute /
+execute_many; options.py: sim_options (a robot's options by name); failures.py: failure
+classification; render.py: MP4; stability.py: verdicts under micrometre shifts; variations.py,
+variation_scene.py: the Table 4 analogue's varied scenes.
 """
 
 from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_many, planned_execution,
                        scene_fingerprint, validate_actions)
 from .failures import FAILURES
 from .gripper import GripperSpec
+from .options import sim_options
 from .scene import PhysicsOptions, get_scene
 
 
@@ -25,4 +26,5 @@ def render_episode(*args, **kwargs):
 
 
 __all__ = ["execute", "execute_many", "render_episode", "SimOptions", "SimResult", "GripperSpec", "PhysicsOptions",
-           "FAILURES", "as_object_poses", "planned_execution", "validate_actions", "get_scene", "scene_fingerprint"]
+           "FAILURES", "as_object_poses", "planned_execution", "validate_actions", "get_scene", "scene_fingerprint",
+           "sim_options"]

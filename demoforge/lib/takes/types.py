@@ -168,6 +168,17 @@ class Take:
         return (self.ground_truth_dir / "gt_hand_joints.parquet").is_file()
 
 
+def take_task_name(take: Any, task: str | None) -> str:
+    """The task a take belongs to: given explicitly, else the task section of annotations.json, else
+    the synthetic take.json's, else unknown."""
+    if task:
+        return task
+    annotated = getattr(getattr(take, "annotations", None), "task", None)  # written by `demoforge annotate`
+    if annotated is not None:
+        return annotated.name
+    return str((take.meta or {}).get("task") or "unknown")
+
+
 class FrameBatch(NamedTuple):
     """A batch from :func:`iter_frames`; unpacks as ``indices, rgb, depth``."""
 

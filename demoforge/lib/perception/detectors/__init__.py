@@ -20,13 +20,13 @@ Adding a backend::
 from __future__ import annotations
 
 import abc
-import importlib
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from demoforge.lib.geometry import project_points  # noqa: F401  (re-exported for the backends)
+from demoforge.lib.registry import Registry
 
 __all__ = [
     "N_JOINTS",
@@ -41,6 +41,7 @@ __all__ = [
     "get_detector",
     "register_detector",
     "available_detectors",
+    "DETECTORS",
 ]
 
 N_JOINTS = 21
@@ -259,29 +260,25 @@ class HandDetector(abc.ABC):
 # registry
 # ------------------------------------------------------------------------------------------------
 
-_REGISTRY: dict[str, Callable[..., HandDetector] | str] = {
-    "mediapipe": "demoforge.lib.perception.detectors.mediapipe_backend:MediaPipeDetector",
-    "simulated": "demoforge.lib.perception.detectors.simulated:SimulatedDetector",
-    "precomputed": "demoforge.lib.perception.detectors.precomputed:PrecomputedDetector",
+#: name -> a callable returning a HandDetector (its class), or a lazy "module:attribute"; an unknown name
+#: is an UnknownNameError (a user error, and a ValueError) listing the names
+DETECTORS: Registry[Callable[..., HandDetector]] = Registry("hand detector", {
     "hamer": "demoforge.lib.perception.hamer.backend:HamerDetector",
-}
+    "mediapipe": "demoforge.lib.perception.detectors.mediapipe_backend:MediaPipeDetector",
+    "precomputed": "demoforge.lib.perception.detectors.precomputed:PrecomputedDetector",
+    "simulated": "demoforge.lib.perception.detectors.simulated:SimulatedDetector",
+})
 
 
 def register_detector(name: str, factory: Callable[..., HandDetector] | str) -> None:
     """Register a backend: a callable returning a HandDetector, or a lazy "module:attribute" string."""
-    _REGISTRY[name] = factory
+    DETECTORS.register(name, factory)
 
 
 def available_detectors() -> list[str]:
-    return sorted(_REGISTRY)
+    return sorted(DETECTORS.names())
 
 
 def get_detector(name: str, **options: Any) -> HandDetector:
-    """Build a detector by name ("mediapipe", "simulated", "precomputed", or a registered one)."""
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown hand detector {name!r}; choose one of: {', '.join(available_detectors())}")
-    factory = _REGISTRY[name]
-    if isinstance(factory, str):
-        mod, attr = factory.split(":")
-        factory = getattr(importlib.import_module(mod), attr)
-    return factory(**options)
+    """Build a detector by name ("mediapipe", "simulated", "precomputed", "hamer", or a registered one)."""
+    return DETECTORS.get(name)(**options)

@@ -13,60 +13,41 @@ Robots (`available_robots()`; each with the hands it can carry, `gripper_choices
   (`aloha`, 69 mm between the pads) or the 2F-140 (`2f140`) on the wrist.
 
 Adding a robot: subclass :class:`~demoforge.lib.sim.robots.base.Robot` (a frozen dataclass: its
-fields are its options) and ``register_robot("mine", "module:Class", grippers=("hand", ...))``.
+fields are its options) and ``register_robot("mine", "module:Class", grippers=("hand", ...))``. The
+registry and :class:`~demoforge.lib.robot_spec.RobotSpec` (the robot and hand a run asks for, checked
+once) live in demoforge.lib.robot_spec, light enough for the command line; they are re-exported here.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import Callable
+import functools
+from typing import Any, Callable
 
-from demoforge.lib.errors import UserError
+from demoforge.lib.robot_spec import (DEFAULT_ROBOT, ROBOTS, RobotError, RobotSpec, available_robots, gripper_choices,
+                                      register_robot, robot_labels)
 
 from .base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, Execution, MotionPlan, PlanEvent,
                    Robot, RobotBinding, SceneParts)
 
-DEFAULT_ROBOT = "grippers"
 
-# name -> (factory or lazy "module:attribute", the hands it can carry; the first is its default)
-_REGISTRY: dict[str, tuple[Callable[..., Robot] | str, tuple[str, ...]]] = {
-    "grippers": ("demoforge.lib.sim.robots.grippers:GrippersRobot", ("2f140",)),
-    "aloha": ("demoforge.lib.sim.robots.aloha:AlohaRobot", ("aloha", "2f140")),
-}
-
-
-class RobotError(UserError):
-    """An unknown robot or a hand it cannot carry; the message lists the choices."""
+def resolve_robot(spec: RobotSpec | str) -> Robot:
+    """The embodiment of `spec` (a RobotSpec or its label), built once per process: every stage, flow and
+    worker of a process shares the same frozen Robot."""
+    spec = RobotSpec.of(spec)
+    return _build(ROBOTS.get(spec.robot), spec.gripper if len(spec.hands) > 1 else None)
 
 
-def register_robot(name: str, factory: Callable[..., Robot] | str, grippers: tuple[str, ...]) -> None:
-    """Register a robot: a callable taking `gripper=` (or a lazy "module:attribute" string) and its hands."""
-    _REGISTRY[name] = (factory, tuple(grippers))
+@functools.cache
+def _build(factory: Callable[..., Any], hand: str | None) -> Robot:
+    return factory() if hand is None else factory(hand=hand)
 
 
-def available_robots() -> tuple[str, ...]:
-    return tuple(_REGISTRY)
-
-
-def gripper_choices(name: str) -> tuple[str, ...]:
-    if name not in _REGISTRY:
-        raise RobotError(f"unknown robot {name!r}; choose one of: {', '.join(available_robots())}")
-    return _REGISTRY[name][1]
-
-
-def get_robot(name: str = DEFAULT_ROBOT, gripper: str | None = None) -> Robot:
-    """The robot `name` with hand `gripper` (default: the robot's own)."""
-    choices = gripper_choices(name)
-    gripper = gripper or choices[0]
-    if gripper not in choices:
-        raise RobotError(f"the {name} robot carries {' or '.join(choices)}, not {gripper!r} (--gripper)")
-    factory = _REGISTRY[name][0]
-    if isinstance(factory, str):
-        mod, attr = factory.split(":")
-        factory = getattr(importlib.import_module(mod), attr)
-    return factory() if len(choices) == 1 else factory(hand=gripper)
+def get_robot(name: RobotSpec | str = DEFAULT_ROBOT, gripper: str | None = None) -> Robot:
+    """The robot `name` with hand `gripper` (default: the robot's own), or of a RobotSpec or its label:
+    resolve_robot of their RobotSpec."""
+    return resolve_robot(RobotSpec.of(name, gripper))
 
 
 __all__ = ["DEFAULT_ROBOT", "Execution", "NO_ARM", "PART_FINGER_L", "PART_FINGER_R", "PART_LINK", "PART_PALM",
-           "MotionPlan", "PlanEvent", "Robot", "RobotBinding", "RobotError", "SceneParts", "available_robots", "get_robot",
-           "gripper_choices", "register_robot"]
+           "MotionPlan", "PlanEvent", "ROBOTS", "Robot", "RobotBinding", "RobotError", "RobotSpec", "SceneParts",
+           "available_robots", "get_robot", "gripper_choices", "register_robot", "resolve_robot", "robot_labels"]

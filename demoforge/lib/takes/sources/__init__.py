@@ -3,13 +3,14 @@ Record3D export, a ROS 2 bag), each one module behind one interface (:class:`Tak
 registry; :func:`demoforge.lib.takes.open_take` asks them in order which one claims a path."""
 
 from demoforge.lib.takes.sources.base import (
-    KINDS, TakeSource, available_sources, find_takes, get_source, register_source, source_for, take_root,
+    KINDS, SOURCES, TakeSource, UnknownTakeSource, available_sources, find_takes, get_source, register_source, source_for,
+    take_root,
 )
 from demoforge.lib.takes.sources.recording import (
     Recording, RecordingIndex, RecordingSource, place_on_time_axis, remember_options, sidecar_dir,
 )
 
 __all__ = [
-    "KINDS", "Recording", "find_takes", "RecordingIndex", "RecordingSource", "TakeSource", "available_sources", "get_source",
+    "KINDS", "SOURCES", "Recording", "UnknownTakeSource", "find_takes", "RecordingIndex", "RecordingSource", "TakeSource", "available_sources", "get_source",
     "place_on_time_axis", "register_source", "remember_options", "sidecar_dir", "source_for", "take_root",
 ]

@@ -18,10 +18,11 @@ Adding a source::
 from __future__ import annotations
 
 import abc
-import importlib
 from pathlib import Path
 from typing import Any
 
+from demoforge.lib.errors import UnknownNameError
+from demoforge.lib.registry import Registry
 from demoforge.lib.takes.types import Take, TakeError
 
 
@@ -41,41 +42,38 @@ class TakeSource(abc.ABC):
         """The opened take; raises :class:`TakeError` (one line: what is wrong, how to fix it)."""
 
 
+class UnknownTakeSource(TakeError, UnknownNameError):
+    """A take source name that is not registered (the message lists the registered ones)."""
+
+
 # name -> "module:Class" (imported on first use: pyrealsense2 and rosbags load only when needed);
 # the order is the order :func:`source_for` asks them in
-_BUILTIN = {
+SOURCES: Registry[type[TakeSource]] = Registry("take source", {
     "folder": "demoforge.lib.takes.sources.folder:FolderSource",
     "mp4": "demoforge.lib.takes.sources.folder:Mp4Source",
     "realsense": "demoforge.lib.takes.sources.realsense:RealSenseSource",
     "rosbag2": "demoforge.lib.takes.sources.rosbag2:RosBag2Source",
     "record3d": "demoforge.lib.takes.sources.record3d:Record3DSource",
-}
-_REGISTRY: dict[str, type[TakeSource] | str] = dict(_BUILTIN)
+}, error=UnknownTakeSource)
 
 #: what a take can be, for error messages
 KINDS = ("a take folder (camera.json + rgb/ or rgb.mp4 + depth/), a RealSense recording (.bag, .db3), "
          "a Record3D export (.r3d or its folder), or a ROS 2 bag (.mcap, .db3 or its folder)")
 
 
-def register_source(name: str, source: type[TakeSource]) -> None:
+def register_source(name: str, source: type[TakeSource] | str) -> None:
     """Add (or replace) a take source; sources registered later are asked after the built-in ones."""
-    _REGISTRY[name] = source
+    SOURCES.register(name, source)
 
 
 def available_sources() -> list[str]:
-    return list(_REGISTRY)
+    return list(SOURCES.names())
 
 
 def get_source(name: str) -> type[TakeSource]:
-    try:
-        entry = _REGISTRY[name]
-    except KeyError:
-        raise TakeError(f"unknown take source {name!r}; choose one of: {', '.join(_REGISTRY)}") from None
-    if isinstance(entry, str):
-        module, cls = entry.split(":")
-        entry = getattr(importlib.import_module(module), cls)
-        _REGISTRY[name] = entry
-    return entry
+    """The source class registered as `name` (imported now if it was not yet); an unknown name is a
+    TakeError listing the registered ones."""
+    return SOURCES.get(name)
 
 
 def take_root(path: str | Path) -> Path:
@@ -94,7 +92,7 @@ def find_takes(root: Path) -> list[Path]:
     found: list[Path] = []
 
     def claimed(p: Path) -> bool:
-        for name in list(_REGISTRY):
+        for name in SOURCES.names():
             if name != "mp4" or p.is_dir():
                 if get_source(name).claims(p):
                     return True
@@ -121,7 +119,7 @@ def source_for(path: Path) -> type[TakeSource]:
     if not path.exists():
         raise TakeError(f"{path}: take folder does not exist (expected rgb/ or rgb.mp4, depth/, camera.json; "
                         f"or a recording file)")
-    for name in list(_REGISTRY):
+    for name in SOURCES.names():
         cls = get_source(name)
         if cls.claims(path):
             return cls

@@ -36,7 +36,18 @@ from urllib.parse import urlsplit
 import numpy as np
 
 import demoforge.lib  # noqa: F401
+from demoforge.lib.annotate import (
+    annotation_status, build_annotations, parse_task_section, point_info, suggest_closed_ranges, task_for_take,
+    write_annotations,
+)
 from demoforge.lib.annotate.request_gate import MAX_BODY_BYTES, SAFE_METHODS, TOKEN_PARAM, RequestGate
+from demoforge.lib.calibration import calibrate
+from demoforge.lib.errors import UserError
+from demoforge.lib.takes import TakeError, open_take, read_frame
+from demoforge.lib.takes.pose import pose_file, write_pose
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.schemas.core import read_parquet_file, table_files
+from demoforge.schemas.reads.per_hand import arrays
 
 PAGE = Path(demoforge.lib.__file__).resolve().parent / "annotate" / "page.html"
 
@@ -45,17 +56,11 @@ class CalibrationMixin:
     """The page's calibration of a take without a pose (`demoforge calibrate` in the browser)."""
 
     def pose_state(self) -> dict:
-        from demoforge.lib.takes.pose import pose_file
-
         take = self.take
         return {"known": take.camera.T_world_camera is not None, "method": take.pose_method,
                 "file": str(pose_file(take))}
 
     def calibrate(self, payload: dict) -> dict:
-        from demoforge.lib.calibration import calibrate
-        from demoforge.lib.takes import open_take
-        from demoforge.lib.takes.pose import write_pose
-
         if not isinstance(payload, dict):
             raise ValueError("the request body must be a JSON object")
         method = str(payload.get("method") or "auto")
@@ -80,9 +85,6 @@ class AnnotationSession(CalibrationMixin):
 
     def __init__(self, take_dir: str | Path, warehouse: str | Path | None = None, task: str | None = None,
                  keypoints: str | None = None, task_file: str | Path | None = None):
-        from demoforge.lib.annotate import task_for_take
-        from demoforge.lib.takes import open_take
-
         self.take = open_take(Path(take_dir).resolve(), require_pose=False)  # the page can calibrate it
         self.task = task_for_take(self.take, task, keypoints, task_file)
         self.warehouse = Path(warehouse) if warehouse is not None else None
@@ -92,8 +94,6 @@ class AnnotationSession(CalibrationMixin):
 
     # --- frames -----------------------------------------------------------------------------------
     def frame(self, index: int) -> tuple[np.ndarray | None, np.ndarray]:
-        from demoforge.lib.takes import read_frame
-
         if not 0 <= index < self.take.n_frames:
             raise ValueError(f"frame {index} out of range: the take has {self.take.n_frames} frames")
         with self._lock:
@@ -119,8 +119,6 @@ class AnnotationSession(CalibrationMixin):
         return buf.tobytes()
 
     def points(self, frame: int, uv: Any) -> list[dict]:
-        from demoforge.lib.annotate import point_info
-
         _, depth = self.frame(int(frame))
         pose = self.take.camera.T_world_camera
         out = point_info(np.asarray(uv, float).reshape(-1, 2), depth, self.take.K,
@@ -133,10 +131,6 @@ class AnnotationSession(CalibrationMixin):
     # --- ingest results ----------------------------------------------------------------------------
     def ingest_signals(self) -> dict | None:
         """Fingertip distance (T, 2) and the automatic closed ranges of the newest ingest, if any."""
-        from demoforge.lib.annotate import suggest_closed_ranges
-        from demoforge.schemas.core import read_parquet_file, table_files
-        from demoforge.tasks.ingest import arrays
-
         if self.warehouse is None:
             return None
         files = table_files("gripper_poses", self.warehouse, take=self.take.take_id)
@@ -153,8 +147,6 @@ class AnnotationSession(CalibrationMixin):
 
     # --- state and saving --------------------------------------------------------------------------
     def state(self) -> dict:
-        from demoforge.lib.annotate import annotation_status
-
         ann = self.take.annotations
         cam = self.take.camera
         signals = self.ingest_signals()
@@ -173,7 +165,6 @@ class AnnotationSession(CalibrationMixin):
             current["ranges_from"] = "suggestion" if signals else "empty"
         else:
             current["ranges_from"] = "annotations.json"
-        from demoforge.lib.task_library import TASK_NAMES
 
         return {
             "take": self.take.take_id, "path": str(self.take.path), "n_frames": self.take.n_frames,
@@ -187,9 +178,6 @@ class AnnotationSession(CalibrationMixin):
         }
 
     def save(self, payload: dict) -> dict:
-        from demoforge.lib.annotate import build_annotations, parse_task_section, write_annotations
-        from demoforge.lib.takes import open_take
-
         if not isinstance(payload, dict):
             raise ValueError("the request body must be a JSON object")
         task = parse_task_section(payload["task"], "task") if payload.get("task") else self.task
@@ -202,7 +190,6 @@ class AnnotationSession(CalibrationMixin):
         write_annotations(self.path, obj)
         self.take = open_take(self.take.path, require_pose=False)  # re-read: what ingest will see
         self.task = task
-        from demoforge.lib.annotate import annotation_status
 
         status = annotation_status(self.take)
         return {"saved": str(self.path), "annotations": obj, "status": status.__dict__}
@@ -250,9 +237,6 @@ SECURITY_HEADERS = (("Cache-Control", "no-store"), ("X-Content-Type-Options", "n
 
 def make_handler(session: AnnotationSession, gate: RequestGate, routes: tuple[Route, ...] = ROUTES):
     """The request handler: every request, whatever its method and path, passes ``gate`` first."""
-    from demoforge.lib.errors import UserError
-    from demoforge.lib.takes import TakeError
-
     class Handler(BaseHTTPRequestHandler):
         server_version = "demoforge-annotate"
 

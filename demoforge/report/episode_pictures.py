@@ -1,5 +1,5 @@
-"""The report's pictures of each task's episode database (flows/report.py): the trajectories, the workspace
-coverage and one success map per robot."""
+"""The report's pictures of each task's episode database (demoforge.report: the section "Episode databases in
+pictures"): the trajectories, the workspace coverage and one success map per robot."""
 
 from __future__ import annotations
 
@@ -9,24 +9,23 @@ import numpy as np
 import pyarrow.compute as pc
 
 import demoforge.lib  # noqa: F401
-from demoforge.tasks.export import _episodes_by_id, _read_steps
+from demoforge.lib.evaluation.plots import plot_success_map, plot_trajectories, plot_workspace_coverage
+from demoforge.lib.task_library import TASK_NAMES, get_task
+from demoforge.schemas.catalog import query
+from demoforge.schemas.core import column_numpy, read_table, table_files
+from demoforge.schemas.reads.episodes import read_steps
 
 
 def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = None, n_augmented: int = 40,
                  coverage_every: int = 3, seed: int = 0) -> list[str]:
-    """The three report plots per task with episodes (PNG under ``reports_dir``), as Markdown lines."""
-    from demoforge.lib.evaluation.plots import plot_success_map, plot_trajectories, plot_workspace_coverage
-    from demoforge.lib.task_library import TASK_NAMES, get_task
-    from demoforge.schemas.core import column_numpy, read_table, table_files
-
+    """The three report plots per task with episodes (PNG under ``reports_dir``), as Markdown lines (the
+    section's title is its declaration's, in demoforge.schemas.reports)."""
     reports = Path(reports_dir)
-    md = ["## Episode databases in pictures", ""]
+    md = []
     have = sorted({f.parent.parent.name.split("=", 1)[1] for f in table_files("episodes", warehouse)})
     tasks = [t for t in (tasks or TASK_NAMES) if t in have]
     if not tasks:
-        return md + ["_No episodes in this warehouse yet: `demoforge augment TAKE`._", ""]
-    from demoforge.schemas.catalog import query
-
+        return ["_No episodes in this warehouse yet: `demoforge augment TAKE`._", ""]
     # one row per episode, whichever runs (a sample, the whole database) checked it
     sim = query("SELECT task, take, episode_id, success, robot, gripper FROM sim_outcomes", warehouse)
     for task in tasks:
@@ -38,8 +37,8 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
         rng = np.random.default_rng(seed)
         pool = ids[valid & (ids != 0)]
         pick = rng.choice(pool, size=min(n_augmented, len(pool)), replace=False)
-        steps = _read_steps(warehouse, task, take)
-        e, act = _episodes_by_id(steps, np.concatenate([[0], pick]))
+        steps = read_steps(warehouse, task, take)
+        e, act = episodes_by_id(steps, np.concatenate([[0], pick]))
         kp_all = column_numpy(eps, "object_keypoints")
         kp0 = kp_all[np.flatnonzero(ids == 0)[0]]
         png = plot_trajectories(act[e == 0], [act[e == i] for i in pick], reports / f"trajectories_{task}.png",
@@ -51,7 +50,7 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
                "in the table plane, so the heights over time repeat the demonstration's (a mirrored episode's "
                "left arm follows the demonstration's right arm).", "",
                f"![trajectories {task}](trajectories_{task}.png)", ""]
-        e_all, act_all = _episodes_by_id(steps, None, every=coverage_every)
+        e_all, act_all = episodes_by_id(steps, None, every=coverage_every)
         del steps
         cov = plot_workspace_coverage(act_all[:, :, :3], reports / f"coverage_{task}.png", n_episodes=len(ids),
                                       workspace=spec.workspace, title=f"{task}: workspace coverage")
@@ -69,8 +68,6 @@ def report_plots(warehouse: str, reports_dir: str, tasks: list[str] | None = Non
 
 def _success_maps(rows, ids: np.ndarray, kp_all: np.ndarray, spec, task: str, reports: Path) -> list[str]:
     """One success map per robot (the grippers' as success_map_<task>.png, another robot's with its label)."""
-    from demoforge.lib.evaluation.plots import plot_success_map
-
     md = []
     robots = rows.column("robot").to_pylist()
     grippers = rows.column("gripper").to_pylist()
@@ -90,3 +87,13 @@ def _success_maps(rows, ids: np.ndarray, kp_all: np.ndarray, spec, task: str, re
                f"episodes, {100 * sm['success_rate']:.0f} % success; placement = the mean of the object's keypoints "
                "at the episode's start).", "", f"![success map {task} {label}]({name})", ""]
     return md
+
+
+def episodes_by_id(steps: tuple[np.ndarray, np.ndarray, np.ndarray], ids, every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ids and actions (rows, 2, 8) of the given episodes (all when ``ids`` is None), every n-th
+    step, from one take's ``read_steps`` (read once per take: it is most of the plots' input time)."""
+    e, s, act = steps
+    m = np.ones(len(e), bool) if ids is None else np.isin(e, np.asarray(ids))
+    if every > 1:
+        m &= s % every == 0
+    return e[m], act[m].astype(np.float64)
