@@ -1,6 +1,9 @@
 """Count what tests/test_architecture.py checks, on this checkout or another (e.g. an older commit's
 worktree), for before/after comparisons: modules, import edges at module level and inside functions,
-module and room loops, private names imported across files and rooms, functions over 120 lines.
+module and room loops, private names imported across files and rooms, functions over 120 lines; and what
+issue 44 asks about: import statements inside functions (of demoforge's own modules / all), the
+`import demoforge.lib  # noqa` lines, package-init loops, name registries, MuJoCo stepping loops (engines),
+`open_take` call sites in the stages and flows, lib modules without a test file named after them.
 
     .venv/bin/python scripts/architecture_counts.py [--root CHECKOUT]
 """
@@ -15,6 +18,72 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.import_graph import cycles, find_modules, imported, room  # noqa: E402
+
+
+def _calls(tree: ast.AST, name: str) -> int:
+    """Calls of `name` (a function or a method of that name) in a module."""
+    return sum(1 for n in ast.walk(tree) if isinstance(n, ast.Call) and (
+        (isinstance(n.func, ast.Name) and n.func.id == name) or (isinstance(n.func, ast.Attribute) and n.func.attr == name)))
+
+
+def _function_imports(tree: ast.Module) -> tuple[int, int]:
+    """(import statements inside functions that import demoforge's own modules, all of them)."""
+    own = every = 0
+    for f in ast.walk(tree):
+        if not isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for n in ast.walk(f):
+            if isinstance(n, (ast.Import, ast.ImportFrom)):
+                every += 1
+                names = [a.name for a in n.names] if isinstance(n, ast.Import) else [n.module or ""]
+                own += bool(getattr(n, "level", 0)) or any(x.split(".")[0] == "demoforge" for x in names)
+    return own, every
+
+
+def _registries(tree: ast.Module) -> tuple[int, int]:
+    """(`Registry(...)` instances, hand-written registries: module-level dicts whose name says registry /
+    backends / sources / detectors / robots) a module defines."""
+    shared = hand = 0
+    for n in tree.body:
+        target = n.targets[0] if isinstance(n, ast.Assign) and len(n.targets) == 1 else getattr(n, "target", None)
+        value = getattr(n, "value", None)
+        if not isinstance(target, ast.Name) or value is None:
+            continue
+        if isinstance(value, ast.Call) and getattr(value.func, "id", None) == "Registry":
+            shared += 1
+        elif isinstance(value, (ast.Dict, ast.DictComp)) and any(
+                k in target.id.upper() for k in ("REGISTRY", "BACKENDS", "SOURCES", "DETECTORS", "ROBOTS")):
+            hand += 1
+    return shared, hand
+
+
+def issue44_counts(root: Path, modules: dict[str, Path], edges: dict[str, set[str]]) -> dict:
+    own = every = ritual = opens = 0
+    engines, untested, shared, hand = [], [], [], []
+    tests = {p.stem for p in (root / "tests").rglob("test_*.py")}
+    for m, path in modules.items():
+        text = path.read_text()
+        tree = ast.parse(text)
+        o, e = _function_imports(tree)
+        own, every = own + o, every + e
+        ritual += sum(1 for line in text.splitlines() if line.strip().startswith("import demoforge.lib  # noqa"))
+        r = _registries(tree)
+        shared += [m] * r[0]
+        hand += [m] * r[1]
+        if _calls(tree, "mj_step"):
+            engines.append(m)
+        if m.split(".")[1:2] in (["tasks"], ["flows"]):
+            opens += _calls(tree, "open_take")
+        if m.startswith("demoforge.lib.") and path.name != "__init__.py" and f"test_{path.stem}" not in tests:
+            untested.append(m)
+    inits = {m for m, p in modules.items() if p.name == "__init__.py"}
+    init_loops = [c for c in cycles(edges) if inits & set(c)]
+    return {"import statements inside functions (own modules / all)": f"{own} / {every}",
+            "`import demoforge.lib  # noqa` lines": ritual, "package-init loops": init_loops,
+            "Registry instances": shared, "hand-written registry dicts": hand,
+            "modules stepping MuJoCo (mj_step)": engines,
+            "open_take calls in tasks/ and flows/": opens,
+            "lib modules without a tests/test_<module>.py": len(untested)}
 
 
 def counts(root: Path) -> dict:
@@ -43,7 +112,8 @@ def counts(root: Path) -> dict:
     return {"modules": len(modules), "module-level import edges": at_top, "import edges inside functions": in_functions,
             "module loops": cycles(edges), "room loops": cycles(room_edges),
             "private names imported across files": len(private_files),
-            "private names imported across rooms": private_rooms, "functions over 120 lines": long_functions}
+            "private names imported across rooms": private_rooms, "functions over 120 lines": long_functions,
+            **issue44_counts(root, modules, edges)}
 
 
 def main() -> None:
