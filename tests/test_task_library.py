@@ -8,6 +8,7 @@ import pytest
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 import mujoco
 
+from demoforge.lib.sim.replay import replay
 from demoforge.lib.task_library import TASK_NAMES, Demo, Placement, Segment, get_task
 from demoforge.lib.task_library.base import MIRROR
 
@@ -149,11 +150,10 @@ def test_mirror(name, demos):
 @pytest.mark.parametrize("name", TASK_NAMES)
 def test_replay_succeeds(name, demos):
     """Acceptance criterion: the scripted take succeeds in physics, mirrored or not, over seeds."""
-    t = get_task(name)
     for m in (False, True):
         for s in SEEDS:
             d = demos[(name, m, s)]
-            r = t.replay(d)
+            r = replay(d)
             assert r.success, f"{name} mirror={m} seed={s}: {r.reason}"
             assert r.object_poses.shape == d.object_poses.shape
             # the simulated objects follow the kinematic ones while held (weld to the hand)
@@ -168,7 +168,7 @@ def test_replay_succeeds(name, demos):
 def _replay(job):
     name, mirror, seed = job
     t = get_task(name)
-    r = t.replay(t.scripted_demo(seed, mirror=mirror))
+    r = replay(t.scripted_demo(seed, mirror=mirror))
     return name, mirror, seed, r.success, r.reason
 
 
@@ -208,10 +208,10 @@ def test_faulty_demo_fails(name, fault):
     from the receiver, lid never lifted, whisk not circled, flowers never pulled."""
     t = get_task(name)
     mirror = fault in ("release_far", "no_circle")
-    r = t.replay(t.scripted_demo(0, mirror=mirror, fault=fault))
+    r = replay(t.scripted_demo(0, mirror=mirror, fault=fault))
     assert not r.success, r.reason
     assert FAULT_EVIDENCE[fault](r.reason), f"{name}/{fault} failed for another reason: {r.reason}"
-    ok = t.replay(t.scripted_demo(0, mirror=mirror))  # the same demo without the fault passes
+    ok = replay(t.scripted_demo(0, mirror=mirror))  # the same demo without the fault passes
     assert ok.success and not FAULT_EVIDENCE[fault](ok.reason), ok.reason
     with pytest.raises(ValueError):
         t.scripted_demo(0, fault="not_a_fault")

@@ -37,6 +37,7 @@ def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehous
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
                     show_progress: bool = True, hand_style: str = "capsule") -> Manifest:
     """Script, render and write one synthetic take, replay it in physics, register it in `takes`."""
+    from demoforge.lib.sim.replay import replay
     from demoforge.lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
     from demoforge.lib.task_library import get_task
 
@@ -67,8 +68,7 @@ def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehous
     replay_success = replay_reason = replay_seconds = None
     if max_frames is None:  # a truncated take cannot complete its task
         t0 = time.perf_counter()
-        spec = get_task(task)
-        result = spec.replay(spec.scripted_demo(seed, mirror=mirror))
+        result = replay(get_task(task).scripted_demo(seed, mirror=mirror))
         replay_seconds = time.perf_counter() - t0
         replay_success, replay_reason = bool(result.success), str(result.reason)
 

@@ -11,25 +11,25 @@ pre-roll (`preroll_s`, grippers held at the first pose, objects settle) -> for e
 slerp: demoforge.lib.geometry.interpolate_poses), finger commands rate-limited to the gripper's speed, physics
 substeps, contacts summarised (which finger touches which object, gripper-gripper, gripper-table
 normal force) -> `settle_s` more seconds holding the last pose -> task predicate on the final state
-and the per-frame object history -> failure classification (failures.py).  With
-`stop_on_hard_failure` (default) the simulation stops at the first frame with an arm collision, a table
-collision or a workspace exit: the episode has failed whatever follows, so the remaining physics is
-skipped (the per-frame records end there and the predicate is not evaluated).  With
+and the per-frame object history -> failure classification (failures.py).  The frames themselves
+run in loop.py, the one frame loop that the stepper (stepper.py) and the scripted replay (replay.py)
+share.  With `stop_on_hard_failure` (default) the simulation stops at the first frame with an arm
+collision, a table collision or a workspace exit: the episode has failed whatever follows, so the
+remaining physics is skipped (the per-frame records end there and the predicate is not evaluated).  With
 `stop_when_settled` (default) the settle phase ends once the scene is at rest under constant
 commands (the state cannot change any more); the predicate is evaluated on that state.
 
 Where the time goes (scripted demos, 1/480 s, mjData.timer; lib/bench_cases_sim.breakdown): about
 80-85 % in mj_step (per step: collision detection ~20 %, constraint construction ~15 %, the Newton
 solver 25-45 %, the rest of the pipeline the remainder; ~1-2 solver iterations per step, 8-25
-contacts) and 15-20 % in this module's Python (4 control updates, 4 contact scans and one record per
-30 fps frame).  The per-step cost is set by the scenes (multi-geom containers, pouring's liquid
+contacts) and 15-20 % in the frame loop's Python (loop.py: 4 control updates, 4 contact scans and one
+record per 30 fps frame).  The per-step cost is set by the scenes (multi-geom containers, pouring's liquid
 spheres), so the remaining levers are fewer steps (timestep: rejected, see PhysicsOptions), shorter
 episodes (the early stops) and the Python share.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
@@ -40,10 +40,10 @@ import demoforge.lib  # noqa: F401
 from demoforge.lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
 
 from .failures import FAILURES, classify
+from .loop import FingerCommand, Records, contact_scan, frame_timing, preroll, record_frame, run_frames, settle
 from .robots import PlanEvent, Robot
-from .robots.base import as_index as _as_index
 from .robots.grippers import GrippersRobot
-from .scene import PAIR_ARMS, PAIR_LINK, PAIR_TABLE, PAIR_TOUCH, PhysicsOptions, SimScene, get_scene
+from .scene import PhysicsOptions, SimScene, get_scene
 
 
 @dataclass(frozen=True)
@@ -165,56 +165,6 @@ def _invalid(task_name: str, detail: str, t0: float) -> SimResult:
                      events=[(0.0, "invalid_action", detail)])
 
 
-# ------------------------------------------------------------------ finger command (the g mapping)
-class _FingerCommand:
-    """Aperture command per arm from the binary g (documented mapping, gripper.py):
-    closed (g < 0.5) -> -squeeze (force-limited squeeze); open -> `opening`, except that a release
-    (closed -> open) opens only to the measured held width + release_margin until the pinch target
-    has moved reopen_distance away (so releasing near the table does not ram a finger into it);
-    the command moves at most `speed` m/s (the gripper's closing speed)."""
-
-    def __init__(self, spec: GripperSpec, closed0: np.ndarray, dt_ctrl: float):
-        self.spec = spec
-        self.w = np.where(closed0, 0.0, spec.opening).astype(float)
-        self.closed = [bool(x) for x in closed0]  # Python bools: compared every control step
-        self.goal_open = np.full(2, spec.opening)
-        self.release_pos: list = [None, None]
-        self.wmax = spec.speed * dt_ctrl
-        self.steady = False
-        self.out = spec.stroke - self.w
-
-    def update(self, closed, target_pos: np.ndarray, qpos: np.ndarray, finger_qadr: np.ndarray) -> np.ndarray:
-        """closed: per-arm bools; qpos / finger_qadr: MjData.qpos and the (2, 2) finger joint addresses
-        (read only on a release, so the steady fast path does no indexing)."""
-        if self.steady and closed[0] == self.closed[0] and closed[1] == self.closed[1]:
-            return self.out  # nothing can change: same g, commands at their goals, no release pending
-        sp = self.spec
-        finger_q = qpos[finger_qadr]
-        steady = True
-        for a in range(2):
-            if closed[a]:
-                goal = -sp.squeeze
-                self.release_pos[a] = None
-                self.goal_open[a] = sp.opening
-            else:
-                if self.closed[a]:  # release now
-                    width = max(sp.stroke - float(finger_q[a, 0] + finger_q[a, 1]), 0.0)
-                    self.goal_open[a] = min(sp.opening, width + sp.release_margin)
-                    self.release_pos[a] = np.array(target_pos[a], float)
-                rp = self.release_pos[a]
-                if rp is not None and np.linalg.norm(target_pos[a] - rp) > sp.reopen_distance:
-                    self.goal_open[a] = sp.opening
-                    self.release_pos[a] = None
-                goal = self.goal_open[a]
-            self.closed[a] = closed[a]
-            dw = goal - self.w[a]
-            self.w[a] = goal if abs(dw) <= self.wmax else self.w[a] + math.copysign(self.wmax, dw)
-            steady = steady and self.w[a] == goal and self.release_pos[a] is None
-        self.steady = steady
-        self.out = sp.stroke - self.w
-        return self.out
-
-
 # ------------------------------------------------------------------ one episode
 def execute(task_name: str, object_poses_or_keypoints, actions, fps: float = 30.0,
             options: SimOptions | None = None, on_frame: Callable[[Any], None] | None = None) -> SimResult:
@@ -251,15 +201,12 @@ class _Schedule:
     closed_cmd: np.ndarray  # (n, 2) close commands, issued close_lead_s early
     targets_pos: np.ndarray  # ((n - 1) * cpf, 2, 3) interpolated at control rate
     targets_wxyz: np.ndarray  # ((n - 1) * cpf, 2, 4)
-    frame_of_ctrl: np.ndarray  # action frame each control step drives to
     settle_frames: int
 
 
 def _schedule(actions: np.ndarray, fps: float, opt: SimOptions, spec, timestep: float) -> _Schedule:
     n = actions.shape[0]
-    steps_per_frame = max(1, int(round(1.0 / (fps * timestep))))
-    cpf = max(1, min(opt.ctrl_per_frame, steps_per_frame))
-    sub = np.diff(np.round(np.linspace(0, steps_per_frame, cpf + 1)).astype(int))
+    steps_per_frame, cpf, sub = frame_timing(fps, timestep, opt.ctrl_per_frame)
     pos = actions[..., :3]
     quat = actions[..., 3:7] / np.linalg.norm(actions[..., 3:7], axis=-1, keepdims=True)
     closed_cmd = actions[..., 7] < 0.5  # (n, 2)
@@ -278,173 +225,41 @@ def _schedule(actions: np.ndarray, fps: float, opt: SimOptions, spec, timestep: 
                                     position=opt.position_interp)
     else:
         tp, tqu = pos[:0], quat[:0]
-    # finger command: g of the frame being driven to; see _FingerCommand
-    frame_of_ctrl = np.minimum(np.ceil(np.arange(1, K + 1) / cpf).astype(int), n - 1)
-    return _Schedule(steps_per_frame, cpf, [int(x) for x in sub], 1.0 / (fps * cpf), pos, quat, closed_cmd, tp,
-                     xyzw_to_wxyz(tqu), frame_of_ctrl, int(round(opt.settle_s * fps)))
-
-
-class _Records:
-    """Per recorded frame: object poses, actual pinch poses, contacts; and the per-frame checks."""
-
-    def __init__(self, sc: SimScene, T: int, opt: SimOptions, stop_frame: int | None):
-        n_obj = sc.n_obj
-        self.hist = np.zeros((T, n_obj, 4, 4))
-        self.hist[:, :, 3, 3] = 1.0
-        self.gp = np.zeros((T, 2, 8))
-        self.touch = np.zeros((T, 2, 3, n_obj), bool)
-        self.arm_contact = np.zeros(T, bool)
-        self.link_contact = np.zeros(T, bool)
-        self.table_force = np.zeros((T, 2))
-        self.diag = {"arm_pair": [], "link_pair": []}
-        self.T = T
-        self.limit = opt.table_force_limit
-        self.lo, self.hi = sc.workspace[0] - opt.workspace_margin, sc.workspace[1] + opt.workspace_margin
-        self.slack = sc.binding.hand_workspace_slack
-        self.stop_frame = stop_frame  # a hard failure known before physics (the plan's): stop there
-
-    def truncate(self, last: int) -> None:
-        for k in ("hist", "gp", "touch", "arm_contact", "link_contact", "table_force"):
-            setattr(self, k, getattr(self, k)[:last + 1])
-
-    def hard_failure(self, i) -> bool:
-        """The outcome is decided (failures.py: a hard failure fails the episode whatever follows).
-        Collisions are checked every frame, the workspace every 6th frame (0.2 s at 30 fps) and at
-        the last: classify() finds the first offending frame in the records."""
-        tf = self.table_force
-        if self.arm_contact[i] or tf[i, 0] > self.limit or tf[i, 1] > self.limit or self.link_contact[i]:
-            return True
-        if self.stop_frame is not None and i >= self.stop_frame:
-            return True
-        if i % 6 and i != self.T - 1:
-            return False
-        g, o = self.gp[i - 5:i + 1, :, :3], self.hist[i - 5:i + 1, :, :3, 3]
-        return bool(((g < self.lo - self.slack) | (g > self.hi + self.slack)).any() or ((o < self.lo) | (o > self.hi)).any())
-
-
-def _contact_scan(sc: SimScene, rec: _Records):
-    """contacts(i): the current contacts into frame i's records (called every control step)."""
-    mj, m, d = sc.mj, sc.model, sc.data
-    ng = m.ngeom
-    pk, pa, pp, po = sc.pair_lists
-    force6 = np.zeros(6)
-    touch, table_force, arm_contact, link_contact, diag = (rec.touch, rec.table_force, rec.arm_contact,
-                                                           rec.link_contact, rec.diag)
-
-    def names(j):
-        return [mj.mj_id2name(m, mj.mjtObj.mjOBJ_GEOM, int(x)) for x in d.contact.geom[j]]
-
-    def contacts(i):
-        # one table look-up per contact (scene.py pair tables), plain Python on the few relevant contacts
-        # (numpy calls on arrays of ~10 elements cost more than the work)
-        nc = d.ncon
-        if nc == 0:
-            return
-        geom = d.contact.geom[:nc]
-        flat = (geom[:, 0] * ng + geom[:, 1]).tolist()
-        for j, f in enumerate(flat):
-            k = pk[f]
-            if k == 0:  # PAIR_NONE: object-object, object-table (most contacts)
-                continue
-            if k == PAIR_TOUCH:
-                touch[i, pa[f], pp[f], po[f]] = True
-            elif k == PAIR_TABLE:
-                mj.mj_contactForce(m, d, j, force6)
-                arm = pa[f]
-                if abs(force6[0]) > table_force[i, arm]:
-                    table_force[i, arm] = abs(force6[0])
-            elif k == PAIR_ARMS:
-                if not diag["arm_pair"]:
-                    diag["arm_pair"] = names(j)
-                arm_contact[i] = True
-            elif k == PAIR_LINK:
-                if not diag["link_pair"]:
-                    diag["link_pair"] = names(j)
-                    diag["link_time_frame"] = i
-                link_contact[i] = True
-
-    return contacts
+    return _Schedule(steps_per_frame, cpf, sub, 1.0 / (fps * cpf), pos, quat, closed_cmd, tp,
+                     xyzw_to_wxyz(tqu), int(round(opt.settle_s * fps)))
 
 
 def _run(sc: SimScene, obj0: np.ndarray, actions: np.ndarray, fps: float, opt: SimOptions, t_wall: float,
          on_frame: Callable[[Any], None] | None = None) -> SimResult:
-    mj, m, d = sc.mj, sc.model, sc.data
+    """The episode on the robot's plan through the frame loop (loop.py): reset, pre-roll, action frames,
+    settle phase, verdict."""
+    m = sc.model
     spec = sc.spec
     execution = sc.binding.prepare(sc, obj0, actions, fps, until_failure=opt.stop_on_hard_failure)  # robots/base.py
     actions = execution.actions
     n = actions.shape[0]
     sch = _schedule(actions, fps, opt, spec, opt.physics.timestep)
     m.opt.timestep = 1.0 / (fps * sch.steps_per_frame)
-    cpf, steps_per_frame, sub_l = sch.cpf, sch.steps_per_frame, sch.sub
-    plan = sc.binding.plan(sc, execution, sch.quat, sch.targets_pos, sch.targets_wxyz, cpf, fps)
+    plan = sc.binding.plan(sc, execution, sch.quat, sch.targets_pos, sch.targets_wxyz, sch.cpf, fps)
     plan_events = sorted(plan.events + _stroke_events(sc, obj0, sch, fps), key=lambda e: e.frame)
-    fc = _FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
+    fc = FingerCommand(spec, sch.closed_cmd[0], sch.dt_ctrl)
     pose0 = np.concatenate([sch.pos[0], sch.quat[0]], axis=-1)
     sc.reset(obj0, pose0, np.where(sch.closed_cmd[0], 0.0, spec.opening), plan)
-    steps = 0
-    pre = int(round(opt.preroll_s / m.opt.timestep))
-    if pre:
-        mj.mj_step(m, d, nstep=pre)
-        steps += pre
-
+    pre = preroll(sc, opt.preroll_s)
     T = n + sch.settle_frames
-    rec = _Records(sc, T, opt, min((e.frame for e in plan_events), default=None))
-    hist, gp = rec.hist, rec.gp
-    obj_body = sc.obj_body
-    fq = sc.finger_qadr
-    act = _as_index(sc.act)
-    record_pose = sc.binding.record
-    contacts = _contact_scan(sc, rec)
-
-    def record(i):
-        if on_frame is not None:
-            on_frame(d)
-        hist[i, :, :3, :3] = d.xmat[obj_body].reshape(-1, 3, 3)
-        hist[i, :, :3, 3] = d.xpos[obj_body]
-        record_pose(d, gp[i])
-        gp[i, :, 7] = spec.stroke - d.qpos[fq].sum(axis=1)
-
-    tp, apply = sch.targets_pos, plan.apply
-    closed_ctrl = [tuple(r) for r in sch.closed_cmd[sch.frame_of_ctrl].tolist()]  # per control step, Python bools
-    closed_last = tuple(sch.closed_cmd[-1].tolist())
-    hard_stop = opt.stop_on_hard_failure
-    record(0)
-    k = 0
-    stop = None  # frame after which the simulation was stopped (stop_on_hard_failure)
-    for i in range(1, n):
-        for c in range(cpf):
-            apply(d, k)
-            d.ctrl[act] = fc.update(closed_ctrl[k], tp[k], d.qpos, fq)
-            mj.mj_step(m, d, nstep=sub_l[c])
-            contacts(i)
-            k += 1
-        steps += steps_per_frame
-        record(i)
-        if hard_stop and rec.hard_failure(i):
-            stop = i
-            break
-    settled = None  # frame at which the settle phase ended early (stop_when_settled)
-    rest_lin, rest_ang = sc.rest_lin, sc.rest_ang
+    rec = Records(sc, T, opt, min((e.frame for e in plan_events), default=None))
+    contacts = contact_scan(sc, rec)
+    closed = [tuple(r) for r in sch.closed_cmd.tolist()]  # per action frame, Python bools
+    record_frame(sc, rec, 0, on_frame)
+    # stop: the frame a hard failure stopped the simulation at (stop_on_hard_failure); settled: the frame
+    # the settle phase ended at rest (stop_when_settled)
+    stop = run_frames(sc, rec, opt, sch.sub, closed, sch.targets_pos, fc, contacts, plan.apply, n, on_frame)
+    settled = None
     if stop is None:
-        rest = 0
-        for i in range(n, T):
-            for c in range(cpf):
-                d.ctrl[act] = fc.update(closed_last, sch.pos[-1], d.qpos, fq)
-                mj.mj_step(m, d, nstep=sub_l[c])
-                contacts(i)
-            steps += steps_per_frame
-            record(i)
-            if hard_stop and rec.hard_failure(i):
-                stop = i
-                break
-            if opt.stop_when_settled:
-                qv = d.qvel
-                still = (fc.steady and float(np.abs(qv[rest_lin]).max()) < opt.rest_speed
-                         and float(np.abs(qv[rest_ang]).max()) < opt.rest_spin)
-                rest = rest + 1 if still else 0
-                if rest >= opt.rest_frames and i < T - 1:
-                    settled = i
-                    break
+        stop, settled, last = settle(sc, rec, opt, sch.sub, closed[-1], sch.pos[-1], fc, contacts, n, T, on_frame)
+    else:
+        last = stop
+    steps = pre + last * sch.steps_per_frame
     return _finish(sc, opt, fps, n, sch, plan, plan_events, rec, stop, settled, steps, t_wall)
 
 

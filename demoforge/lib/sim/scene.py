@@ -14,10 +14,11 @@ import numpy as np
 
 import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 from demoforge.lib.geometry import matrix_to_quat, xyzw_to_wxyz
-from demoforge.lib.task_library import Placement, get_task
+from demoforge.lib.task_library import Placement, Task, get_task
 
 from .gripper import GripperSpec
 from .robots import NO_ARM, PART_LINK, Robot
+from .robots.base import as_index
 from .robots.grippers import GrippersRobot
 
 # geom owner codes (SimScene.geom_code)
@@ -74,13 +75,15 @@ def as_robot(robot: Robot | GripperSpec | None) -> Robot:
     return robot
 
 
-def robot_scene(task_name: str, robot: Robot | GripperSpec | None = None) -> tuple[str, dict]:
-    """(MJCF, assets) of a task's scene (its reference placement; episodes move the free bodies) with the
-    robot added; assets: the files the MJCF names (meshes), for MuJoCo's compiler."""
+def robot_scene(task_name: str | Task, robot: Robot | GripperSpec | None = None,
+                placement: Placement | None = None) -> tuple[str, dict]:
+    """(MJCF, assets) of a task's scene (a task's name, or a Task such as an unregistered variant) with the
+    robot added, its objects at `placement` (default the reference placement: episodes move the free
+    bodies); assets: the files the MJCF names (meshes), for MuJoCo's compiler."""
     robot = as_robot(robot)
-    task = get_task(task_name)
-    ref = task.sample_placement(np.random.default_rng(0))
-    sec = robot.scene_parts(task_name)
+    name, task = (task_name, get_task(task_name)) if isinstance(task_name, str) else (task_name.name, task_name)
+    ref = placement if placement is not None else task.sample_placement(np.random.default_rng(0))
+    sec = robot.scene_parts(name)
     xml = task.scene_xml(ref, extra_worldbody=sec.worldbody, extra_equality=sec.equality,
                          extra_assets=sec.asset_xml)
     tail = (f"<tendon>\n{sec.tendon}\n</tendon>\n<actuator>\n{sec.actuator}\n</actuator>\n"
@@ -90,21 +93,29 @@ def robot_scene(task_name: str, robot: Robot | GripperSpec | None = None) -> tup
 
 
 class SimScene:
-    def __init__(self, task_name: str, robot: Robot, physics: PhysicsOptions):
+    """A task's scene with a robot, compiled: the model, its data and the executor's index tables.
+
+    physics None keeps the solver options the MJCF writes (the scripted replay's, replay.py); placement:
+    where the MJCF puts the objects (default the reference placement; SimScene.reset moves them)."""
+
+    def __init__(self, task_name: str | Task, robot: Robot, physics: PhysicsOptions | None,
+                 placement: Placement | None = None):
         import mujoco
 
         self.mj = mujoco
-        self.task = get_task(task_name)
+        # the name the robot is bound under: a registered variant's own ("pouring@wide"), a Task's name otherwise
+        key, task = (task_name, get_task(task_name)) if isinstance(task_name, str) else (task_name.name, task_name)
+        self.task = task
         self.robot = robot
         self.spec = robot.gripper
         self.physics = physics
-        task = self.task
-        self.xml, assets = robot_scene(task_name, robot)
+        self.xml, assets = robot_scene(task_name, robot, placement)
         m = mujoco.MjModel.from_xml_string(self.xml, assets) if assets else mujoco.MjModel.from_xml_string(self.xml)
-        self._apply_physics(m, physics)
+        if physics is not None:
+            self._apply_physics(m, physics)
         self.model = m
         self.data = mujoco.MjData(m)
-        self.binding = rb = robot.bind(m, task_name)
+        self.binding = rb = robot.bind(m, key)
 
         def bid(name):
             return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
@@ -119,6 +130,7 @@ class SimScene:
         self.obj_vadr = np.array([free_adr(b)[1] for b in self.obj_body])
         self.finger_qadr = rb.finger_qadr
         self.act = rb.grip_act
+        self.act_index = as_index(rb.grip_act)  # a slice where contiguous: the frame loop's finger writes
         # free bodies that are neither task objects nor the robot's (e.g. the pouring liquid)
         known = set(task.object_names) | set(rb.bodies)
         self.extra_names = []
@@ -225,12 +237,14 @@ class SimScene:
             found[el.get("name")] = np.concatenate([pos, quat])
         return np.stack([found[n] for n in self.extra_names])
 
-    def reset(self, object_poses: np.ndarray, pose0: np.ndarray, width0: np.ndarray, plan=None) -> None:
-        """Reset MjData: objects at object_poses (n_obj, 4, 4), the robot in its plan's first state with
-        its pinch points at pose0 (2, 7 xyzw) and apertures width0 (2,)."""
+    def reset(self, object_poses: np.ndarray | None, pose0: np.ndarray, width0: np.ndarray, plan=None) -> None:
+        """Reset MjData: objects at object_poses (n_obj, 4, 4) (None: where the MJCF puts them, exactly as
+        compiled), the robot in its plan's first state with its pinch points at pose0 (2, 7 xyzw) and
+        apertures width0 (2,)."""
         mj, m, d = self.mj, self.model, self.data
         mj.mj_resetData(m, d)
-        self.place_objects(d, object_poses)
+        if object_poses is not None:
+            self.place_objects(d, object_poses)
         self.binding.reset(d, plan, pose0, width0)
         mj.mj_forward(m, d)
 

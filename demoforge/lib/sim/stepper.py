@@ -8,10 +8,10 @@ environment, demoforge.envs) runs, with the physics and the verdict of :func:`~d
             break
     result = stepper.finish()                 # settle phase, predicate, failure class: a SimResult
 
-What it reuses of executor.py, unchanged: the finger command (`_FingerCommand`: the g mapping, the
-release, the closing speed), the per-frame records and the hard-failure stop (`_Records`), the contact
-scan (`_contact_scan`), the `wider_than_stroke` rule (`_stroke_events`) and the predicate with the
-failure classification (`_finish`); the robot's own control (its binding's ``plan`` for the two frames
+What it shares with executor.py: the frame loop (loop.py: the finger command with the g mapping, the
+release and the closing speed; the control steps of a frame, its records and the hard-failure stop; the
+settle phase), the `wider_than_stroke` rule (`_stroke_events`) and the predicate with the failure
+classification (`_finish`); the robot's own control (its binding's ``plan`` for the two frames
 a step drives between: interpolated joint targets with the velocity feed-forward for the arms, mocap
 targets for the grippers). Its loop is the executor's ``_run`` cut at the frames: the same pre-roll,
 control steps, physics sub-steps, records, early stop at a hard failure, settle phase and early end at
@@ -46,9 +46,9 @@ import numpy as np
 import demoforge.lib  # noqa: F401  (MUJOCO_GL before mujoco)
 from demoforge.lib.geometry import interpolate_poses, quat_normalize, xyzw_to_wxyz
 
-from .executor import (SimOptions, SimResult, _contact_scan, _finish, _FingerCommand, _Records, _stroke_events,
-                       as_object_poses)
-from .robots.base import Execution, as_index
+from .executor import SimOptions, SimResult, _finish, _stroke_events, as_object_poses
+from .loop import FingerCommand, Records, contact_scan, control_frame, frame_timing, preroll, record_frame, settle
+from .robots.base import Execution
 from .scene import SimScene
 
 
@@ -91,13 +91,10 @@ class EpisodeStepper:
             raise ValueError(f"fps must be positive, got {fps}")
         self.opt, self.fps = opt, float(fps)
         self.sc = sc = SimScene(task_name, opt.robot, opt.physics)
-        self.spf = max(1, int(round(1.0 / (fps * opt.physics.timestep))))
-        self.cpf = max(1, min(opt.ctrl_per_frame, self.spf))
-        self.sub = [int(x) for x in np.diff(np.round(np.linspace(0, self.spf, self.cpf + 1)).astype(int))]
+        self.spf, self.cpf, self.sub = frame_timing(fps, opt.physics.timestep, opt.ctrl_per_frame)
         self.tq = np.arange(1, self.cpf + 1) / self.cpf
         self.settle_frames = int(round(opt.settle_s * fps))
         self.lead = int(round(sc.spec.close_lead_s * fps))
-        self.act = as_index(sc.act)
         self.n = 0  # frames recorded so far (0: not reset)
         self.result: SimResult | None = None
 
@@ -106,7 +103,7 @@ class EpisodeStepper:
         """Objects at object_poses ((n_obj, 4, 4) or the task's (K, 3) keypoints), the robot at its first frame:
         pinch poses with finger commands pose0 (2, 8) and, for an arm robot, its joints joints0; then the
         pre-roll. At most max_frames frames (this one included) follow before finish()."""
-        sc, opt, mj = self.sc, self.opt, self.sc.mj
+        sc, opt = self.sc, self.opt
         obj0 = as_object_poses(sc.task, object_poses)
         if not np.isfinite(obj0).all():
             raise ValueError("object poses contain non-finite values")
@@ -124,25 +121,21 @@ class EpisodeStepper:
         self.quat, self.aligned = quat0, quat0  # the last frame's unit quaternion, and it hemisphere-aligned
         self.pose = pose0.copy()
         closed0 = pose0[:, 7] < 0.5
-        self.fc = _FingerCommand(sc.spec, closed0, 1.0 / (self.fps * self.cpf))
+        self.fc = FingerCommand(sc.spec, closed0, 1.0 / (self.fps * self.cpf))
         plan0 = sc.binding.plan(sc, self._execution(pose0[None], self.joints, None), quat0[None], np.zeros((0, 2, 3)),
                                 np.zeros((0, 2, 4)), self.cpf, self.fps)
         sc.reset(obj0, np.concatenate([pose0[:, :3], quat0], axis=-1), np.where(closed0, 0.0, sc.spec.opening), plan0)
-        m = sc.model
-        m.opt.timestep = 1.0 / (self.fps * self.spf)
-        pre = int(round(opt.preroll_s / m.opt.timestep))
-        if pre:
-            mj.mj_step(m, sc.data, nstep=pre)
-        self.steps = self.pre = pre
-        self.rec = _Records(sc, self.max_frames + self.settle_frames, opt, None)
-        self.contacts = _contact_scan(sc, self.rec)
+        sc.model.opt.timestep = 1.0 / (self.fps * self.spf)
+        self.steps = self.pre = preroll(sc, opt.preroll_s)
+        self.rec = Records(sc, self.max_frames + self.settle_frames, opt, None)
+        self.contacts = contact_scan(sc, self.rec)
         self.plan_events: list = []
         self.pending: list[int] = []  # frames of close commands whose wider_than_stroke check is not known yet
         self.stop: int | None = None
         self.result = None
         self.n = 0
         self._add_frame(pose0)
-        self._record(0)
+        record_frame(sc, self.rec, 0)
 
     @staticmethod
     def _execution(poses: np.ndarray, joints_prev: np.ndarray | None, joints: np.ndarray | None) -> Execution:
@@ -159,20 +152,13 @@ class EpisodeStepper:
             self.pending.append(i)
         self.n = i + 1
 
-    def _record(self, i: int) -> None:
-        sc, d, rec = self.sc, self.sc.data, self.rec
-        rec.hist[i, :, :3, :3] = d.xmat[sc.obj_body].reshape(-1, 3, 3)
-        rec.hist[i, :, :3, 3] = d.xpos[sc.obj_body]
-        sc.binding.record(d, rec.gp[i])
-        rec.gp[i, :, 7] = sc.spec.stroke - d.qpos[sc.finger_qadr].sum(axis=1)
-
     def step(self, pose: np.ndarray, joints: np.ndarray | None = None) -> bool:
         """Drive the robot to the next frame: pinch poses with finger commands pose (2, 8) (an arm robot: the
         forward kinematics of its joint targets joints (12,), with the commands); physics over the frame.
         True when a hard failure stopped the simulation (finish() gives the verdict)."""
         if self.n == 0 or self.stop is not None or self.result is not None or self.n >= self.max_frames:
             raise RuntimeError("the episode has ended (or was never reset): call reset()")
-        sc, mj, m, d = self.sc, self.sc.mj, self.sc.model, self.sc.data
+        sc = self.sc
         if (self.joints is None) != (joints is None):
             raise ValueError(f"the {sc.robot.name} robot {'has no' if self.joints is None else 'needs'} joints")
         i = self.n
@@ -193,15 +179,9 @@ class EpisodeStepper:
         if joints is not None:
             self.joints = np.asarray(joints, float).copy()
         self._add_frame(pose)
-        closed = tuple(self.closed[i].tolist())
-        fc, fq, act, contacts, apply = self.fc, sc.finger_qadr, self.act, self.contacts, plan.apply
-        for c in range(self.cpf):
-            apply(d, c)
-            d.ctrl[act] = fc.update(closed, tp[c], d.qpos, fq)
-            mj.mj_step(m, d, nstep=self.sub[c])
-            contacts(i)
+        control_frame(sc, i, self.sub, tuple(self.closed[i].tolist()), tp, self.fc, self.contacts, plan.apply)
         self.steps += self.spf
-        self._record(i)
+        record_frame(sc, self.rec, i)
         if self.opt.stop_on_hard_failure and self.rec.hard_failure(i):
             self._stop(i)
         if self.pending and self.pending[0] + self.lead <= i:
@@ -247,34 +227,18 @@ class EpisodeStepper:
         return self.result
 
     def _settle(self) -> int | None:
-        """executor._run's settle phase: (the frame it ended at rest, or None); sets self.stop on a hard failure."""
-        sc, mj, m, d, opt, rec = self.sc, self.sc.mj, self.sc.model, self.sc.data, self.opt, self.rec
-        n = self.n
+        """executor._run's settle phase (loop.settle): (the frame it ended at rest, or None); sets self.stop on
+        a hard failure."""
+        n, rec = self.n, self.rec
         T = n + self.settle_frames
         rec.T = T
         rec.truncate(T - 1)
-        closed_last = tuple(self.closed[n - 1].tolist())
-        pos_last = self.pos[n - 1]
-        fc, fq, act, contacts = self.fc, sc.finger_qadr, self.act, self.contacts
-        rest = 0
-        for i in range(n, T):
-            for c in range(self.cpf):
-                d.ctrl[act] = fc.update(closed_last, pos_last, d.qpos, fq)
-                mj.mj_step(m, d, nstep=self.sub[c])
-                contacts(i)
-            self.steps += self.spf
-            self._record(i)
-            if opt.stop_on_hard_failure and rec.hard_failure(i):
-                self.stop = i
-                return None
-            if opt.stop_when_settled:
-                qv = d.qvel
-                still = (fc.steady and float(np.abs(qv[sc.rest_lin]).max()) < opt.rest_speed
-                         and float(np.abs(qv[sc.rest_ang]).max()) < opt.rest_spin)
-                rest = rest + 1 if still else 0
-                if rest >= opt.rest_frames and i < T - 1:
-                    return i
-        return None
+        stop, settled, last = settle(self.sc, rec, self.opt, self.sub, tuple(self.closed[n - 1].tolist()),
+                                     self.pos[n - 1], self.fc, self.contacts, n, T)
+        self.steps += (last - n + 1) * self.spf
+        if stop is not None:
+            self.stop = stop
+        return settled
 
 
 __all__ = ["EpisodeStepper", "close_commands"]

@@ -1,4 +1,7 @@
-"""Task library core: data classes, keyframe tracks, interpolation, mirroring and physics replay.
+"""Task library core: data classes, keyframe tracks, interpolation, mirroring, scenes and predicates.
+
+The physics replay of a scripted take runs in the simulator: demoforge.lib.sim.replay (the task library
+sits below lib/sim, which builds its scenes from these tasks).
 
 Conventions (docs/architecture.md): world = table frame (origin on the table top, z up, y away from
 the robot / demonstrator, x to the right); quaternions scalar-last in our arrays, MuJoCo's
@@ -18,8 +21,7 @@ the plane x = 0 with the hands swapped.  With M = diag(-1, 1, 1, 1):
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -144,15 +146,6 @@ class Demo:
         out[..., 3:7] = Rotation.from_matrix(self.pinch_poses[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(T, 2, 4)
         out[..., 7] = (~self.closed).astype(float)
         return out
-
-
-@dataclass
-class ReplayResult:
-    success: bool
-    reason: str
-    object_poses: np.ndarray  # (T, n_objects, 4, 4) simulated
-    wall_time_s: float = 0.0
-    extra: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -435,7 +428,7 @@ class Task:
     @staticmethod
     def kinematic_objects(initial: np.ndarray, P: np.ndarray, held: np.ndarray) -> np.ndarray:
         """Held objects keep their pose relative to the pinch frame from the grasp frame on; a released
-        object stays where it was released (kinematically: no falling; see replay for physics)."""
+        object stays where it was released (kinematically: no falling; physics: demoforge.lib.sim.replay)."""
         T = P.shape[0]
         cur = initial.copy()
         out = np.zeros((T,) + initial.shape)
@@ -457,96 +450,6 @@ class Task:
         """Predicate on the simulator: `data` is the final state, `history` the simulated object poses
         (T, n_objects, 4, 4) of the whole run (task objects in object_names order)."""
         raise NotImplementedError
-
-    # -------- physics replay
-    def replay(self, demo: Demo, settle_s: float = 0.8, trace_bodies: tuple[str, ...] = ()) -> ReplayResult:
-        """Physics replay: pinch frames drive mocap bodies; a held object is welded to its hand's mocap
-        body while held (relative pose taken from the simulator at the grasp frame).  After the last
-        frame the simulation runs `settle_s` more seconds, then the predicate is evaluated on the final
-        state and the history (T + 1 poses: the T frames and the settled state).  `trace_bodies`:
-        extra body names whose world positions are recorded per frame into extra['trace'] (T, k, 3)."""
-        import mujoco
-
-        t0 = time.perf_counter()
-        n_obj = len(self.objects)
-        P = demo.pinch_poses
-        q_all = Rotation.from_matrix(P[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(P.shape[0], 2, 4)
-        q_all = q_all[..., [3, 0, 1, 2]]  # MuJoCo scalar-first
-        mocap = "\n".join(
-            f'<body name="pinch_{a}" mocap="true" pos="{" ".join(map(str, P[0, a, :3, 3]))}">'
-            f'<geom type="sphere" size="0.008" rgba="{"0.2 0.2 1" if a == 0 else "1 0.2 0.2"} 0.5" '
-            f'contype="0" conaffinity="0" mass="0"/></body>' for a in range(2))
-        welds = "\n".join(
-            f'<weld name="hold_{a}_{o.name}" body1="pinch_{a}" body2="{o.name}" active="false" solref="0.01 1"/>'
-            for a in range(2) for o in self.objects)
-        model = mujoco.MjModel.from_xml_string(self.scene_xml(demo.placement, mocap, extra_equality=welds))
-        data = mujoco.MjData(model)
-        mujoco.mj_forward(model, data)
-        obj_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in self.object_names]
-        mids = [model.body_mocapid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"pinch_{a}")] for a in range(2)]
-        eq = {(a, k): mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"hold_{a}_{o.name}")
-              for a in range(2) for k, o in enumerate(self.objects)}
-
-        def set_mocap(t0_, t1_, alpha):
-            for a in range(2):
-                data.mocap_pos[mids[a]] = (1 - alpha) * P[t0_, a, :3, 3] + alpha * P[t1_, a, :3, 3]
-                q0, q1 = q_all[t0_, a], q_all[t1_, a]
-                if np.dot(q0, q1) < 0:
-                    q1 = -q1
-                q = (1 - alpha) * q0 + alpha * q1
-                data.mocap_quat[mids[a]] = q / np.linalg.norm(q)
-
-        def record():
-            out = np.tile(np.eye(4), (n_obj, 1, 1))
-            out[:, :3, :3] = data.xmat[obj_ids].reshape(-1, 3, 3)
-            out[:, :3, 3] = data.xpos[obj_ids]
-            return out
-
-        set_mocap(0, 0, 0.0)
-        mujoco.mj_step(model, data, nstep=max(1, int(0.3 / model.opt.timestep)))  # let contacts settle
-        T = demo.n_frames
-        hist = np.zeros((T, n_obj, 4, 4))
-        hist[0] = record()
-        tr_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in trace_bodies]
-        trace = np.zeros((T, len(tr_ids), 3))
-        trace[0] = data.xpos[tr_ids]
-        held_prev = demo.held_object[0].copy()
-        for a in range(2):
-            if held_prev[a] >= 0:
-                self._activate(model, data, eq[(a, held_prev[a])], mids[a], obj_ids[held_prev[a]])
-        chunks = 4
-        for t in range(1, T):
-            for a in range(2):
-                k = demo.held_object[t, a]
-                if k != held_prev[a]:
-                    if held_prev[a] >= 0:
-                        data.eq_active[eq[(a, held_prev[a])]] = 0
-                    if k >= 0:
-                        self._activate(model, data, eq[(a, k)], mids[a], obj_ids[k])
-                    held_prev[a] = k
-            for c in range(1, chunks + 1):
-                set_mocap(t - 1, t, c / chunks)
-                mujoco.mj_step(model, data, nstep=SUBSTEPS // chunks)
-            hist[t] = record()
-            trace[t] = data.xpos[tr_ids]
-        # after the take, let released objects come to rest
-        mujoco.mj_step(model, data, nstep=int(settle_s / model.opt.timestep))
-        hist = np.concatenate([hist, record()[None]], axis=0)
-        ok, reason = self.success(model, data, hist)
-        return ReplayResult(bool(ok), reason, hist[:-1], time.perf_counter() - t0,
-                            extra={"final_object_poses": hist[-1], "trace": trace})
-
-    @staticmethod
-    def _activate(model, data, eq_id, mocap_id, body_id):
-        """Weld the object to the hand at their current relative pose (set at run time)."""
-        pm = data.mocap_pos[mocap_id]
-        Rm = Rotation.from_quat(data.mocap_quat[mocap_id][[1, 2, 3, 0]])
-        Rb = Rotation.from_matrix(data.xmat[body_id].reshape(3, 3))
-        rel_p = Rm.inv().apply(data.xpos[body_id] - pm)
-        q = (Rm.inv() * Rb).as_quat()
-        model.eq_data[eq_id, 3:6] = rel_p
-        model.eq_data[eq_id, 6:10] = [q[3], q[0], q[1], q[2]]
-        data.eq_active[eq_id] = 1
 
 
 def body_pos(model, data, name: str) -> np.ndarray:
