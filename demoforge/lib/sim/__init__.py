@@ -6,8 +6,10 @@ floating parallel-jaw grippers, or ALOHA's two ViperX 300 arms (inverse kinemati
     r.success, r.failure, r.detail
 
 robots/: the robot interface and registry (grippers, aloha); gripper.py: the parallel gripper (MJCF,
-parameters, g -> finger command mapping); scene.py: compiled scene cache; executor.py: execute /
-execute_many; options.py: sim_options (a robot's options by name); failures.py: failure
+parameters, g -> finger command mapping); scene.py: compiled scene cache; loop.py: the one frame loop
+(control steps, records, settle) that executor.py (execute / execute_many), stepper.py (a frame at a time,
+for demoforge.envs) and replay.py (a scripted human demonstration: robots/hands.py's welded mocap hands)
+run; options.py: sim_options (a robot's options by name); failures.py: failure
 classification; render.py: MP4; stability.py: verdicts under micrometre shifts; variations.py,
 variation_scene.py: the Table 4 analogue's varied scenes.
 """
