@@ -64,6 +64,69 @@ def test_synthetic_take_reads_back(synth_take):
     assert 0.2 < np.median(valid) < 3.0          # metres, not millimetres
 
 
+def test_every_source_opens_and_decodes_through_one_interface(synth_take, tmp_path, monkeypatch):
+    """open_take asks the registered sources (a take folder and its video as any other) and iter_frames /
+    iter_depth / read_frame ask the opened take's decoder: a source of one's own (here a take in one .npz)
+    plugs in with its decoder, and the stage cache hashes the inputs it names beside the path."""
+    from demoforge.lib.takes import CameraInfo, FrameInfo, Take, iter_depth
+    from demoforge.lib.takes.sources import SOURCES, TakeDecoder, TakeSource
+    from demoforge.lib.takes.sources.folder import FolderDecoder, VideoDecoder
+    from demoforge.tasks.common import content_fingerprint
+
+    assert type(open_take(synth_take).decoder) is FolderDecoder
+    assert type(open_take(synth_take, prefer="video").decoder) is VideoDecoder
+    _, rgb, depth = _all_frames(open_take(synth_take))
+    np.savez(tmp_path / "t.npz", rgb=rgb, depth=depth)
+    (tmp_path / "t.notes").write_text("first")
+
+    class NpzDecoder(TakeDecoder):
+        def __init__(self, data):
+            self.data = data
+
+        def rgbd(self, take, idx, batch_size, num_workers):
+            for s in range(0, len(idx), batch_size):
+                yield [(i, self.data["rgb"][i], self.data["depth"][i]) for i in idx[s:s + batch_size]]
+
+        def depth(self, take, batch_size, num_workers):
+            for s in range(0, take.n_frames, batch_size):
+                i = np.arange(s, min(s + batch_size, take.n_frames))
+                yield i, self.data["depth"][i]
+
+        def lone_depth(self, take, index):
+            return self.data["depth"][index]
+
+    class NpzSource(TakeSource):
+        name = "npz"
+
+        @classmethod
+        def claims(cls, path):
+            return path.suffix == ".npz"
+
+        @classmethod
+        def cache_key_inputs(cls, path):
+            return {"notes": path.with_suffix(".notes")}
+
+        def open(self, path, *, require_pose=True, prefer="images", cache_dir=None, **options):
+            data = dict(np.load(path))
+            camera = CameraInfo(K=np.eye(3), width=640, height=480, T_world_camera=np.eye(4))
+            frames = [FrameInfo(i, i / 30, f"{path.name}#{i}", f"{path.name}#{i}") for i in range(len(data["rgb"]))]
+            return Take(path=path, camera=camera, frames=frames, annotations=None, rgb_kind="recording",
+                        source=self.name, decoder=NpzDecoder(data))
+
+    monkeypatch.setitem(SOURCES._entries, "npz", NpzSource)
+    take = open_take(tmp_path / "t.npz")
+    assert take.source == "npz" and take.take_id == "t" and take.n_frames == 12
+    idx, got_rgb, got_depth = _all_frames(take, batch_size=5)
+    assert idx == list(range(12)) and np.array_equal(got_rgb, rgb) and np.array_equal(got_depth, depth)
+    assert np.array_equal(np.concatenate([d for _, d in iter_depth(take, 5)]), depth)
+    frame_rgb, frame_depth = read_frame(take, 4)
+    assert np.array_equal(frame_rgb, rgb[4]) and np.array_equal(frame_depth, depth[4])
+    key = content_fingerprint(tmp_path / "t.npz")
+    (tmp_path / "t.notes").write_text("second")
+    changed = content_fingerprint(tmp_path / "t.npz")
+    assert changed["sha256"] == key["sha256"] and changed["notes"] != key["notes"]
+
+
 def test_video_take_matches_images(synth_take, tmp_path):
     dst = tmp_path / "vid"
     shutil.copytree(synth_take, dst)

@@ -220,6 +220,58 @@ def test_a_recordings_cache_key_reads_it_once(base, tmp_path, monkeypatch):
     assert take_media_key(rec) != key[0]
 
 
+def _count_source_opens(monkeypatch) -> list[str]:
+    """The names of the take sources that open a take from now on (every way of opening one ends there)."""
+    from demoforge.lib.takes.sources.folder import FolderSource, Mp4Source
+    from demoforge.lib.takes.sources.recording import RecordingSource
+
+    opened: list[str] = []
+    for cls in (FolderSource, Mp4Source, RecordingSource):
+        def counted(self, path, *args, _real=cls.open, **kwargs):
+            opened.append(self.name)
+            return _real(self, path, *args, **kwargs)
+        monkeypatch.setattr(cls, "open", counted)
+    return opened
+
+
+def test_an_ingest_opens_its_take_once(base, tmp_path, monkeypatch):
+    """The ingest flow opens its take once and its stages get that take (demoforge.tasks.common.opened_take):
+    a take folder and a recording each opened once per ingest, where the flow and each of its seven stages
+    used to open it again (8 opens); an unchanged take ingested again in the same process is not opened."""
+    from demoforge.flows.ingest import ingest_take
+    from demoforge.tasks.common import forget_opened_takes
+
+    rec = write_record3d(base["take"], tmp_path / "rec.r3d")
+    forget_opened_takes()  # as in a new process (the fixture ingested the folder in this one)
+    opened = _count_source_opens(monkeypatch)
+    ingest_take(str(base["take"]), str(tmp_path / "wh"), show_progress=False)
+    assert opened == ["folder"]
+    ingest_take(str(base["take"]), str(tmp_path / "wh2"), show_progress=False)
+    assert opened == ["folder"]
+    out = ingest_take(str(rec), str(tmp_path / "wh3"), show_progress=False)
+    assert opened == ["folder", "record3d"] and out["object_keypoints"].rows == 11
+    assert np.array_equal(_poses(tmp_path / "wh"), base["poses"], equal_nan=True)
+
+
+def test_a_shared_take_is_opened_again_when_it_changes_and_each_stage_gets_its_own_frames(base, tmp_path, monkeypatch):
+    from demoforge.tasks.common import opened_take
+
+    take_dir = tmp_path / "tk"
+    shutil.copytree(base["take"], take_dir)
+    opened = _count_source_opens(monkeypatch)
+    first = opened_take(take_dir)
+    first.frames[3].flag("unreadable_rgb", "seen by the stage that decoded it")
+    again = opened_take(take_dir)
+    assert opened == ["folder"] and again.frames[3].status == "ok" and again.frames is not first.frames
+    assert again.decoder is first.decoder and again.annotations is first.annotations  # read once, shared
+    ann = json.loads((take_dir / "annotations.json").read_text())
+    ann["gripper_closed_ranges"] = {"left": [], "right": [[2, 5]]}
+    (take_dir / "annotations.json").write_text(json.dumps(ann))  # annotated: another take for the stages
+    changed = opened_take(take_dir)
+    assert opened == ["folder", "folder"]
+    assert [tuple(r) for r in changed.annotations.gripper_closed_ranges["right"]] == [(2, 5)]
+
+
 def test_ingest_folder_finds_recordings_beside_take_folders(base, tmp_path):
     from demoforge.flows.ingest_folder import find_take_folders
 

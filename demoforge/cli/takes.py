@@ -78,7 +78,7 @@ def _open_take_or_fail(path: Path, require_pose: bool = True, rgb_topic: Optiona
         take = open_take(path, require_pose=require_pose)
     except (TakeError, FileNotFoundError) as e:
         raise fail(str(e))
-    if take.decoder is not None:
+    if take.rgb_kind == "recording":  # a recording's notes: pairing tolerance, dropped frames, depth scale
         for note in take.notes:
             typer.echo(f"note: {note}", err=True)
     return take

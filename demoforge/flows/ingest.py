@@ -9,7 +9,7 @@ from prefect import flow, get_run_logger
 import demoforge.lib  # noqa: F401
 from demoforge.lib.ingest.options import IngestOptions
 from demoforge.lib.takes import take_task_name
-from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.common import Manifest, opened_take, run_stage
 from demoforge.tasks.ingest import (
     align_keypoints, detect_hands, hand_presence, index_frames, map_grippers, object_keypoints, take_media_key,
 )
@@ -39,7 +39,6 @@ def ingest_take(
     this detector's rows beside those (demoforge.schemas.core.variant_parts; see ingest_side_by_side).
     """
     from demoforge.lib.perception.detectors import DETECTORS
-    from demoforge.lib.takes import open_take
     from demoforge.lib.takes.sources import take_root
 
     logger = get_run_logger()
@@ -50,7 +49,8 @@ def ingest_take(
         raise ValueError(f"variant must be None or {{'detector': {detector!r}}}, got {variant!r}")
     var = {"variant": dict(variant)} if variant else {}  # absent, not None: the stages' keys stay as they were
     take_dir = take_root(path)  # a take folder's .mp4 given as a file: the folder
-    take = open_take(take_dir)  # fails early, with a clear message, on a take that cannot be read
+    # fails early, with a clear message, on a take that cannot be read; opened once: the stages get this take
+    take = opened_take(take_dir)
     bad = take.status_counts()
     if set(bad) - {"ok"}:
         logger.warning("take %s: frame problems %s (recorded in `frames`)", take.take_id, bad)
@@ -111,7 +111,6 @@ def ingest_side_by_side(
     Returns {detector: {"ingest": manifests or None, "demo": manifest or None, "error": str}}."""
     from demoforge.runtime.runners import run_flow
     from demoforge.lib.errors import one_line
-    from demoforge.lib.takes import open_take
     from demoforge.lib.takes.sources import take_root
     from demoforge.lib.task_library import TASK_NAMES
     from demoforge.tasks.ingest_evaluation import ingest_keypoint_metrics
@@ -119,7 +118,7 @@ def ingest_side_by_side(
 
     logger = get_run_logger()
     take_dir = take_root(path)
-    name = take_task_name(open_take(take_dir), task)
+    name = take_task_name(opened_take(take_dir), task)
     out: dict[str, dict] = {}
     for det in dict.fromkeys(detectors):  # each once, in the given order
         variant = detector_variant(det)

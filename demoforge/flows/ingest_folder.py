@@ -10,6 +10,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import ingest_take
 from demoforge.lib.ingest.options import IngestOptions
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.tasks.common import opened_take
 
 
 def find_take_folders(folder: str | Path) -> list[Path]:
@@ -43,7 +44,6 @@ def ingest_folder(
     (AugmentOptions), each annotated take also gets its episode database.
     """
     from demoforge.lib.annotate import annotation_status, not_annotated_message
-    from demoforge.lib.takes import open_take
     import pyarrow as pa
 
     from demoforge.flows.augment import augment_take_flow
@@ -61,7 +61,7 @@ def ingest_folder(
                "path": str(take_dir), "detector": opts.detector,
                "status": "ingested", "error": "", "gripper_rows": 0, "episodes": 0}
         try:
-            status = annotation_status(open_take(take_dir))
+            status = annotation_status(opened_take(take_dir))  # the flows it runs get this take
             if augment is not None and status.annotated:
                 out = run_flow(augment_take_flow, str(take_dir), warehouse, task=task, augment=augment, ingest=opts,
                                show_progress=show_progress)

@@ -11,7 +11,7 @@ import demoforge.lib  # noqa: F401
 from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import write_table
 from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source, require_task
-from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.common import Manifest, opened_take, stage_task
 
 AUGMENT_VERSION = "1"
 
@@ -20,13 +20,12 @@ AUGMENT_VERSION = "1"
 def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  manual: dict | None = None) -> Manifest:
     """Motion/skill segments per arm; on synthetic takes also the boundary error against the script."""
-    from demoforge.lib.takes import open_take
     from demoforge.lib.trajectories.segmentation import (
         Segment, boundaries, boundary_error, segment_trajectory,
     )
     from demoforge.schemas.core import read_table_file
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     spec = require_task(name, take)
     traj, kp = demo_arrays(take.take_id, name, warehouse)
@@ -66,9 +65,8 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     "aloha" with its gripper): the placements the arms' screening rejects are drawn again, up to
     redraw_rounds rounds (lib/trajectories/augmentation/servable.py)."""
     from demoforge.lib.trajectories.augmentation import generate_episodes
-    from demoforge.lib.takes import open_take
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     spec = require_task(name, take)
     source = load_demo_source(take.take_id, name, warehouse, take)

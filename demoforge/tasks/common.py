@@ -20,8 +20,10 @@ import json
 import logging
 import os
 import sys
+import threading
 import time
-from dataclasses import asdict, dataclass, is_dataclass
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, is_dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -30,6 +32,8 @@ from prefect.cache_policies import CachePolicy
 from prefect.context import TaskRunContext
 
 from demoforge.lib.errors import Reporting, is_user_error, one_line
+from demoforge.lib.takes import open_take
+from demoforge.lib.takes.sources import cache_key_inputs
 from demoforge.schemas.core import WrittenFile, file_sha256
 
 PREFECT_DIR = "_prefect"
@@ -158,32 +162,33 @@ def _dir_file_digests(folder: Path) -> list[tuple[str, str]]:
     return out
 
 
-def sidecar_of(path: Path) -> Path | None:
-    """A recording's side folder (its pose, annotations, options), part of its content as a task input."""
-    from demoforge.lib.takes.sources.recording import sidecar_dir
+def key_inputs_of(path: Path) -> dict[str, Path]:
+    """What else holds the content of a take given as ``path``, by name, as its take source says
+    (demoforge.lib.takes.sources.cache_key_inputs: a recording's side folder with its pose, annotations
+    and options); nothing for a path that is not a take."""
+    return cache_key_inputs(path)
 
-    side = sidecar_dir(path)
-    return side if side.is_dir() else None
+
+def _path_digest(path: Path) -> str:
+    """sha256 over a folder's files (relative path and digest of each), or a file's own digest."""
+    if path.is_file():
+        return _file_digest(path, remember=True)
+    h = hashlib.sha256()
+    for rel, digest in _dir_file_digests(path):
+        h.update(rel.encode())
+        h.update(digest.encode())
+    return h.hexdigest()
 
 
 def _path_fingerprint(value: Path) -> Any:
     if value.is_file():
-        out = {"file": value.name, "sha256": _file_digest(value, remember=True)}
+        out = {"file": value.name, "sha256": _path_digest(value)}
     elif value.is_dir():
-        h = hashlib.sha256()
-        for rel, digest in _dir_file_digests(value):
-            h.update(rel.encode())
-            h.update(digest.encode())
-        out = {"dir": value.name, "sha256": h.hexdigest()}
+        out = {"dir": value.name, "sha256": _path_digest(value)}
     else:
         return {"missing_path": str(value)}
-    side = sidecar_of(value)
-    if side is not None:
-        h = hashlib.sha256()
-        for rel, digest in _dir_file_digests(side):
-            h.update(rel.encode())
-            h.update(digest.encode())
-        out["sidecar"] = h.hexdigest()
+    for name, extra in key_inputs_of(value).items():
+        out[name] = _path_digest(extra)
     return out
 
 
@@ -205,6 +210,48 @@ def content_fingerprint(value: Any) -> Any:
         f"cannot build a content cache key from {type(value).__name__}; pass files as pathlib.Path, "
         "results of other tasks as Manifest, and everything else as plain JSON-able values"
     )
+
+
+# --- the opened take, shared by the stages of a run ----------------------------------------------
+
+#: opened takes a process keeps (the stages of one take run one after another; a folder's takes too)
+OPENED_TAKES_KEPT = 4
+_OPENED: "OrderedDict[tuple, Any]" = OrderedDict()
+_OPENED_LOCK = threading.Lock()
+
+
+def opened_take(take_dir: str | os.PathLike) -> Any:
+    """The take at ``take_dir`` (demoforge.lib.takes.open_take), opened once per process while its content
+    is unchanged: a flow opens it (its first check of the take) and every stage it runs gets that take
+    instead of opening it again (listing the frames and reading each depth file's header, opening the
+    video or salvaging a truncated one, loading a recording's index and side folder).
+
+    Keyed by the path and the take's content fingerprint, the stage cache's own view of the take
+    (remembered digests: an unchanged take is only stat'ed; a recording's side folder and annotations.json
+    included), so a take changed on disk, annotated say, is opened again. Each call returns its own copy
+    of the frame index: what one stage's decoding flags on a frame (an unreadable file) is not seen by
+    the next, which gets the take as it was opened. The stages' parameter stays the path: a ``Path`` is
+    keyed by content, while an opened take can be neither hashed for the cache nor sent to a Dask worker.
+    """
+    key = (str(take_dir), str(Path(take_dir).absolute()),
+           json.dumps(_path_fingerprint(Path(take_dir)), sort_keys=True))
+    with _OPENED_LOCK:
+        take = _OPENED.get(key)
+        if take is not None:
+            _OPENED.move_to_end(key)
+    if take is None:
+        take = open_take(take_dir)
+        with _OPENED_LOCK:
+            _OPENED[key] = take
+            while len(_OPENED) > OPENED_TAKES_KEPT:
+                _OPENED.popitem(last=False)
+    return replace(take, frames=[replace(f) for f in take.frames], notes=list(take.notes), meta=dict(take.meta))
+
+
+def forget_opened_takes() -> None:
+    """Drop the takes this process keeps open (as a new process starts)."""
+    with _OPENED_LOCK:
+        _OPENED.clear()
 
 
 @dataclass

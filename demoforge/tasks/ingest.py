@@ -18,7 +18,7 @@ from demoforge.lib.errors import UserError
 from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import read_table, write_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays, rows
-from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.common import Manifest, opened_take, stage_task
 
 INGEST_VERSION = "1"
 ANNOTATIONS = "annotations.json"
@@ -32,7 +32,7 @@ def take_media_key(take_dir: Path) -> str:
     a multi-GB recording too, is only stat'ed."""
     import hashlib
 
-    from demoforge.tasks.common import _dir_file_digests, _file_digest, sidecar_of
+    from demoforge.tasks.common import _dir_file_digests, _file_digest, key_inputs_of
 
     take_dir = Path(take_dir)
     h = hashlib.sha256(take_dir.name.encode())
@@ -41,9 +41,11 @@ def take_media_key(take_dir: Path) -> str:
         files = []
     else:
         files = _dir_file_digests(take_dir)
-    side = sidecar_of(take_dir)
-    if side is not None:
-        files = files + [(f"{side.name}/{rel}", d) for rel, d in _dir_file_digests(side) if rel != ANNOTATIONS]
+    for extra in key_inputs_of(take_dir).values():  # a recording's side folder
+        if extra.is_dir():
+            files = files + [(f"{extra.name}/{rel}", d) for rel, d in _dir_file_digests(extra) if rel != ANNOTATIONS]
+        else:
+            files = files + [(extra.name, _file_digest(extra, remember=True))]
     for rel, digest in files:
         if rel != ANNOTATIONS:
             h.update(rel.encode())
@@ -58,13 +60,13 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
                  media_key: str) -> Manifest:
     """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
     files are reported here, per frame, instead of surfacing later."""
-    from demoforge.lib.takes import iter_depth, iter_frames, open_take
+    from demoforge.lib.takes import iter_depth, iter_frames
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     if verify_decode:
         for _ in iter_frames(take, batch_size=32):
             pass
-        if take.decoder is None:  # a recording's decoder gave every frame's depth with its RGB: one pass
+        if not take.decoder.checks_depth_with_rgb:  # a recording's RGB-D pairs: one pass checked both
             for _ in iter_depth(take):
                 pass
     f = take.frames
@@ -90,9 +92,8 @@ def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str
     them; ``{"detector": name}`` keeps them beside those (demoforge.schemas.core.variant_parts), for a second
     detector's ingest of the same take (demoforge.flows.ingest.ingest_side_by_side)."""
     from demoforge.lib.perception.detectors import get_detector
-    from demoforge.lib.takes import open_take
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     det = get_detector(detector, **(detector_options or {}))
     bar = None
     if show_progress:
@@ -153,11 +154,11 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
     (then every row carries the problem in ``depth_problem`` and the tracker ignores depth)."""
     from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
     from demoforge.lib.geometry import transform_points
-    from demoforge.lib.takes import iter_depth, open_take
+    from demoforge.lib.takes import iter_depth
     from demoforge.lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
     from demoforge.lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, track_hands
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     hk = read_table("hand_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(hk, "joints_cam", "joints_px", "present", "confidence")
@@ -218,10 +219,9 @@ def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Man
     """Per hand: frames detected / accepted / rejected / filled / tracked, the trust verdict and the
     share without depth at the hand (warned about above DepthCheckConfig.warn_missing_fraction)."""
     from demoforge.lib.ingest.depth_checks import coverage_warning, depth_coverage
-    from demoforge.lib.takes import open_take
     from demoforge.lib.perception.tracking import TrackerConfig, hand_trust
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(al, "present", "detected", "filled_missing", "track_id", "rejected", "no_depth")
@@ -262,9 +262,8 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
     from demoforge.lib.ingest.gripper_mapping import (
         clamp_above_table, gripper_state, hand_to_gripper, smooth_poses, stabilize_grasps, to_pose8,
     )
-    from demoforge.lib.takes import open_take
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
     T, a = arrays(al, "joints_world", "present")
@@ -303,11 +302,11 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     back-projected with depth. None (nothing written) for a take not annotated yet: the stages
     before this one stand, and `demoforge annotate` is what is missing."""
     from demoforge.lib.annotate import annotation_status, not_annotated_message
-    from demoforge.lib.takes import open_take, read_frame
+    from demoforge.lib.takes import read_frame
     from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
     from demoforge.schemas.core import read_table_file, unsliced_table
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     status = annotation_status(take)
     if not status.annotated:

@@ -7,7 +7,7 @@ from pathlib import Path
 from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import read_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays
-from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.common import Manifest, opened_take, stage_task
 from demoforge.tasks.ingest import INGEST_VERSION
 
 
@@ -19,11 +19,11 @@ def overlay_video(take_dir: Path, task: str | None, warehouse: str, aligned: Man
     import cv2
 
     from demoforge.lib.ingest.alignment import project
-    from demoforge.lib.takes import iter_frames, open_take
+    from demoforge.lib.takes import iter_frames
     from demoforge.lib.evaluation.visualize import draw_gripper, draw_hand
     from demoforge.schemas.core import file_sha256
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     name = take_task_name(take, task)
     part = dict(task=name, take=take.take_id, variant=variant)
     al_t = read_table("aligned_keypoints", warehouse, **part)

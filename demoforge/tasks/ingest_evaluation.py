@@ -12,7 +12,7 @@ import pyarrow as pa
 from demoforge.lib.takes import take_task_name
 from demoforge.schemas.core import read_table, write_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays
-from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.common import Manifest, opened_take, stage_task
 from demoforge.tasks.ingest import INGEST_VERSION
 
 
@@ -23,10 +23,9 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
     share without depth at the hand."""
     from demoforge.lib.evaluation import metrics as M
     from demoforge.lib.ingest.depth_checks import depth_coverage
-    from demoforge.lib.takes import open_take
     from demoforge.schemas.core import read_table_file
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     if not take.has_ground_truth:
         return None
     name = take_task_name(take, task)
@@ -88,11 +87,11 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
     anchor depth read from the take's depth maps as demoforge.lib.evaluation.keypoints.evaluate_synthetic_take does.
     None for a take without ground truth."""
     from demoforge.lib.ingest.alignment import AlignmentConfig, read_depth_robust
-    from demoforge.lib.takes import iter_depth, open_take
+    from demoforge.lib.takes import iter_depth
     from demoforge.lib.evaluation.keypoints import load_synth_ground_truth, evaluate_take
     from demoforge.schemas.core import get_schema
 
-    take = open_take(take_dir)
+    take = opened_take(take_dir)
     if not take.has_ground_truth:
         return None
     name = take_task_name(take, task)

@@ -105,7 +105,7 @@ class Take:
     camera: CameraInfo
     frames: list[FrameInfo]
     annotations: Annotations | None
-    rgb_kind: str                 # "images" or "video"
+    rgb_kind: str                 # "images", "video" or "recording"
     video_path: Path | None = None
     meta: dict = field(default_factory=dict)   # take.json when present (synthetic takes)
     #: what is actually decoded for a video take (a salvaged stream when the mp4 was truncated)
@@ -118,7 +118,8 @@ class Take:
     meta_dir: Path | None = None
     #: how T_world_camera was found: "camera.json" (given), "board", "table_plane", ... (None: no pose)
     pose_method: str | None = None
-    #: decodes a recording's frames (a :class:`demoforge.lib.takes.sources.Recording`); None for folders
+    #: decodes the frames (a :class:`demoforge.lib.takes.sources.TakeDecoder`, given by the source that
+    #: opened the take: a take folder's images or video, a recording)
     decoder: Any = field(default=None, repr=False)
 
     @property
@@ -135,7 +136,7 @@ class Take:
 
     @property
     def take_id(self) -> str:
-        name = self.path.name if self.decoder is None else self.path.name.split(".")[0]
+        name = self.path.name.split(".")[0] if self.rgb_kind == "recording" else self.path.name
         return str(self.meta.get("take_id") or self.meta.get("take") or name)
 
     @property

@@ -1,9 +1,13 @@
 """The take-source interface and its registry.
 
-A take source turns one kind of path (a take folder, a RealSense recording, a Record3D export, a ROS 2
-bag) into a :class:`demoforge.lib.takes.types.Take`: intrinsics, the frame index with each frame's
-timestamp and problems, and, for a recording, a decoder that streams RGB (uint8) and depth (float32
-metres along the camera z, registered to the RGB image, 0 = invalid) frame by frame.
+A take source turns one kind of path (a take folder with images or a video, a RealSense recording, a
+Record3D export, a ROS 2 bag) into a :class:`demoforge.lib.takes.types.Take`: intrinsics, the frame
+index with each frame's timestamp and problems, and its :class:`TakeDecoder` (``Take.decoder``), which
+streams RGB (uint8) and depth (float32 metres along the camera z, registered to the RGB image,
+0 = invalid) frame by frame. Every source owns its decoding: demoforge.lib.takes.reader's
+``iter_frames`` / ``iter_depth`` / ``read_frame`` only ask the take's decoder. A source also says what
+holds a take's content besides its path (:meth:`TakeSource.cache_key_inputs`: a recording's side
+folder), which the stage cache hashes with it.
 
 Adding a source::
 
@@ -11,7 +15,8 @@ Adding a source::
         name = "mine"; description = "..."
         @classmethod
         def claims(cls, path): ...          # cheap: suffix, a header, a file in the folder
-        def open(self, path, *, require_pose=True, **options): ...  # -> Take
+        def open(self, path, *, require_pose=True, prefer="images", cache_dir=None, **options):
+            ...                             # -> Take(..., decoder=MyDecoder(...))
     register_source("mine", MySource)
 """
 
@@ -19,11 +24,45 @@ from __future__ import annotations
 
 import abc
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
+
+import numpy as np
 
 from demoforge.lib.errors import UnknownNameError
 from demoforge.lib.registry import Registry
 from demoforge.lib.takes.types import Take, TakeError
+
+
+class TakeDecoder(abc.ABC):
+    """How an opened take's frames are decoded (``Take.decoder``); each take source gives its own.
+
+    Decoding never raises for one bad frame: a frame whose RGB cannot be had is flagged on
+    ``take.frames`` and left out, a frame whose depth cannot be had gets all-zero depth (flagged).
+    """
+
+    #: True when decoding the frames' RGB also reads and checks their depth (a recording's frames come
+    #: as RGB-D pairs), so a separate depth pass would find nothing new
+    checks_depth_with_rgb: bool = False
+
+    @property
+    def info(self) -> dict:
+        """Source details (a recording's topics, device, depth scale ...); empty for a take folder."""
+        return {}
+
+    @abc.abstractmethod
+    def rgbd(self, take: Take, idx: list[int], batch_size: int, num_workers: int
+             ) -> Iterator[list[tuple[int, np.ndarray, np.ndarray]]]:
+        """The frames ``idx`` (increasing, each with usable RGB by its status so far) decoded, in
+        groups of at most ``batch_size``: (index, RGB uint8 (H, W, 3), depth float32 metres (H, W),
+        invalid = 0). ``num_workers``: threads that may decode in parallel."""
+
+    @abc.abstractmethod
+    def depth(self, take: Take, batch_size: int, num_workers: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Every frame's depth in order, whatever its RGB: (indices (B,), depth float32 (B, H, W))."""
+
+    @abc.abstractmethod
+    def lone_depth(self, take: Take, index: int) -> np.ndarray:
+        """The depth of a frame whose RGB is unusable (what :func:`read_frame` returns with None)."""
 
 
 class TakeSource(abc.ABC):
@@ -38,8 +77,18 @@ class TakeSource(abc.ABC):
         """True if ``path`` is this kind of take (decided from names and headers, never by decoding)."""
 
     @abc.abstractmethod
-    def open(self, path: Path, *, require_pose: bool = True, **options: Any) -> Take:
-        """The opened take; raises :class:`TakeError` (one line: what is wrong, how to fix it)."""
+    def open(self, path: Path, *, require_pose: bool = True, prefer: str = "images", cache_dir: Any = None,
+             **options: Any) -> Take:
+        """The opened take, with its :class:`TakeDecoder`; raises :class:`TakeError` (one line: what is
+        wrong, how to fix it). ``prefer`` and ``cache_dir`` are a take folder's choices (images or
+        video; where a truncated video's recovered stream goes), ignored by sources without them;
+        ``options`` are the source's own (a ROS 2 bag's topics)."""
+
+    @classmethod
+    def cache_key_inputs(cls, path: Path) -> dict[str, Path]:
+        """What holds this take's content besides ``path`` itself, by name (a recording's side folder:
+        ``{"sidecar": folder}``): the stage cache hashes each with the path (demoforge.tasks.common)."""
+        return {}
 
 
 class UnknownTakeSource(TakeError, UnknownNameError):
@@ -114,16 +163,35 @@ def find_takes(root: Path) -> list[Path]:
     return sorted(found)
 
 
+def claiming_source(path: Path) -> type[TakeSource] | None:
+    """The first registered source that claims ``path`` (an existing path), or None."""
+    for name in SOURCES.names():
+        cls = get_source(name)
+        if cls.claims(path):
+            return cls
+    return None
+
+
 def source_for(path: Path) -> type[TakeSource]:
     """The first registered source that claims ``path``; :class:`TakeError` when none does."""
     if not path.exists():
         raise TakeError(f"{path}: take folder does not exist (expected rgb/ or rgb.mp4, depth/, camera.json; "
                         f"or a recording file)")
-    for name in SOURCES.names():
-        cls = get_source(name)
-        if cls.claims(path):
-            return cls
+    cls = claiming_source(path)
+    if cls is not None:
+        return cls
     if path.is_dir() and not (path / "camera.json").is_file():
         raise TakeError(f"{path / 'camera.json'}: camera.json is missing; write it with K (3x3), width, height and "
                         f"T_world_camera (4x4 camera-to-world) (fps optional, default 30); or give {KINDS}")
     raise TakeError(f"{path}: not a take demoforge can read; expected {KINDS}")
+
+
+def cache_key_inputs(path: str | Path) -> dict[str, Path]:
+    """What holds the content of the take at ``path`` besides the path itself, by name, as the source
+    that claims it says (:meth:`TakeSource.cache_key_inputs`); nothing for a path no source claims
+    (any other file or folder given to a stage)."""
+    path = Path(path)
+    if not path.exists():
+        return {}
+    cls = claiming_source(path)
+    return {} if cls is None else cls.cache_key_inputs(path)

@@ -28,7 +28,7 @@ import numpy as np
 
 from demoforge.lib.settings import digest_cache_dir
 from demoforge.lib.takes.metadata import load_json, parse_annotations, parse_pose
-from demoforge.lib.takes.sources.base import TakeSource
+from demoforge.lib.takes.sources.base import TakeDecoder, TakeSource
 from demoforge.lib.takes.types import DEFAULT_DEPTH_SCALE, CameraInfo, FrameInfo, Take, TakeError
 
 SIDECAR_SUFFIX = ".demoforge"
@@ -186,7 +186,16 @@ class RecordingSource(TakeSource):
 
     recording_cls: type[Recording]
 
-    def open(self, path: Path, *, require_pose: bool = True, **options: Any) -> Take:
+    @classmethod
+    def cache_key_inputs(cls, path: Path) -> dict[str, Path]:
+        """The side folder (pose, annotations, options), when there is one."""
+        side = sidecar_dir(path)
+        return {"sidecar": side} if side.is_dir() else {}
+
+    def open(self, path: Path, *, require_pose: bool = True, prefer: str = "images", cache_dir: Any = None,
+             **options: Any) -> Take:
+        """(``prefer`` and ``cache_dir`` are a take folder's: a recording has one colour stream and is read
+        where it is.)"""
         path = Path(path).resolve()
         opts = read_sidecar_options(path) | {k: v for k, v in options.items() if v is not None}
         recording = self.recording_cls(path, opts)
@@ -220,15 +229,17 @@ class RecordingSource(TakeSource):
             meta = load_json(side / "take.json", "take.json")
         return Take(path=path, camera=camera, frames=frames, annotations=annotations, rgb_kind="recording",
                     meta=meta if isinstance(meta, dict) else {}, notes=list(index.notes), source=self.name,
-                    meta_dir=side, pose_method=method, decoder=_Decoder(recording, index))
+                    meta_dir=side, pose_method=method, decoder=RecordingDecoder(recording, index))
 
 
 @dataclass
-class _Decoder:
-    """What a recording take decodes with (Take.decoder)."""
+class RecordingDecoder(TakeDecoder):
+    """What a recording take decodes with (Take.decoder): its :class:`Recording` streams RGB-D pairs."""
 
     recording: Recording
     index: RecordingIndex
+
+    checks_depth_with_rgb = True
 
     def frames(self, wanted: list[int]) -> Iterator[tuple[int, np.ndarray | None, np.ndarray | None, str]]:
         wanted = [i for i in wanted if self.index.keys[i] is not None]
@@ -238,6 +249,60 @@ class _Decoder:
     @property
     def info(self) -> dict:
         return self.index.info
+
+    def rgbd(self, take: Take, idx: list[int], batch_size: int, num_workers: int
+             ) -> Iterator[list[tuple[int, np.ndarray, np.ndarray]]]:
+        """The decoded frames in groups of ``batch_size``; a frame without usable RGB is flagged and skipped."""
+        group: list = []
+        for i, rgb, depth, msg in self.frames(idx):
+            f = take.frames[i]
+            if rgb is None:
+                f.flag("unreadable_rgb", msg or f"frame {i}: colour frame cannot be decoded")
+                continue
+            group.append((i, rgb, _checked_depth(f, depth, take.camera, msg)))
+            if len(group) == batch_size:
+                yield group
+                group = []
+        if group:
+            yield group
+
+    def depth(self, take: Take, batch_size: int, num_workers: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        cam = take.camera
+        zeros = np.zeros((cam.height, cam.width), np.float32)
+        decoded = iter(self.frames(list(range(take.n_frames))))
+        pending = next(decoded, None)
+        for start in range(0, take.n_frames, batch_size):
+            chunk = np.arange(start, min(start + batch_size, take.n_frames))
+            out = []
+            for i in chunk:
+                f = take.frames[int(i)]
+                if pending is not None and pending[0] == i:
+                    out.append(_checked_depth(f, pending[2], cam, pending[3]))
+                    pending = next(decoded, None)
+                else:
+                    out.append(zeros)
+                    if f.status == "ok":
+                        f.flag("missing_depth", f"frame {i}: no depth frame")
+            yield chunk, np.stack(out)
+
+    def lone_depth(self, take: Take, index: int) -> np.ndarray:
+        return np.zeros((take.camera.height, take.camera.width), np.float32)
+
+
+def _checked_depth(f: FrameInfo, depth: np.ndarray | None, camera: CameraInfo, msg: str) -> np.ndarray:
+    """A recording's decoded depth checked as a depth file is: right size, valid values, not all zero."""
+    shape = (camera.height, camera.width)
+    if depth is None:
+        f.flag("unreadable_depth" if msg else "missing_depth", msg or f"frame {f.index}: no depth frame")
+        return np.zeros(shape, np.float32)
+    if depth.shape != shape:
+        f.flag("depth_size_mismatch", f"frame {f.index}: depth is {depth.shape[1]} x {depth.shape[0]}, the RGB "
+                                      f"{camera.width} x {camera.height}")
+        return np.zeros(shape, np.float32)
+    m = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32, copy=False)
+    if not m.any():
+        f.flag("all_zero_depth", f"frame {f.index}: no valid depth pixel (all 0 / NaN)")
+    return m
 
 
 def scale_intrinsics(K: np.ndarray, from_size: tuple[int, int], to_size: tuple[int, int]) -> np.ndarray:
