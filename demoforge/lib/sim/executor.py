@@ -1,4 +1,5 @@
-"""Execute (n, 2, 8) gripper action sequences with the two physical grippers in MuJoCo.
+"""Execute (n, 2, 8) gripper action sequences in MuJoCo with a robot of lib/sim/robots (the floating grippers, or
+the ALOHA arms following a motion plan of the same actions).
 
     from demoforge.lib.sim import execute, execute_many, SimOptions
     r = execute("pouring", demo.placement.object_poses, demo.gripper_actions())
@@ -19,7 +20,7 @@ remaining physics is skipped (the per-frame records end there and the predicate 
 `stop_when_settled` (default) the settle phase ends once the scene is at rest under constant
 commands (the state cannot change any more); the predicate is evaluated on that state.
 
-Where the time goes (scripted demos, 1/480 s, mjData.timer; lib/bench_cases_sim.breakdown): about
+Where the time goes (scripted demos, 1/480 s, mjData.timer; demoforge/bench/cases_sim.py breakdown): about
 80-85 % in mj_step (per step: collision detection ~20 %, constraint construction ~15 %, the Newton
 solver 25-45 %, the rest of the pipeline the remainder; ~1-2 solver iterations per step, 8-25
 contacts) and 15-20 % in the frame loop's Python (loop.py: 4 control updates, 4 contact scans and one
