@@ -35,7 +35,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from demoforge.bench.cases_sim import scripted_episodes, timed_pair
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.geometry import quat_to_matrix, random_quaternions
+from demoforge.lib.sim import SimOptions
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha import AlohaRobot
+from demoforge.lib.sim.robots.aloha.closed_form import ViperXBatchIK
+from demoforge.lib.sim.robots.aloha.screening import screen_episodes
+from demoforge.lib.sim.robots.aloha.seeds import ViperXGeometry
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 WINDOW = 100
@@ -43,9 +53,6 @@ WINDOW = 100
 
 def reachable_windows(n: int, hand: str = "2f140") -> list[tuple[str, np.ndarray]]:
     """Up to n (task, (100, 2, 8) poses) windows of scripted demonstrations that the arms reach throughout."""
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.task_library import get_task
-
     robot = get_robot("aloha", hand)
     out = []
     for seed in (0, 1):
@@ -63,8 +70,6 @@ def reachable_windows(n: int, hand: str = "2f140") -> list[tuple[str, np.ndarray
 
 
 def _ik_setup(n: int):
-    from demoforge.lib.sim.robots import get_robot
-
     robot = get_robot("aloha", "2f140")
     windows = reachable_windows(n)
 
@@ -83,11 +88,6 @@ def _ik_check(fast, baseline) -> None:
 
 
 def _closed_form_setup(n: int):
-    from demoforge.lib.geometry import quat_to_matrix, random_quaternions
-    from demoforge.lib.sim.robots.aloha import AlohaRobot
-    from demoforge.lib.sim.robots.aloha.closed_form import ViperXBatchIK
-    from demoforge.lib.sim.robots.aloha.seeds import ViperXGeometry
-
     robot = AlohaRobot(hand="2f140")
     ik, base = robot.ik("pouring"), robot.bases_for("pouring")[0]
     geometry = ViperXGeometry(ik.model)
@@ -120,9 +120,6 @@ def screening_database(task: str, n: int):
     scripted demonstration of seed 0 (half of the augmented ones mirrored), as `demoforge augment` builds one."""
     key = (task, n)
     if key not in _DATABASES:
-        from demoforge.lib.task_library import get_task
-        from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-
         t = get_task(task)
         b = generate_episodes(from_scripted_demo(t, t.scripted_demo(0)), n=n - 1, n_mirrored=n // 2, seed=0,
                               workers=1)
@@ -132,9 +129,6 @@ def screening_database(task: str, n: int):
 
 def _screening_setup(size: int):
     def setup(n: int):
-        from demoforge.lib.sim.robots import get_robot
-        from demoforge.lib.sim.robots.aloha.screening import screen_episodes
-
         robot = get_robot("aloha", "2f140")
         robot.retargeting("pouring")  # the closed form and the IK model, built once outside the timing
         actions, lengths, kp = screening_database("pouring", size)
@@ -159,10 +153,6 @@ def _screening_check(fast, baseline) -> None:
 
 def _physics_setup(task: str, frames: int | None):
     def setup(n: int):
-        from demoforge.bench.cases_sim import scripted_episodes, timed_pair
-        from demoforge.lib.sim import SimOptions
-        from demoforge.lib.sim.robots import get_robot
-
         arms = SimOptions(robot=get_robot("aloha", "2f140"), stop_on_hard_failure=False)
         return timed_pair(task, scripted_episodes(task, n, frames), arms, SimOptions(stop_on_hard_failure=False),
                           workers=1)

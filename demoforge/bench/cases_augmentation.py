@@ -8,21 +8,18 @@ import pyarrow.parquet as pq
 
 from demoforge.bench.timing import BenchCase
 from demoforge.lib.scratch import folder_removed_at_exit
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories import augmentation as au, retrieval as rt
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
 from demoforge.schemas.core import write_table
 
 
 def _source():
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo
-    from demoforge.lib.task_library import get_task
-
     t = get_task("empty_vase")  # a 317-step two-arm take
     return from_scripted_demo(t, t.scripted_demo(0))
 
 
 def cases(quick: bool) -> list[BenchCase]:
-    from demoforge.lib.trajectories import augmentation as au
-    from demoforge.lib.trajectories import retrieval as rt
-
     n_aug = 2_000 if quick else 10_000
 
     def aug_setup(n):
@@ -87,9 +84,7 @@ def _episode_steps_write_case(quick: bool) -> BenchCase:
     n = 2_000 if quick else 10_000
 
     def write_setup(k: int):
-        from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-        from demoforge.lib.task_library import get_task
-        from demoforge.tasks.augment import episode_steps_columns
+        from demoforge.tasks.augment import episode_steps_columns  # lazy: prefect
 
         task = get_task("empty_vase")
         batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1,

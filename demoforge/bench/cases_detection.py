@@ -12,13 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
+from demoforge.lib.perception.hand_model import hand_from_pinch
+from demoforge.lib.task_library import get_task
 
 
 def _frames(n: int) -> tuple[np.ndarray, np.ndarray]:
-    from demoforge.lib.perception.hand_model import hand_from_pinch
+    # lazy: mujoco
     from demoforge.lib.synth.render import SceneRenderer, camera_K, extra_worldbody_xml, hands_assets_xml
     from demoforge.lib.synth.take import hand_styles_for
-    from demoforge.lib.task_library import get_task
 
     task = get_task("pouring")
     demo = task.scripted_demo(0)
@@ -37,8 +39,6 @@ def _frames(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def cases(quick: bool) -> list[BenchCase]:
     try:
-        from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
-
         MediaPipeDetector().close()
     except Exception:  # noqa: BLE001 - no mediapipe or no model: nothing to measure
         return []

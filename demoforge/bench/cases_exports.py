@@ -5,18 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.exports import frame_in_episode, next_poses
+from demoforge.lib.exports.lerobot import STAT_KEYS, episode_stats, features, lerobot_stats
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
 
 
 def cases(quick: bool) -> list[BenchCase]:
-    from demoforge.lib.exports import frame_in_episode, next_poses
-    from demoforge.lib.exports.lerobot import STAT_KEYS, episode_stats, features, lerobot_stats
-
     n = 2_000 if quick else 10_000
 
     def stats_setup(k: int):
-        from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-        from demoforge.lib.task_library import get_task
-
         task = get_task("empty_vase")  # a 317-step two-arm take
         batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(0)), n=k - 1, n_mirrored=(k - 1) // 2,
                                   seed=0, materialize=True)

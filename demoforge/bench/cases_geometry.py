@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib import geometry as g
 
 
 def cases(quick: bool) -> list[BenchCase]:
-    from demoforge.lib import geometry as g
-
     n = 20_000 if quick else 200_000
 
     def close(a, b):

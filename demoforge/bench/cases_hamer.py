@@ -20,6 +20,7 @@ def make_predictor(batch_size: int, device: str | None = None, config=None, seed
     """A HamerPredictor with random weights (released layout) and the synthetic MANO model."""
     import torch
 
+    # lazy: torch
     from demoforge.lib.perception.hamer.model import HamerConfig, HamerNet, HamerPredictor, default_device
     from demoforge.lib.perception.hamer.synthetic import synthetic_mano
 

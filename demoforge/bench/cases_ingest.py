@@ -5,16 +5,20 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.geometry import transform_points
+from demoforge.lib.ingest.alignment import align_to_depth
+from demoforge.lib.ingest.gripper_mapping import gripper_state, hand_to_gripper
+from demoforge.lib.perception.hand_model import hand_from_pinch
+from demoforge.lib.perception.simulated_detector import simulate_detections
+from demoforge.lib.task_library import get_task
 
 
 def _take_arrays(T: int):
     """A realistic take without rendering: the pouring demo's hands through the simulated detector,
     over depth maps of a plane at the hands' depth (the read cost is what matters here)."""
-    from demoforge.lib.perception.hand_model import hand_from_pinch
-    from demoforge.lib.perception.simulated_detector import simulate_detections
+    # lazy: mujoco
     from demoforge.lib.synth.render import camera_K, camera_T_world_camera, world_to_camera
     from demoforge.lib.synth.take import hand_styles_for
-    from demoforge.lib.task_library import get_task
 
     demo = get_task("pouring").scripted_demo(0)
     idx = np.arange(T) % demo.n_frames
@@ -29,10 +33,6 @@ def _take_arrays(T: int):
 
 
 def cases(quick: bool) -> list[BenchCase]:
-    from demoforge.lib.ingest.alignment import align_to_depth
-    from demoforge.lib.geometry import transform_points
-    from demoforge.lib.ingest.gripper_mapping import gripper_state, hand_to_gripper
-
     frames = 120 if quick else 600
 
     def setup(T: int):

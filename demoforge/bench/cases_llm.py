@@ -20,14 +20,17 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.llm import Sampling
+from demoforge.lib.llm.grammar import MAX_ROWS, structured_grammar
+from demoforge.lib.llm.local_backend import LocalBackend
+from demoforge.lib.llm.prompting import build_prompt, order_by_similarity
+from demoforge.lib.llm.structured_decoding import action_tokens, greedy_structured, language_for_prompt
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+from demoforge.lib.trajectories.retrieval import KeypointIndex
 
 
 def _prompts(n: int, number_format: str, n_examples: int = 3):
-    from demoforge.lib.llm.prompting import build_prompt, order_by_similarity
-    from demoforge.lib.task_library import get_task
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-    from demoforge.lib.trajectories.retrieval import KeypointIndex
-
     spec = get_task("pouring")
     source = from_scripted_demo(spec, spec.scripted_demo(0))
     db = generate_episodes(source, n=1_999, n_mirrored=999, seed=0, materialize=True)
@@ -44,9 +47,6 @@ def _prompts(n: int, number_format: str, n_examples: int = 3):
 
 
 def _answer_setup(prompts, baseline: str = "gbnf"):
-    from demoforge.lib.llm import Sampling
-    from demoforge.lib.llm.local_backend import LocalBackend
-
     fast_backend, base_backend = LocalBackend(), LocalBackend(structured_decoder=baseline)
     fast_backend.reduced_model()  # load both models (once per process; the reduced one built once) untimed
 
@@ -103,10 +103,6 @@ def cases(quick: bool) -> list[BenchCase]:
 def _tokens_setup(size: int):
     """Decoding alone: the prompt is evaluated once, its state saved and restored before each answer,
     so both decoders re-evaluate only the prompt's last token (for its logits) and then answer."""
-    from demoforge.lib.llm.grammar import MAX_ROWS, structured_grammar
-    from demoforge.lib.llm.local_backend import LocalBackend
-    from demoforge.lib.llm.structured_decoding import action_tokens, greedy_structured, language_for_prompt
-
     prompt = _prompts(1, "compact", n_examples=1)[0]  # its answer is ~1,000 tokens: cut at size
     llm = LocalBackend().llm
     action_tokens(llm)  # the vocabulary scan (~0.6 s, once per model) outside the timed calls

@@ -14,21 +14,23 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.envs.rollout import rollout
+from demoforge.lib.llm.prompting import resample_actions
+from demoforge.lib.policy.data import Normalizer, PolicyData, resample_batch
+from demoforge.lib.policy.joint_demos import joint_demos
+from demoforge.lib.sim import SimOptions, execute
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
 
 
 def _batch(n: int):
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-    from demoforge.lib.task_library import get_task
-
     spec = get_task("pouring")
     return generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n - 1, n_mirrored=(n - 1) // 2,
                              seed=0, materialize=True)
 
 
 def _prepare_setup(size: int):
-    from demoforge.lib.policy.data import resample_batch
-    from demoforge.lib.llm.prompting import resample_actions
-
     b = _batch(size)
     acts, lengths = b.actions, b.lengths
 
@@ -44,8 +46,7 @@ def _prepare_setup(size: int):
 def _predict_setup(size: int):
     import torch
 
-    from demoforge.lib.policy.data import Normalizer, PolicyData, resample_batch
-    from demoforge.lib.policy.model import KeypointPolicy, PolicyConfig
+    from demoforge.lib.policy.model import KeypointPolicy, PolicyConfig  # lazy: torch
 
     torch.set_num_threads(1)
     b = _batch(size)
@@ -90,11 +91,7 @@ def cases(quick: bool) -> list[BenchCase]:
 # Both on the pouring task's scripted demonstration (seed 1) in the ALOHA arms' joint space; torch on 1 thread.
 
 def _joint_demo():
-    from demoforge.envs.robot_env import DemoforgeEnv
-    from demoforge.lib.policy.joint_demos import joint_demos
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.task_library import get_task
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo
+    from demoforge.envs.robot_env import DemoforgeEnv  # lazy: mujoco
 
     spec = get_task("pouring")
     src = from_scripted_demo(spec, spec.scripted_demo(1))
@@ -109,7 +106,7 @@ def _decoder_policy(config):
     import torch
     from torch import nn
 
-    from demoforge.lib.policy.chunking import ChunkPolicy
+    from demoforge.lib.policy.chunking import ChunkPolicy  # lazy: mujoco, torch
 
     class DecoderPolicy(ChunkPolicy):
         def __init__(self, c):
@@ -130,6 +127,7 @@ def _decoder_policy(config):
 def _train_setup(size: int):
     import torch
 
+    # lazy: mujoco, torch
     from demoforge.lib.policy.chunk_train import ChunkTrainConfig, train_chunk_policy
     from demoforge.lib.policy.chunking import ChunkConfig
 
@@ -149,10 +147,9 @@ def _train_setup(size: int):
 def _rollout_setup(size: int):
     import torch
 
-    from demoforge.envs.rollout import rollout
+    # lazy: mujoco, torch
     from demoforge.lib.policy.chunk_train import ChunkTrainConfig, train_chunk_policy
     from demoforge.lib.policy.chunking import TemporalEnsemble
-    from demoforge.lib.sim import SimOptions, execute
 
     torch.set_num_threads(1)
     env, demos, src, acts = _joint_demo()

@@ -24,13 +24,14 @@ import time
 from dataclasses import replace
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.sim import SimOptions, execute, execute_many
+from demoforge.lib.sim.scene import LEGACY_PHYSICS, get_scene
+from demoforge.lib.task_library import get_task
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 
 
 def _episodes(task_name: str, n: int, frames: int | None):
-    from demoforge.lib.task_library import get_task
-
     t = get_task(task_name)
     eps = []
     for i in range(n):  # the original demos: seeds 0, 0, 1, 1, ... x (plain, mirrored)
@@ -42,9 +43,6 @@ def _episodes(task_name: str, n: int, frames: int | None):
 
 def options():
     """(fast, baseline) SimOptions of the benchmark."""
-    from demoforge.lib.sim import SimOptions
-    from demoforge.lib.sim.scene import LEGACY_PHYSICS
-
     fast = SimOptions(keep_trajectory=False)
     return fast, replace(fast, physics=LEGACY_PHYSICS, stop_when_settled=False)
 
@@ -56,9 +54,6 @@ def breakdown(task_name: str, episodes: int = 2, frames: int | None = None, sim_
     physics_other, python; and steps, contacts (mean per recorded frame), constraint rows (mean)."""
     import mujoco
     import numpy as np
-
-    from demoforge.lib.sim import execute
-    from demoforge.lib.sim.scene import get_scene
 
     opt = sim_options or options()[0]
     eps = _episodes(task_name, episodes, frames)
@@ -107,7 +102,6 @@ def format_breakdown(b: dict) -> str:
 
 def timed_pair(task_name: str, eps: list, fast_opt, base_opt, workers: int):
     """(fast, baseline): execute_many of the same episodes with two SimOptions, returning the failures."""
-    from demoforge.lib.sim import execute_many
 
     def fast():
         return [r.failure for r in execute_many(task_name, eps, workers=workers, options=fast_opt)]

@@ -7,7 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from demoforge.bench.timing import BenchCase
+from demoforge.lib.perception.hand_model import hand_from_pinch
 from demoforge.lib.scratch import folder_removed_at_exit
+from demoforge.lib.task_library import get_task
 
 
 def cases(quick: bool) -> list[BenchCase]:
@@ -16,10 +18,9 @@ def cases(quick: bool) -> list[BenchCase]:
     def setup(n: int):
         import mujoco
 
-        from demoforge.lib.perception.hand_model import hand_from_pinch
+        # lazy: mujoco
         from demoforge.lib.synth.render import SceneRenderer, extra_worldbody_xml, hands_assets_xml
         from demoforge.lib.synth.take import hand_styles_for
-        from demoforge.lib.task_library import get_task
 
         task = get_task("pouring")
         demo = task.scripted_demo(0)
@@ -48,7 +49,7 @@ def cases(quick: bool) -> list[BenchCase]:
         return run(ours), run(naive)
 
     def setup_write(n: int):
-        from demoforge.lib.synth.take import generate_take
+        from demoforge.lib.synth.take import generate_take  # lazy: mujoco
 
         root = folder_removed_at_exit("demoforge-bench-take-")
         generate_take("pouring", 0, False, root / "warm-up", max_frames=2)  # imports, EGL, codecs: untimed

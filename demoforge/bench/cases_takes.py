@@ -9,13 +9,14 @@ from pathlib import Path
 
 from demoforge.bench.timing import BenchCase
 from demoforge.lib.scratch import folder_removed_at_exit
+from demoforge.lib.takes import iter_frames, open_take
+from demoforge.lib.takes.sources.realsense import RealSenseRecording
+from demoforge.lib.takes.sources.writers import write_realsense
 
 
 def _recording(frames: int) -> tuple[Path, Path]:
     """A RealSense recording (written by the SDK) of a synthetic take's frames, looped to ``frames``."""
-    from demoforge.lib.synth.take import generate_take
-    from demoforge.lib.takes import iter_frames, open_take
-    from demoforge.lib.takes.sources.writers import write_realsense
+    from demoforge.lib.synth.take import generate_take  # lazy: mujoco
 
     d = folder_removed_at_exit("demoforge_bench_takes_")
     generate_take("pouring", 0, False, d / "take", max_frames=12, video=False)
@@ -36,9 +37,6 @@ def cases(quick: bool) -> list[BenchCase]:
     n = 60 if quick else 300
 
     def open_setup(k: int):
-        from demoforge.lib.takes import open_take
-        from demoforge.lib.takes.sources.realsense import RealSenseRecording
-
         _, rec = _recording(k)
         open_take(rec, require_pose=False)  # the first open indexes and remembers
 
@@ -51,7 +49,7 @@ def cases(quick: bool) -> list[BenchCase]:
         return fast, baseline
 
     def key_setup(k: int):
-        from demoforge.tasks import common
+        from demoforge.tasks import common  # lazy: prefect
 
         _, rec = _recording(k)
         # right before it is fast: the remembered digest is the file's (each setup writes its own recording,

@@ -10,6 +10,7 @@ import pyarrow.parquet as pq
 
 from demoforge.bench.timing import BenchCase
 from demoforge.lib.scratch import folder_removed_at_exit
+from demoforge.schemas import catalog
 from demoforge.schemas.core import Column, TableSchema, keypoints3d, registry, write_table
 
 
@@ -41,8 +42,6 @@ def cases(quick: bool) -> list[BenchCase]:
         return fast, baseline
 
     def catalog_setup(n: int):
-        from demoforge.schemas import catalog
-
         root = folder_removed_at_exit("demoforge-bench-") / "warehouse"
 
         def views(path: Path) -> list[tuple[str, str]]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import List, Optional
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.cli.root import current_warehouse, fail
+from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
 
@@ -22,8 +22,7 @@ def bench(
     quick: bool = typer.Option(False, help="Smaller inputs, for a fast smoke run."),
 ) -> None:
     """Benchmark every stage against a straightforward baseline; rows go to the `benchmarks` table."""
-    from demoforge.bench.run import run_benchmarks
-    from demoforge.runtime.runners import run_flow
+    from demoforge.bench.run import run_benchmarks  # lazy: prefect
 
     try:
         rows = run_flow(run_benchmarks, str(current_warehouse()), stages=stage, quick=quick)

@@ -6,7 +6,6 @@ from pathlib import Path
 from typing import Optional
 import typer
 
-import demoforge.lib  # noqa: F401
 from demoforge.cli.root import fail
 from demoforge.cli.takes import DEPTH_TOPIC, INFO_TOPIC, RGB_TOPIC, TAKE_HELP, _open_take_or_fail
 
@@ -28,6 +27,7 @@ def convert(
     stream (bounded memory), and the folder appears only when complete."""
     from tqdm.auto import tqdm
 
+    # lazy (CLI start-up): numpy
     from demoforge.lib.takes import TakeError
     from demoforge.lib.takes.convert import convert_take
 
@@ -56,7 +56,7 @@ def _pair(text: Optional[str], what: str) -> Optional[tuple[float, float]]:
 
 
 def _board_spec(board: str, square_mm: float, marker_mm: Optional[float], dictionary: str):
-    from demoforge.lib.calibration import BoardSpec
+    from demoforge.lib.calibration import BoardSpec  # lazy (CLI start-up): numpy, scipy
 
     try:
         nx, ny = (int(x) for x in board.lower().split("x"))
@@ -92,6 +92,7 @@ def calibrate(
     come from two pixels on the table's robot-side edge (`--edge`, or two clicks on the annotate page),
     else y is the camera's forward direction. Writes a preview (calibration.png) with the table frame
     drawn on a frame; ingest then says which method made the pose."""
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.calibration import CalibrationError, calibrate as run_calibration, draw_table_frame, pose_errors
     from demoforge.lib.calibration import write_board_print
 
@@ -129,7 +130,7 @@ def _report(take, result, pose_errors, draw_table_frame, dry_run: bool) -> None:
     import cv2
     import numpy as np
 
-    from demoforge.lib.takes.pose import pose_file, write_pose
+    from demoforge.lib.takes.pose import pose_file, write_pose  # lazy (CLI start-up): numpy
 
     T = result.T_world_camera
     d = result.details

@@ -6,7 +6,6 @@ from pathlib import Path
 from typing import List, Optional
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.warehouse import OutputFormat, _emit
 from demoforge.cli.root import (TASK_HELP, api_mode_option, base_url_option, current_warehouse, detector_option, fail,
@@ -31,8 +30,8 @@ def evaluate_keypoints_cmd(
     Rows go to `keypoint_metrics` (or `real_photo_metrics`); the tables are the SQL views report_table1,
     report_table2, report_appendix_b, report_big_vs_small and report_real_photos.
     """
-    from demoforge.flows.keypoint_eval import evaluate_keypoints
-    from demoforge.lib.evaluation.arctic import ArcticError
+    from demoforge.flows.keypoint_eval import evaluate_keypoints  # lazy: prefect
+    from demoforge.lib.evaluation.arctic import ArcticError  # lazy (CLI start-up): numpy
 
     try:
         run_flow(evaluate_keypoints, str(current_warehouse()), dataset=dataset, detector=detector,
@@ -41,7 +40,7 @@ def evaluate_keypoints_cmd(
                            stride=stride)
     except (ArcticError, ValueError, FileNotFoundError) as e:
         raise fail(str(e))
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     view = "report_real_photos" if dataset == "real_photos" else "report_table1"
     _emit(query(f"SELECT * FROM {view}", current_warehouse()), OutputFormat.table, None, 40)
@@ -56,7 +55,8 @@ def evaluate_detection_cmd(
     """Hand detection against the synthetic takes' ground truth, per task: detection rate over
     hand-frames with >= 80 % of the joints in view, handedness accuracy, 2D MPJPE (px), PCK@0.05/0.15,
     and the same where a held object hides part of the hand. Rows go to `detection_metrics`."""
-    from demoforge.flows.detection_eval import evaluate_detection
+    from demoforge.flows.detection_eval import evaluate_detection  # lazy: prefect
+    # lazy (CLI start-up): duckdb, numpy, pyarrow, scipy
     from demoforge.lib.perception.detectors import DetectorError
     from demoforge.lib.evaluation.detection import per_task
     from demoforge.schemas.catalog import query
@@ -80,7 +80,7 @@ def evaluate_detection_cmd(
     wanted = {"video" if m == "auto" else m for m in modes}
     rows = [r for r in rows if r["detector"] == detector and r["running_mode"] in wanted
             and (not take or r["take"] in take)]
-    from demoforge.lib.evaluation.detection import format_markdown
+    from demoforge.lib.evaluation.detection import format_markdown  # lazy (CLI start-up): numpy, scipy
 
     typer.echo(format_markdown(per_task(rows)))
 
@@ -101,7 +101,7 @@ def llm_eval_cmd(
     number_format: Optional[str] = number_format_option(),
 ) -> None:
     """Predict trajectories with an LLM for new scenes and judge them in MuJoCo (thesis Table 3)."""
-    from demoforge.flows.llm_eval import ALL_STRATEGIES, llm_eval
+    from demoforge.flows.llm_eval import ALL_STRATEGIES, llm_eval  # lazy: prefect
 
     options = llm_backend_options(backend, model, base_url, api_mode)
     try:
@@ -110,6 +110,6 @@ def llm_eval_cmd(
                  number_format=number_format)
     except ValueError as e:
         raise fail(str(e))
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     _emit(query("SELECT * FROM report_table3 WHERE task = ?", current_warehouse(), [task]), OutputFormat.table, None, 40)

@@ -68,8 +68,8 @@ def export_cmd(
     reach; an episode they cannot reach within 1 cm and 5 degrees is never written), images as
     observation.images.top.
     """
-    from demoforge.flows.export import export_lerobot_flow, export_robomimic_flow, preflight_export
-    from demoforge.lib.exports import ExportError
+    from demoforge.flows.export import export_lerobot_flow, export_robomimic_flow, preflight_export  # lazy: prefect
+    from demoforge.lib.exports import ExportError  # lazy (CLI start-up): numpy
 
     if not 0 <= valid_fraction < 1:
         raise fail(f"--valid-fraction must be in [0, 1), got {valid_fraction}")
@@ -136,7 +136,8 @@ def view_cmd(
     gripper frames and trajectories, its object keypoints, and the demonstration's path for
     comparison. The take must be ingested first (`demoforge ingest TAKE`).
     """
-    from demoforge.flows.view import preflight_view, view_flow
+    from demoforge.flows.view import preflight_view, view_flow  # lazy: prefect
+    # lazy (CLI start-up): numpy
     from demoforge.lib.exports import ExportError
     from demoforge.lib.takes import TakeError
 

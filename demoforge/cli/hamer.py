@@ -16,7 +16,7 @@ app = typer.Typer()
 def _config(sizes: str | None):
     import json
 
-    from demoforge.lib.perception.hamer.model import HamerConfig
+    from demoforge.lib.perception.hamer.model import HamerConfig  # lazy: torch
 
     if not sizes:
         return HamerConfig()
@@ -46,6 +46,7 @@ def hamer_check(
     are listed as ignored. Then loads the MANO model and reports its size. Neither file is
     downloaded by demoforge: both are licensed, pass your local copies. Exit code 2 on a mismatch.
     """
+    # lazy: torch
     from demoforge.lib.perception.hamer.checkpoint import (
         CheckpointError, check_state_dict, load_hamer, read_state_dict,
     )
@@ -88,7 +89,7 @@ def hamer_check(
     if run:
         import numpy as np
 
-        from demoforge.lib.perception.hamer.model import HamerPredictor
+        from demoforge.lib.perception.hamer.model import HamerPredictor  # lazy: torch
 
         t1 = time.perf_counter()
         net, _ = load_hamer(checkpoint, cfg)
@@ -124,14 +125,15 @@ def hamer_bench(
     """
     import torch
 
-    from demoforge.bench.cases_hamer import CPU_CONFIG, frames_and_boxes
+    from demoforge.bench.cases_hamer import CPU_CONFIG, frames_and_boxes  # lazy (CLI start-up): numpy
+    # lazy: torch
     from demoforge.lib.perception.hamer.model import HamerConfig, HamerNet, HamerPredictor
     from demoforge.lib.perception.hamer.synthetic import synthetic_mano
 
     if frames < 1 or any(b < 1 for b in batch_size):
         raise fail("--frames and --batch-size must be >= 1")
     if checkpoint is not None:
-        from demoforge.lib.perception.hamer.checkpoint import CheckpointError, load_hamer
+        from demoforge.lib.perception.hamer.checkpoint import CheckpointError, load_hamer  # lazy: torch
 
         try:
             net, _ = load_hamer(checkpoint, _config(sizes))
@@ -141,7 +143,7 @@ def hamer_bench(
         net = HamerNet(_config(sizes) if sizes else HamerConfig(**CPU_CONFIG) if small else HamerConfig())
     mano_model = synthetic_mano()[0]
     if mano is not None:
-        from demoforge.lib.perception.hamer.mano import MANOError, load_mano_model
+        from demoforge.lib.perception.hamer.mano import MANOError, load_mano_model  # lazy: torch
 
         try:
             mano_model = load_mano_model(mano)

@@ -8,14 +8,15 @@ from pathlib import Path
 from typing import List, Optional
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
-from demoforge.lib.settings import read_settings
-from demoforge.runtime.runners import run_flow
-from demoforge.cli.warehouse import OutputFormat, _emit
-from demoforge.cli.takes import _open_take_or_fail
+import demoforge.lib  # SHARED_DATA
 from demoforge.cli.root import (TASK_HELP, current_warehouse, detector_option, fail, gripper_option,
                                 llm_backend_option, number_format_option, robot_choice, robot_option, robot_spec,
                                 structured_option, warn)
+from demoforge.cli.screening import say_screening
+from demoforge.cli.takes import _open_take_or_fail
+from demoforge.cli.warehouse import OutputFormat, _emit
+from demoforge.lib.settings import read_settings
+from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
 
@@ -51,17 +52,19 @@ def evaluate(
     A second run with nothing changed (parameters, code, warehouse files) returns at once; after a
     change, each stage is served from the cache unless its inputs changed.
     """
+    # lazy (CLI start-up): numpy, pyarrow, scipy
     from demoforge.runtime import run_cache
     from demoforge.lib.task_library import TASK_NAMES
 
     unknown = [t for t in (task or []) if t not in TASK_NAMES]
     if unknown:
         raise fail(f"unknown task(s) {unknown}; choose from {', '.join(TASK_NAMES)}")
-    from demoforge.lib.synth import MIRROR_CHOICES
+    from demoforge.lib.synth import MIRROR_CHOICES  # lazy (CLI start-up)
 
     if mirror not in MIRROR_CHOICES:
         raise fail(f"--mirror must be {', '.join(MIRROR_CHOICES[:-1])} or {MIRROR_CHOICES[-1]}, got {mirror!r}")
-    from demoforge.flows.evaluate import detector_problem
+    from demoforge.flows.evaluate import detector_problem  # lazy: mujoco, prefect
+    # lazy (CLI start-up)
     from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig
     from demoforge.lib.robot_spec import RobotError
 
@@ -97,7 +100,7 @@ def evaluate(
             typer.echo(f"nothing changed since the last complete run (same parameters, code and warehouse): {cached}")
             typer.echo("report: " + str(cached))
             return
-    from demoforge.flows.evaluate import evaluate as evaluate_flow
+    from demoforge.flows.evaluate import evaluate as evaluate_flow  # lazy: mujoco, prefect
 
     report = run_flow(evaluate_flow, str(warehouse), str(reports_dir), config)
     run_cache.remember(warehouse, key, report)
@@ -131,12 +134,13 @@ def augment(
     `demoforge ingest`): give the values you ingested with, or the ingest is redone with these. With
     --robot aloha, the placements the arms cannot serve are drawn again (the same distribution, restricted to
     what the arms' screening passes) and each episode is then screened for the arms (`demoforge screen`)."""
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.annotate import annotation_status, not_annotated_message
     from demoforge.lib.takes import TakeError
 
     if robot is not None:
-        from demoforge.flows.screening import check_robot
-        from demoforge.lib.sim.robots import RobotError
+        from demoforge.flows.screening import check_robot  # lazy: prefect
+        from demoforge.lib.sim.robots import RobotError  # lazy (CLI start-up): numpy, scipy
 
         robot, gripper = robot_choice(robot, gripper)
         try:
@@ -148,6 +152,7 @@ def augment(
     if not status.annotated:  # episodes are placed by the object keypoints: stop before any flow runs
         raise fail(not_annotated_message(path, status.detail))
     from demoforge.flows.augment import augment_take_flow  # (Prefect and the flow's modules: once needed)
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.ingest.options import IngestOptions
     from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 
@@ -164,15 +169,14 @@ def augment(
     except (TakeError, ValueError) as e:
         raise fail(str(e))
     typer.echo(f"episodes: {result['episodes'].path}")
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     t = query("SELECT kind, count(*) AS episodes, count(*) FILTER (WHERE valid) AS valid FROM episodes "
               "WHERE take = ? GROUP BY kind ORDER BY kind", current_warehouse(), [Path(path).resolve().name])
     _emit(t, OutputFormat.table, None, 10)
     _say_demo_check(result.get("demo_check"), path)
     if robot is not None:
-        from demoforge.cli.screening import say_screening
-        from demoforge.flows.screening import screen_task
+        from demoforge.flows.screening import screen_task  # lazy: prefect
 
         take_id = Path(path).resolve().name
         for name in query("SELECT DISTINCT task FROM episodes WHERE take = ?", current_warehouse(), [take_id]).column(0).to_pylist():
@@ -183,7 +187,7 @@ def augment(
 def _say_demo_check(check, path: Path) -> None:
     """One line on the robot executing the ingested demonstration; a failure is a warning on stderr:
     every episode of the database is built from that trajectory."""
-    from demoforge.schemas.core import read_table_file
+    from demoforge.schemas.core import read_table_file  # lazy (CLI start-up): pyarrow
 
     files = check.files if check is not None else []
     rows = [r for f in files for r in read_table_file("ingested_demo_checks", f).to_pylist()]
@@ -212,7 +216,7 @@ def retrieve(
     """Pick episodes for a new scene: the thesis's top-k by object-keypoint MSE, or a baseline."""
     import pyarrow as pa
 
-    from demoforge.flows.augment import read_scene, retrieve as run_retrieve
+    from demoforge.flows.augment import read_scene, retrieve as run_retrieve  # lazy: prefect
 
     try:
         sc = read_scene(scene)
@@ -249,7 +253,7 @@ def simulate(
     --robot grippers (the default): two free-floating parallel-jaw grippers; --robot aloha: two ViperX
     300 arms through inverse kinematics, which also fail episodes they cannot reach (`unreachable`,
     `joint_limit`) or whose arm links hit the table, an object or the other arm (`link_collision`)."""
-    from demoforge.flows.sim import simulate_episodes
+    from demoforge.flows.sim import simulate_episodes  # lazy: prefect
 
     spec = robot_spec(robot, gripper)  # checked once, here; the flow and its stages take it as it is
     robot, gripper = spec.robot, spec.gripper
@@ -259,7 +263,7 @@ def simulate(
                  workers=workers, seed=seed, robot=spec, screened_for=screened_for)
     except ValueError as e:
         raise fail(str(e))
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     wh = current_warehouse()
     result = query("SELECT * EXCLUDE (robot, gripper) FROM report_sim WHERE task = ? AND robot = ? AND gripper = ?",
@@ -288,7 +292,7 @@ def stability(
     """Check how stable the robot check's verdicts are: execute each episode several times with the whole
     scene shifted by a fraction of a millimetre. An episode whose outcome flips is decided by numerical chaos, not by its
     trajectory; its success is a probability. Rows: `sim_stability`; summary: `report_sim_stability`."""
-    from demoforge.flows.sim import check_stability
+    from demoforge.flows.sim import check_stability  # lazy: prefect
 
     spec = robot_spec(robot, gripper)
     robot, gripper = spec.robot, spec.gripper
@@ -298,7 +302,7 @@ def stability(
                  take=take, chunk_size=chunk_size, workers=workers, seed=seed, robot=spec)
     except ValueError as e:
         raise fail(str(e))
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     _emit(query("SELECT * FROM report_sim_stability WHERE task = ? AND robot = ? AND gripper = ?", current_warehouse(),
                 [task, robot, gripper]), OutputFormat.table, None, 40)
@@ -314,7 +318,7 @@ def render_episode_cmd(
     gripper: Optional[str] = gripper_option(),
 ) -> None:
     """Render an offscreen video of the robot executing one episode."""
-    from demoforge.flows.sim import render_episode_video
+    from demoforge.flows.sim import render_episode_video  # lazy: prefect
 
     try:
         row = render_episode_video(str(current_warehouse()), task, episode, out, take=take,
@@ -337,7 +341,7 @@ def serve(
 
     Needs a Prefect server: `prefect server start` in another shell and PREFECT_API_URL pointing at it.
     Then trigger runs with `prefect deployment run 'evaluate/default' --watch`."""
-    from demoforge.flows.deployments import serve_deployments
+    from demoforge.flows.deployments import serve_deployments  # lazy (CLI start-up): demoforge.flows
 
     if not os.environ.get("PREFECT_API_URL"):
         raise fail("PREFECT_API_URL is not set: start a server (`prefect server start --host 127.0.0.1 --port 4200 --analytics-off`) "

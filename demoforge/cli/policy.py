@@ -13,6 +13,7 @@ app = typer.Typer()
 
 
 def _print_rows(sql: str, params: list | None = None) -> None:
+    # lazy (CLI start-up): duckdb, pyarrow
     from demoforge.lib.evaluation.markdown import markdown_table
     from demoforge.schemas.catalog import query
 
@@ -56,7 +57,7 @@ def train_policy_cmd(
     <warehouse>/_closed_loop/, its record in `closed_loop_checkpoints`; `demoforge eval-policy --closed-loop`
     rolls it out in the task's Gymnasium environment (demoforge.envs).
     """
-    from demoforge.flows.policy import train_policy
+    from demoforge.flows.policy import train_policy  # lazy: prefect
 
     if closed_loop:
         _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads)
@@ -75,8 +76,8 @@ def train_policy_cmd(
 
 
 def _train_closed_loop(task, take, episodes, seed, steps, robot, gripper, threads) -> None:
-    from demoforge.flows.closed_loop import train_closed_loop
-    from demoforge.lib.task_library import get_task
+    from demoforge.flows.closed_loop import train_closed_loop  # lazy: prefect
+    from demoforge.lib.task_library import get_task  # lazy (CLI start-up): numpy, scipy
 
     get_task(task)  # a typo: one line listing the tasks, before any flow starts
     spec = robot_spec(robot, gripper)
@@ -114,6 +115,7 @@ def eval_policy_cmd(
     placement shifted beyond the augmentation's translation range, held_out = the database's own validation
     placements (the policy never trained on them).  Latency: one forward pass per scene.
     """
+    # lazy: prefect
     from demoforge.flows.policy import evaluate_policy
     from demoforge.tasks.policy import SCENE_KINDS
 
@@ -134,8 +136,8 @@ def eval_policy_cmd(
 
 
 def _eval_closed_loop(task: str, checkpoint: Optional[str], scenes: int, seed: int) -> None:
-    from demoforge.flows.closed_loop import eval_closed_loop, stored_checkpoint
-    from demoforge.lib.robot_spec import RobotSpec
+    from demoforge.flows.closed_loop import eval_closed_loop, stored_checkpoint  # lazy: prefect
+    from demoforge.lib.robot_spec import RobotSpec  # lazy (CLI start-up)
 
     try:
         manifest, row = stored_checkpoint(str(current_warehouse()), task, checkpoint)
@@ -167,8 +169,8 @@ def data_scaling_cmd(
     the arms, beside the LLM-free baselines and the open-loop policy on those scenes. Rows: `closed_loop_trials`;
     the table with
     Wilson 95 % intervals: the view `report_data_scaling` (printed at the end, and in reports/REPORT.md)."""
-    from demoforge.flows.closed_loop import data_scaling
-    from demoforge.lib.task_library import get_task
+    from demoforge.flows.closed_loop import data_scaling  # lazy: prefect
+    from demoforge.lib.task_library import get_task  # lazy (CLI start-up): numpy, scipy
 
     for name in task:
         get_task(name)  # a typo: one line listing the tasks, before any flow starts

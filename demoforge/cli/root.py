@@ -11,7 +11,9 @@ import click
 import typer
 from typer.core import TyperGroup
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
+from demoforge.lib.errors import Reporting, is_user_error, one_line, release_frames
+from demoforge.lib.settings import adopt_old_names
+from demoforge.runtime import runners
 
 
 # Click's own exits and usage errors (typer vendors click: both its copy's classes and click's)
@@ -32,8 +34,6 @@ class _ErrorsAtTheBoundary(TyperGroup):
         return name, command, rest
 
     def invoke(self, ctx: click.Context):
-        from demoforge.lib.errors import is_user_error, one_line, release_frames
-
         try:
             return super().invoke(ctx)
         except _CLICK_OWN:
@@ -74,8 +74,6 @@ EXIT_USER_ERROR = 2
 
 def warn(message: str) -> None:
     """Print ``warning: MESSAGE`` to stderr, unless a stage of this command already printed it."""
-    from demoforge.lib.errors import Reporting
-
     line = f"warning: {message}"
     if Reporting.first_time(line):
         typer.echo(line, err=True)
@@ -93,7 +91,7 @@ class State:
 
 
 def current_warehouse() -> Path:
-    from demoforge.schemas.catalog import warehouse_root
+    from demoforge.schemas.catalog import warehouse_root  # lazy (CLI start-up): duckdb, pyarrow
 
     return warehouse_root(State.warehouse)
 
@@ -118,10 +116,6 @@ def _main(
         help="Show full tracebacks: of crashes, and of user errors too (normally one line, exit code 2).",
     ),
 ) -> None:
-    from demoforge.runtime import runners
-    from demoforge.lib.errors import Reporting
-    from demoforge.lib.settings import adopt_old_names
-
     # before the command's own options are parsed (click parses them after this callback), so an old
     # unprefixed name still reaches the option it used to set
     adopt_old_names()
@@ -161,7 +155,7 @@ def llm_backend_options(backend: str, model: str | None, base_url: str | None, a
 
 def _check_number_format(name: str | None) -> str | None:
     """--number-format names one of demoforge.lib.llm.number_format's formats (else a one-line error)."""
-    from demoforge.lib.llm.number_format import NUMBER_FORMATS
+    from demoforge.lib.llm.number_format import NUMBER_FORMATS  # lazy (CLI start-up): numpy
 
     if name is not None and name not in NUMBER_FORMATS:
         raise fail(f"--number-format must be one of {', '.join(NUMBER_FORMATS)}, got {name!r}")
@@ -194,37 +188,37 @@ def api_mode_option():
 # replaced when that help is shown (_ErrorsAtTheBoundary.resolve_command), so a plain run of a command never
 # loads the detectors, the robots' models or the task library just to word its help.
 def _hands_text() -> str:
-    from demoforge.lib.robot_spec import available_robots, gripper_choices
+    from demoforge.lib.robot_spec import available_robots, gripper_choices  # lazy (CLI start-up)
 
     return "; ".join(f"{r}: {' or '.join(gripper_choices(r))}" for r in available_robots())
 
 
 def _task_names() -> tuple[str, ...]:
-    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.lib.task_library import TASK_NAMES  # lazy (CLI start-up): numpy, scipy
 
     return tuple(TASK_NAMES)
 
 
 def _detector_names() -> list[str]:
-    from demoforge.lib.perception.detectors import available_detectors
+    from demoforge.lib.perception.detectors import available_detectors  # lazy (CLI start-up): numpy, scipy
 
     return available_detectors()
 
 
 def _backend_names() -> tuple[str, ...]:
-    from demoforge.lib.llm import BACKENDS
+    from demoforge.lib.llm import BACKENDS  # lazy (CLI start-up)
 
     return BACKENDS.names()
 
 
 def _robot_names() -> tuple[str, ...]:
-    from demoforge.lib.robot_spec import available_robots
+    from demoforge.lib.robot_spec import available_robots  # lazy (CLI start-up)
 
     return available_robots()
 
 
 def _robot_labels() -> tuple[str, ...]:
-    from demoforge.lib.robot_spec import robot_labels
+    from demoforge.lib.robot_spec import robot_labels  # lazy (CLI start-up)
 
     return robot_labels()
 
@@ -309,7 +303,7 @@ def gripper_option(envvar: str | None = None, default: str | None = None):
 
 def robot_spec(robot: str, gripper: str | None):
     """The RobotSpec of --robot and --gripper, checked here once (one line naming the choices, exit 2)."""
-    from demoforge.lib.robot_spec import RobotError, RobotSpec
+    from demoforge.lib.robot_spec import RobotError, RobotSpec  # lazy (CLI start-up)
 
     try:
         return RobotSpec.from_options(robot, gripper)

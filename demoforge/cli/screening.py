@@ -8,7 +8,6 @@ from typing import Optional
 
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.cli.root import current_warehouse, fail, gripper_option, robot_choice
 from demoforge.runtime.runners import run_flow
 
@@ -34,7 +33,8 @@ def screen_cmd(
     (no physics: seconds per thousand episodes on one core). Rows: `episode_screening` (executable, the
     first cause when not, the smallest joint margin); e.g. demoforge sql "SELECT reason, count(*) FROM
     episode_screening WHERE task = 'pouring' GROUP BY reason"."""
-    from demoforge.flows.screening import check_robot, screen_task
+    from demoforge.flows.screening import check_robot, screen_task  # lazy: prefect
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.sim.robots import RobotError, available_robots
     from demoforge.lib.task_library import TASK_NAMES
 
@@ -54,7 +54,7 @@ def screen_cmd(
 
 def say_screening(task: str, robot: str, gripper: str, seconds: float | None = None) -> None:
     """One line per database: episodes screened, the share executable, the causes of the others."""
-    from demoforge.schemas.catalog import query
+    from demoforge.schemas.catalog import query  # lazy (CLI start-up): duckdb, pyarrow
 
     t = query("SELECT take, robot, count(*) AS episodes, count(*) FILTER (WHERE executable) AS executable, "
               "string_agg(DISTINCT reason, ', ' ORDER BY reason) FILTER (WHERE NOT executable) AS reasons "

@@ -43,12 +43,13 @@ def table3_cmd(
     3 Retrieved, then the LLM-free baselines and the learned policy), the Wilson 95 % intervals and the
     failure reasons, per protocol. Every cell is cached: an interrupted grid resumes where it stopped.
     """
-    from demoforge.flows.table3 import table3
+    from demoforge.flows.table3 import table3  # lazy: prefect
+    # lazy (CLI start-up): duckdb, pyarrow
     from demoforge.lib.evaluation.markdown import markdown_table
     from demoforge.schemas.catalog import query
-    from demoforge.tasks.table3 import ALL_STRATEGIES
+    from demoforge.tasks.table3 import ALL_STRATEGIES  # lazy: prefect
 
-    from demoforge.lib.trajectories.query_scenes import PROTOCOLS
+    from demoforge.lib.trajectories.query_scenes import PROTOCOLS  # lazy (CLI start-up): numpy, scipy
 
     protocols = protocol or ["thesis"]
     bad = [p for p in protocols if p not in PROTOCOLS] + [s for s in strategy or [] if s not in ALL_STRATEGIES]

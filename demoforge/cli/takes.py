@@ -7,7 +7,6 @@ from typing import List, Optional
 import click
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.runtime.runners import run_flow
 from demoforge.cli.root import TASK_HELP, current_warehouse, detector_option, fail, warn
 
@@ -33,8 +32,8 @@ def synth(
     annotations.json, rgb.mp4) plus ground_truth/ tables; takes are registered in the `takes`
     table and their ground truth in the gt_* tables of the warehouse.
     """
-    from demoforge.flows.synth import synthesize_takes
-    from demoforge.lib.task_library import TASK_NAMES
+    from demoforge.flows.synth import synthesize_takes  # lazy: mujoco, prefect
+    from demoforge.lib.task_library import TASK_NAMES  # lazy (CLI start-up): numpy, scipy
 
     tasks = list(TASK_NAMES) if "all" in task else task
     unknown = [t for t in tasks if t not in TASK_NAMES]
@@ -65,6 +64,7 @@ def _open_take_or_fail(path: Path, require_pose: bool = True, rgb_topic: Optiona
     """The opened take, or a one-line error (exit 2) before any flow starts: missing folder or recording,
     missing or malformed camera.json / annotations.json, an unreadable recording, no camera pose.
     Topics given are remembered in the recording's side folder; a recording's notes go to stderr."""
+    # lazy (CLI start-up): numpy
     from demoforge.lib.takes import TakeError, open_take
     from demoforge.lib.takes.sources import remember_options
 
@@ -110,6 +110,7 @@ def annotate(
     can be calibrated on the page (a board on the table, or the table plane and two clicks on its
     robot-side edge), as `demoforge calibrate` does.
     """
+    # lazy (CLI start-up): numpy, pyarrow, scipy
     from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from demoforge.lib.takes import TakeError
 
@@ -164,7 +165,7 @@ def ingest(
     truth). Depth that cannot be trusted stops the take (exit 2) unless --accept-bad-depth; a hand
     tracked in too few frames is reported as not trusted (and `augment` refuses it).
     """
-    from demoforge.lib.takes import TakeError
+    from demoforge.lib.takes import TakeError  # lazy (CLI start-up): numpy
 
     options = {}
     if detector == "mediapipe" and mediapipe_mode != "auto":
@@ -187,6 +188,7 @@ def ingest(
     # the flow's modules (Prefect, the detectors) once the take is known to be readable: a mistyped
     # path is reported at once
     from demoforge.flows.ingest import ingest_take
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.ingest.options import IngestOptions
     from demoforge.lib.perception.detectors import DetectorError
 
@@ -203,7 +205,7 @@ def ingest(
             typer.echo(f"{name:<18} {m.rows:>7} rows  {m.path}")
     _echo_hand_presence(result["hand_presence"])
     if result.get("object_keypoints") is None:  # the hand stages stand; the objects wait for annotation
-        from demoforge.lib.annotate import annotation_status, not_annotated_message
+        from demoforge.lib.annotate import annotation_status, not_annotated_message  # lazy (CLI start-up): numpy, scipy
 
         # the stage's own words (it names the resolved take folder): printed once, also when it was cached
         warn(f"object_keypoints: {not_annotated_message(path.resolve(), annotation_status(take).detail)}")
@@ -214,6 +216,7 @@ def _echo_hand_presence(presence) -> None:
     at the hands on stderr."""
     import numpy as np
 
+    # lazy (CLI start-up): numpy, pyarrow, scipy
     from demoforge.lib.ingest.depth_checks import DepthCoverage, coverage_warning
     from demoforge.schemas.core import read_table_file
 
@@ -249,7 +252,8 @@ def ingest_folder_cmd(
     This is the flow of the scheduled deployment (`demoforge serve`)."""
     if not folder.is_dir():  # before the flow starts (and its modules load): one line, no flow-run traceback
         raise fail(f"{folder}: no such folder to ingest takes from")
-    from demoforge.flows.ingest_folder import ingest_folder
+    from demoforge.flows.ingest_folder import ingest_folder  # lazy: prefect
+    # lazy (CLI start-up): numpy, scipy
     from demoforge.lib.ingest.options import IngestOptions
     from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 

@@ -22,7 +22,8 @@ def variations_cmd(
 ) -> None:
     """Success of the robot under simulated scene variations (thesis Table 4): clutter, other object
     instances, other spatial configurations; writes `variation_trials` and prints `report_table4`."""
-    from demoforge.flows.variations import check_arguments, evaluate_variations
+    from demoforge.flows.variations import check_arguments, evaluate_variations  # lazy: prefect
+    # lazy (CLI start-up): duckdb, numpy, pyarrow, scipy
     from demoforge.lib.evaluation.markdown import markdown_table
     from demoforge.lib.sim.variations import TABLE4_TASKS, VARIATION_KINDS
     from demoforge.schemas.catalog import query

@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import List, Optional
 import typer
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before anything imports mujoco)
 from demoforge.cli.root import current_warehouse, fail
 
 app = typer.Typer()
@@ -34,7 +33,7 @@ def sql(
     columns. Statements that would write (INSERT, DROP, COPY, ...) are refused with exit code 2, and
     so are reads of anything but the warehouse's tables (read_text, read_csv, ATTACH, URLs, ...).
     """
-    from demoforge.schemas.catalog import QueryRefused, query as run_query
+    from demoforge.schemas.catalog import QueryRefused, query as run_query  # lazy (CLI start-up): duckdb, pyarrow
 
     try:
         result = run_query(query, current_warehouse())
@@ -105,7 +104,7 @@ def _pretty(result, max_rows: int) -> str:
 @app.command()
 def catalog() -> None:
     """Rebuild warehouse/catalog.duckdb: one DuckDB view per table, over its Parquet files."""
-    from demoforge.schemas.catalog import build_catalog
+    from demoforge.schemas.catalog import build_catalog  # lazy (CLI start-up): duckdb, pyarrow
 
     path = build_catalog(current_warehouse())
     typer.echo(f"catalog rebuilt: {path}")
@@ -116,6 +115,7 @@ def tables(
     name: Optional[str] = typer.Argument(None, help="Describe this table column by column."),
 ) -> None:
     """List the warehouse tables with their row counts, or describe one table's columns."""
+    # lazy (CLI start-up): pyarrow
     from demoforge.schemas import registry
     from demoforge.schemas.core import ALL_VARIANTS, get_schema, table_files
 
@@ -127,7 +127,7 @@ def tables(
             raise fail(str(e.args[0]))
         typer.echo(schema.describe())
         return
-    from demoforge.schemas.core import parquet_metadata
+    from demoforge.schemas.core import parquet_metadata  # lazy (CLI start-up): pyarrow
 
     lines = []  # all read before any is printed: a damaged file is the one line of output
     for tname, schema in sorted(registry().items()):

@@ -8,13 +8,17 @@ from pathlib import Path
 import numpy as np
 from prefect import flow
 
-import demoforge.lib  # noqa: F401
 from demoforge.flows.ingest import check_demonstration, ingest_take
+from demoforge.lib.annotate import annotation_status, not_annotated_message
 from demoforge.lib.ingest.options import IngestOptions
-from demoforge.lib.takes import open_take, take_task_name
+from demoforge.lib.takes import TakeError, open_take, take_task_name
 from demoforge.lib.takes.sources import take_root
+from demoforge.lib.task_library import TASK_NAMES
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.lib.trajectories.retrieval import KeypointIndex, select_original, select_random
 from demoforge.runtime.runners import run_flow
+from demoforge.schemas.catalog import query
+from demoforge.schemas.core import read_table_file
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, run_stage
 
@@ -53,9 +57,6 @@ def augment_take_flow(
     aug = augment or AugmentOptions()
     ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
-        from demoforge.lib.annotate import annotation_status, not_annotated_message
-        from demoforge.lib.takes import TakeError
-
         raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
     if not allow_untrusted_hands:
         require_trusted_hands(ingested["hand_presence"])
@@ -75,8 +76,6 @@ def augment_take_flow(
 
 def require_trusted_hands(presence: Manifest) -> None:
     """Raise a one-line ValueError naming the take's untrusted hands (see the `hand_presence` table)."""
-    from demoforge.schemas.core import read_table_file
-
     rows = [r for f in presence.files for r in read_table_file("hand_presence", f).to_pylist()]
     bad = [r for r in rows if not r["trusted"]]
     if bad:
@@ -103,10 +102,6 @@ def retrieve(warehouse: str, task: str, keypoints: np.ndarray, k: int = 3, strat
     """Episodes for a scene: top-k by keypoint MSE (`retrieval`), k random valid ones (`random`), or
     the original demonstration (`single`). Only valid episodes are candidates."""
     import re
-
-    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_original, select_random
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.schemas.catalog import query
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")

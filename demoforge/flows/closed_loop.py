@@ -9,10 +9,10 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
-from demoforge.lib.robot_spec import RobotSpec
 from demoforge.flows.policy import _resolve_take
 from demoforge.flows.screening import check_robot
+from demoforge.lib.robot_spec import RobotSpec
+from demoforge.schemas.core import WrittenFile, file_sha256, read_table, table_files
 from demoforge.tasks.closed_loop import BASELINES, OPEN_LOOP, closed_loop_train, closed_loop_trials
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.policy import database_inputs, policy_train
@@ -55,8 +55,6 @@ def train_closed_loop(warehouse: str, task: str = "pouring", take: str | None = 
 def stored_checkpoint(warehouse: str, task: str, checkpoint_id: str | None = None) -> tuple[Manifest, dict]:
     """(the manifest, the `closed_loop_checkpoints` row) of a stored closed-loop policy: the given id, or the
     task's newest."""
-    from demoforge.schemas.core import WrittenFile, file_sha256, read_table, table_files
-
     rows = read_table("closed_loop_checkpoints", warehouse, task=task).to_pylist()
     if checkpoint_id is not None:
         rows = [r for r in rows if r["checkpoint_id"] == checkpoint_id]

@@ -28,6 +28,7 @@ EVALUATE_DEPLOYMENT = "evaluate/default"
 def build_deployments(warehouse: str, inbox: str, reports_dir: str, interval_minutes: float = 10.0,
                       detector: str = "simulated", augment: bool = False):
     """The two deployments, with absolute paths baked into their default parameters."""
+    # lazy: mujoco, prefect
     from demoforge.flows.evaluate import evaluate
     from demoforge.flows.ingest_folder import ingest_folder
 

@@ -7,7 +7,7 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
+from demoforge.schemas.catalog import query
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.detection_eval import evaluate_detection_take
 
@@ -17,8 +17,6 @@ def evaluate_detection(warehouse: str, detector: str = "mediapipe",
                        running_modes: Sequence[str] = ("auto",), takes: list[str] | None = None) -> list[Manifest]:
     """Write `detection_metrics` for every synthetic take in the warehouse (or `takes`), once per
     running mode ("auto" = video mode for takes, "image")."""
-    from demoforge.schemas.catalog import query
-
     logger = get_run_logger()
     rows = query("SELECT path FROM takes WHERE source = 'synthetic' ORDER BY take", warehouse).to_pylist()
     paths = [r["path"] for r in rows if takes is None or Path(r["path"]).name in takes]

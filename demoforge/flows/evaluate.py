@@ -6,35 +6,41 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
-from demoforge.runtime.artifacts import ProgressArtifact
 from demoforge.flows.augment import augment_take_flow
 from demoforge.flows.closed_loop import data_scaling
 from demoforge.flows.ingest import SIMULATED, ingest_side_by_side, ingest_take
-from demoforge.flows.keypoint_eval import evaluate_keypoints
-from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig  # noqa: F401  (the CLI's choices)
+from demoforge.flows.keypoint_eval import REAL_HANDS, evaluate_keypoints
+from demoforge.flows.policy import evaluate_policy, train_policy
 from demoforge.flows.screening import screen_task
-from demoforge.lib.trajectories.augmentation.options import AugmentOptions
-from demoforge.report.writer import write_report
-from demoforge.runtime.runners import run_flow
 from demoforge.flows.sim import check_stability, simulate_episodes
 from demoforge.flows.synth import synthesize_takes
 from demoforge.flows.table3 import table3
+from demoforge.flows.variations import evaluate_variations
+from demoforge.lib.errors import UnknownNameError
+from demoforge.lib.evaluation.config import DETECTORS, ROBOTS, EvaluateConfig  # noqa: F401  (the CLI's choices)
+from demoforge.lib.perception.detectors import DETECTORS as HAND_DETECTORS
+from demoforge.lib.perception.detectors.mediapipe_backend import default_model_path
+from demoforge.lib.settings import read_settings
+from demoforge.lib.sim.variations import TABLE4_TASKS
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.report.writer import write_report
+from demoforge.runtime.artifacts import ProgressArtifact
+from demoforge.runtime.runners import run_flow
+from demoforge.tasks.policy import checkpoint_row
+from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY
+from demoforge.tasks.variations import VARIATION_STRATEGIES
 
 
 def detector_problem(name: str) -> str | None:
     """Why a detector cannot run here (its package or model file is missing), or None."""
     import importlib.util
 
-    from demoforge.lib.errors import UnknownNameError
-    from demoforge.lib.perception.detectors import DETECTORS
-
     try:
-        DETECTORS.check(name)
+        HAND_DETECTORS.check(name)
     except UnknownNameError as e:
         return str(e)
     if name == "mediapipe":  # checked without loading it: a run served from the cache never does
-        from demoforge.lib.perception.detectors.mediapipe_backend import default_model_path
-
         if importlib.util.find_spec("mediapipe") is None:
             return "the mediapipe package is not installed: pip install --no-deps -r requirements/mediapipe.txt"
         if not default_model_path().is_file():
@@ -76,11 +82,8 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
     cores with the thesis's numbers, 35 s with compact ones, so 1 by default; answers are cached). `make table3` runs the full grid.
     Keypoint accuracy (thesis Tables 1, 2, Appendix B) is measured on the synthetic takes, on the
     labelled real photos, and on ARCTIC when `arctic_root` (or $DEMOFORGE_ARCTIC_ROOT) is given."""
-    from demoforge.lib.settings import read_settings
-
     c = config or EvaluateConfig()
     arctic_root = c.arctic_root or read_settings().arctic_root or None
-    from demoforge.lib.task_library import TASK_NAMES
 
     logger = get_run_logger()
     tasks = list(c.tasks) if c.tasks else list(TASK_NAMES)
@@ -115,7 +118,6 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
         if len(detectors) > 1:
             run_flow(ingest_side_by_side, m.path, warehouse, detectors=detectors)
         progress.step()
-    from demoforge.tasks.table3 import ALL_STRATEGIES, LLM_STRATEGIES, POLICY
 
     for llm_task in c.llm_tasks:
         if llm_task in first_take and c.grid_scenes > 0:
@@ -131,8 +133,6 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
                                                    and (s != POLICY or with_policy)],
                          seed=c.seed, episodes=c.episodes, policy_epochs=c.policy_epochs,
                          policy_waypoints=c.policy_waypoints, take_dirs=[first_take[llm_task]], robot=spec)
-    from demoforge.flows.policy import evaluate_policy, train_policy
-    from demoforge.tasks.policy import checkpoint_row
 
     for policy_task in c.policy_tasks:
         if policy_task in tasks and c.policy_trials > 0:
@@ -143,16 +143,12 @@ def evaluate(warehouse: str, reports_dir: str, config: EvaluateConfig | None = N
             run_flow(evaluate_policy, warehouse, task=policy_task, take=take, trials=c.policy_trials, seed=c.seed,
                      checkpoint_id=checkpoint_row(ck)["checkpoint_id"])
     _small_data_scaling(warehouse, c, tasks)
-    from demoforge.flows.variations import evaluate_variations
-    from demoforge.lib.sim.variations import TABLE4_TASKS
-    from demoforge.tasks.variations import VARIATION_STRATEGIES
 
     variation_tasks = [t for t in TABLE4_TASKS if t in tasks]
     if c.variation_trials > 0 and variation_tasks:
         run_flow(evaluate_variations, warehouse, tasks=variation_tasks, trials=c.variation_trials,
                  strategies=VARIATION_STRATEGIES, seed=c.seed)
     run_flow(evaluate_keypoints, warehouse, dataset="synthetic", takes=[Path(m.path).name for m in manifests])
-    from demoforge.flows.keypoint_eval import REAL_HANDS
 
     if REAL_HANDS.is_dir():
         run_flow(evaluate_keypoints, warehouse, dataset="real_photos")

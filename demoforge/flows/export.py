@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 from prefect import flow
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.exports import ExportError
 from demoforge.lib.exports.robomimic import is_demoforge_robomimic
 from demoforge.lib.sim.robots import get_robot

@@ -6,7 +6,9 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # sets MUJOCO_GL before mujoco; SHARED_DATA
+import demoforge.lib  # SHARED_DATA
+from demoforge.lib.evaluation.arctic import THESIS_TAKES
+from demoforge.schemas.catalog import query
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.keypoint_eval import (
     evaluate_arctic_keypoints, evaluate_real_photos, evaluate_synthetic_keypoints,
@@ -35,9 +37,6 @@ def evaluate_keypoints(
     holding one <seq>.parquet/.npz/.json per take), or `real_photos` (mediapipe on the labelled
     photos of ../shared/data/real_hands).
     """
-    from demoforge.lib.evaluation.arctic import THESIS_TAKES
-    from demoforge.schemas.catalog import query
-
     logger = get_run_logger()
     out = []
     if dataset == "synthetic":

@@ -6,7 +6,8 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.schemas.catalog import query
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.llm_eval import BASELINES, LLM_STRATEGIES, keyframe_key, llm_trials
 
@@ -34,15 +35,12 @@ def llm_eval(
     and the LLM-free baselines replay_top1 and transform_demo. Answers are cached: a re-run is free.
     `structured`: grammar / JSON-schema constrained answers (None: on for the local backend).
     `number_format`: thesis (None: metres, Appendix A) or compact (mm / hundredths as integers)."""
-    from demoforge.schemas.catalog import query
-
     logger = get_run_logger()
     unknown = [s for s in strategies if s not in ALL_STRATEGIES]
     if unknown:
         raise ValueError(f"unknown strategy {unknown}; choose from {', '.join(ALL_STRATEGIES)}")
     if trials < 1:
         raise ValueError("trials must be at least 1")
-    from demoforge.lib.task_library import TASK_NAMES
 
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")

@@ -7,14 +7,13 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.schemas.core import WrittenFile, file_sha256, read_table, table_files
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.policy import SCENE_KINDS, database_inputs, database_takes, policy_eval, policy_train
 
 
 def _resolve_take(warehouse: str, task: str, take: str | None) -> str:
-    from demoforge.lib.task_library import TASK_NAMES
-
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     have = database_takes(warehouse, task)
@@ -55,8 +54,6 @@ def train_policy(warehouse: str, task: str = "pouring", take: str | None = None,
 
 def latest_checkpoint(warehouse: str, task: str, take: str, checkpoint_id: str | None = None) -> Manifest:
     """The manifest of a stored checkpoint: the given id, or the newest trained for task/take."""
-    from demoforge.schemas.core import WrittenFile, file_sha256, read_table, table_files
-
     rows = read_table("policy_checkpoints", warehouse, task=task, take=take).to_pylist()
     if checkpoint_id is not None:
         rows = [r for r in rows if r["checkpoint_id"] == checkpoint_id]

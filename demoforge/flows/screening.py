@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from prefect import flow
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.schemas.catalog import query
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.screening import code_files, database_files, screen_database
 
@@ -12,8 +14,6 @@ from demoforge.tasks.screening import code_files, database_files, screen_databas
 def check_robot(robot: str, gripper: str | None):
     """The robot by name and hand, if it has arms the screening knows (an unknown one: RobotError; the
     floating grippers: ValueError)."""
-    from demoforge.lib.sim.robots import get_robot
-
     r = get_robot(robot, gripper)
     if not hasattr(r, "retargeting"):
         raise ValueError(f"--robot {robot}: the screening checks arms (reach, joint ranges, grasps); the floating "
@@ -23,9 +23,6 @@ def check_robot(robot: str, gripper: str | None):
 
 def episode_database(warehouse: str, task: str, take: str | None) -> str:
     """The take whose database to screen (default: the task's first); ValueError naming the choices."""
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.schemas.catalog import query
-
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     takes = query("SELECT DISTINCT take FROM episodes WHERE task = ? ORDER BY take", warehouse, [task]).column(0).to_pylist()

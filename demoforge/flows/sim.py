@@ -11,11 +11,17 @@ from typing import Sequence
 import numpy as np
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.robot_spec import RobotSpec
-from demoforge.lib.sim import sim_options
+from demoforge.lib.sim import scene_fingerprint, sim_options
+from demoforge.lib.sim.render import render_episode
+from demoforge.lib.sim.stability import scene_offsets
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.runtime.artifacts import ProgressArtifact
+from demoforge.schemas.catalog import query
+from demoforge.schemas.core import table_files
 from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, in_distributed_flow, run_stage, run_stages
+from demoforge.tasks.screening import screened_ids
 from demoforge.tasks.sim import simulate_chunk, stability_chunk
 
 
@@ -24,9 +30,6 @@ def pick_episodes(warehouse: str, task: str, take: str, episodes: int | str | Se
     """`all` valid episodes, N of them (the original first, then a seeded random sample), or the given ids;
     screened_for (an arm robot's label, `aloha+2f140`): of the valid episodes only those its screening lets
     through (`episode_screening`; `demoforge screen`), and the original."""
-    from demoforge.schemas.catalog import query
-    from demoforge.tasks.screening import screened_ids
-
     t = query("SELECT episode_id FROM episodes WHERE task = ? AND take = ? AND valid "
               "ORDER BY episode_id", warehouse, [task, take])
     valid = np.asarray(t.column(0).to_numpy())
@@ -65,10 +68,6 @@ def stability_run_name(selection: str, repeats: int, jitter_m: float, seed: int)
 
 def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str, list]:
     """The take whose episodes to check (default: the task's first) and its files (for cache keys)."""
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.schemas.catalog import query
-    from demoforge.schemas.core import table_files
-
     if task not in TASK_NAMES:
         raise ValueError(f"unknown task {task!r}; choose from {', '.join(TASK_NAMES)}")
     # (query() also brings files of older table contracts to the current layout before anything is written)
@@ -84,8 +83,6 @@ def _episode_database(warehouse: str, task: str, take: str | None) -> tuple[str,
 
 def _robot_args(task: str, spec: RobotSpec) -> dict:
     """The chunk stages' robot arguments (strings, as their cache keys have them) with the scene fingerprint."""
-    from demoforge.lib.sim import scene_fingerprint
-
     return {"robot": spec.robot, "gripper": spec.gripper, "scene": scene_fingerprint(task, sim_options(spec))}
 
 
@@ -125,7 +122,6 @@ def _run_chunks(stage, warehouse: str, common: dict, ids: list[int], chunk_size:
         for c in calls:
             c.update(workers=1, show_progress=False)
         return run_stages(stage, warehouse, calls)
-    from demoforge.runtime.artifacts import ProgressArtifact
 
     progress = ProgressArtifact(artifact[0], len(calls), artifact[1]) if artifact else None
     logger = get_run_logger()
@@ -156,8 +152,6 @@ def check_stability(warehouse: str, task: str = "pouring", episodes: int | str |
     """Execute each selected episode `repeats` times, the scene shifted rigidly along the table by
     `jitter_m` (standard deviation, metres) in every repeat but the first; rows in `sim_stability`, the
     summary in the `report_sim_stability` view. Chunks are cached stages, like simulate_episodes."""
-    from demoforge.lib.sim.stability import scene_offsets
-
     scene_offsets([0], repeats, jitter_m)  # bad repeats / jitter: fail before any work, with the reason
     spec = RobotSpec.of(robot, gripper)
     robot_args = _robot_args(task, spec)
@@ -173,9 +167,6 @@ def render_episode_video(warehouse: str, task: str, episode_id: int, out: str | 
                          robot: RobotSpec | str = "grippers", gripper: str | None = None) -> dict:
     """An offscreen MP4 of the robot executing one episode; returns the simulation's summary row."""
     from dataclasses import replace
-
-    from demoforge.lib.sim.render import render_episode
-    from demoforge.schemas.catalog import query
 
     opt = replace(sim_options(RobotSpec.of(robot, gripper)), stop_on_hard_failure=False)  # the whole episode, past a failure
 

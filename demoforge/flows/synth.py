@@ -7,8 +7,8 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.synth import mirror_flags
+from demoforge.lib.task_library import TASK_NAMES
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.synth import synthesize_take
 
@@ -37,8 +37,6 @@ def synthesize_takes(
     hand_style: "capsule" (default) or "skin" (palm, forearm, sleeve, nails); same ground truth.
     Takes already generated with the same parameters and code version come from the cache.
     """
-    from demoforge.lib.task_library import TASK_NAMES
-
     logger = get_run_logger()
     unknown = [t for t in tasks if t not in TASK_NAMES]
     if unknown:

@@ -7,11 +7,18 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
-from demoforge.lib.robot_spec import RobotSpec
-from demoforge.lib.sim import sim_options
+from demoforge.flows.augment import augment_take_flow
+from demoforge.flows.ingest import ingest_take
+from demoforge.flows.policy import train_policy
 from demoforge.flows.screening import screen_task
+from demoforge.lib.robot_spec import RobotSpec
+from demoforge.lib.sim import scene_fingerprint, sim_options
+from demoforge.lib.takes import open_take
+from demoforge.lib.task_library import TASK_NAMES, get_task
+from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.lib.trajectories.query_scenes import PROTOCOLS, augmentation_queries, covering_options, placement_queries
 from demoforge.runtime.runners import run_flow
+from demoforge.schemas.core import column_numpy, read_table
 from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.llm_eval import keyframe_key
@@ -66,11 +73,7 @@ def table3(
     """
     from tqdm import tqdm
 
-    from demoforge.lib.sim import scene_fingerprint
-
-    from demoforge.flows.synth import synthesize_takes
-    from demoforge.lib.task_library import TASK_NAMES, get_task
-    from demoforge.lib.trajectories.query_scenes import PROTOCOLS
+    from demoforge.flows.synth import synthesize_takes  # lazy: mujoco
 
     logger = get_run_logger()
     if task not in TASK_NAMES:
@@ -109,8 +112,6 @@ def table3(
                     judge["screening"] = run_flow(screen_task, warehouse, task=task, take=db["database"], robot=arm.robot,
                                                   gripper=arm.gripper)
                     if ck is not None:
-                        from demoforge.flows.policy import train_policy
-
                         ck = run_flow(train_policy, warehouse, task=task, take=db["database"], seed=seed,
                                       epochs=policy_epochs, max_minutes=None, threads=policy_threads,
                                       n_waypoints=policy_waypoints, robot_label=arm.label,
@@ -141,15 +142,6 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
              policy_epochs: int, policy_waypoints: int, policy_threads: int, show_progress: bool):
     """The take's database for the protocol (built or from the cache), its query scenes, and the
     policy trained on it (None unless asked)."""
-    from demoforge.flows.augment import augment_take_flow
-    from demoforge.flows.ingest import ingest_take
-    from demoforge.lib.takes import open_take
-    from demoforge.lib.trajectories.augmentation.options import AugmentOptions
-    from demoforge.lib.trajectories.query_scenes import (
-        augmentation_queries, covering_options, placement_queries,
-    )
-    from demoforge.schemas.core import column_numpy, read_table
-
     take_id = open_take(path).take_id
     name = database_name(take_id, protocol)
     if protocol == "thesis":  # exactly the database `make evaluate` builds from its first take
@@ -171,8 +163,6 @@ def _prepare(warehouse: str, spec, path: str, protocol: str, scenes: int, seed: 
         q = placement_queries(spec, scenes, seed, init, kp_all)
     ck = None
     if policy:
-        from demoforge.flows.policy import train_policy
-
         # no time cap: a run that stops on a budget is not reproducible from its seed
         ck = run_flow(train_policy, warehouse, task=spec.name, take=name, seed=seed, epochs=policy_epochs,
                       max_minutes=None, threads=policy_threads, n_waypoints=policy_waypoints)

@@ -6,16 +6,15 @@ from typing import Sequence
 
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
-from demoforge.lib.sim.variations import TABLE4_TASKS, VARIATION_KINDS
+from demoforge.lib.sim.variations import TABLE4_TASKS, VARIATIONS_VERSION, VARIATION_KINDS
+from demoforge.lib.task_library import TASK_LIBRARY_VERSION, TASK_NAMES
+from demoforge.schemas.catalog import query
 from demoforge.tasks.common import Manifest, run_stage
 from demoforge.tasks.variations import VARIATION_STRATEGIES, code_files, database_files, variation_trials
 
 
 def check_arguments(tasks: Sequence[str], strategies: Sequence[str], kinds: Sequence[str], trials: int) -> None:
     """ValueError naming what is wrong (the CLI calls this before starting a flow run)."""
-    from demoforge.lib.task_library import TASK_NAMES
-
     for what, given, known in (("task", tasks, TASK_NAMES), ("strategy", strategies, VARIATION_STRATEGIES),
                                ("variation kind", kinds, VARIATION_KINDS)):
         if not given:
@@ -42,10 +41,6 @@ def evaluate_variations(
     spatial = shifted and turned placements), each executed by the robot in MuJoCo with the trajectory of
     every strategy (replay_top1, transform_demo, transform_scripted). Writes `variation_trials`; the
     `report_table4` view is the thesis's Table 4. Cached on the episode database's content."""
-    from demoforge.lib.task_library import TASK_LIBRARY_VERSION
-    from demoforge.lib.sim.variations import VARIATIONS_VERSION
-    from demoforge.schemas.catalog import query
-
     logger = get_run_logger()
     check_arguments(tasks, strategies, kinds, trials)
     out = []

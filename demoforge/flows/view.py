@@ -10,7 +10,6 @@ import numpy as np
 import pyarrow.compute as pc
 from prefect import flow
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.exports import ExportError
 from demoforge.lib.exports.rerun_view import TakeFrame, write_episode_recording, write_take_recording
 from demoforge.lib.takes import iter_frames, open_take

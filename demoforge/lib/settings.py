@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, MutableMapping
 
+from demoforge.lib.errors import UserError
+
 __all__ = ["PREFIX", "VARIABLES", "OTHER_VARIABLES", "RENAMED", "LIBRARY_DEFAULTS", "Settings", "read_settings",
            "adopt_old_names", "apply_library_defaults", "variables_table"]
 
@@ -133,8 +135,6 @@ def _positive_int(env: Mapping[str, str], name: str) -> int | None:
     if not raw:
         return None
     if not raw.isdigit() or int(raw) < 1:
-        from demoforge.lib.errors import UserError
-
         raise UserError(f"{name}={raw!r}: give a whole number of at least 1, or unset it")
     return int(raw)
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow.compute as pc
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.evaluation.plots import plot_success_map, plot_trajectories, plot_workspace_coverage
 from demoforge.lib.task_library import TASK_NAMES, get_task
 from demoforge.schemas.catalog import query

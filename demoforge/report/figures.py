@@ -9,7 +9,6 @@ from typing import Callable
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.evaluation.data_scaling import plot_data_scaling
 from demoforge.lib.evaluation.keypoints import plot_big_vs_small, plot_per_take_bars
 from demoforge.lib.evaluation.visualize import draw_hand, draw_points, montage

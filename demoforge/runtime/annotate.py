@@ -35,7 +35,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401
+import demoforge.lib  # PAGE is found from its folder
 from demoforge.lib.annotate import (
     annotation_status, build_annotations, parse_task_section, point_info, suggest_closed_ranges, task_for_take,
     write_annotations,

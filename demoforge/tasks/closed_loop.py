@@ -12,10 +12,21 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, write_table
+from demoforge.envs.rollout import rollout
+from demoforge.envs.scenes import draw_scene
+from demoforge.lib.policy.joint_demos import joint_demos
+from demoforge.lib.sim import SimOptions, execute
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import transform_demo
+from demoforge.lib.trajectories.retrieval import KeypointIndex
+from demoforge.schemas.core import WrittenFile, file_sha256, get_schema, read_table_file, write_table
 from demoforge.schemas.reads.demonstration import load_demo_source
 from demoforge.schemas.reads.episodes import episode_actions, load_episodes
 from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.llm_eval import upsample
+from demoforge.tasks.policy import checkpoint_row as policy_row
+from demoforge.tasks.table3 import _database, nearest_source
 
 CLOSED_LOOP_VERSION = "3"  # 3: episodes drawn from the valid screened-in ones only
 CLOSED_LOOP_DIR = "_closed_loop"  # checkpoints beside the warehouse tables, like _policy
@@ -28,8 +39,6 @@ SUCCESS_CHECK_EVERY = 15          # frames: a rollout ends once the task's succe
 def training_episode_ids(warehouse: str, task: str, take: str, robot_label: str, n: int, seed: int) -> np.ndarray:
     """The episodes a policy of n episodes trains on: the original demonstration, then n - 1 valid screened-in
     episodes drawn with the seed (the draws of a larger n start with those of a smaller one)."""
-    from demoforge.tasks.table3 import _database
-
     db = _database(warehouse, task, take, robot_label)  # valid, screened in, and the original
     original = int(db["ids"][db["kinds"] == "original"][0])
     pool = np.setdiff1d(db["ids"], [original])
@@ -43,9 +52,6 @@ def training_episode_ids(warehouse: str, task: str, take: str, robot_label: str,
 def held_out_scenes(task: str, source, seed: int, n: int) -> list[dict]:
     """n thesis-protocol scenes of the database's distribution (envs/scenes.py draw_scene) from the held-out
     seeds SCENE_SEED_BASE + seed * 10,000 + i, each with its seed."""
-    from demoforge.envs.scenes import draw_scene
-    from demoforge.lib.task_library import get_task
-
     spec = get_task(task)
     out = []
     for i in range(n):
@@ -63,10 +69,7 @@ def closed_loop_train(task: str, take: str, warehouse: str, robot: str, gripper:
     from tqdm.auto import tqdm
 
     from demoforge.lib.policy.chunk_train import ChunkTrainConfig, chunk_checkpoint_id, save_chunk_checkpoint, \
-        train_chunk_policy
-    from demoforge.lib.policy.joint_demos import joint_demos
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.task_library import get_task
+        train_chunk_policy  # lazy: mujoco, torch
 
     arm = get_robot(robot, gripper)
     ids = training_episode_ids(warehouse, task, take, arm.label, n_episodes, seed)
@@ -97,8 +100,6 @@ def closed_loop_train(task: str, take: str, warehouse: str, robot: str, gripper:
 
 
 def checkpoint_row(manifest: Manifest) -> dict:
-    from demoforge.schemas.core import read_table_file
-
     return read_table_file("closed_loop_checkpoints", manifest.path).to_pylist()[0]
 
 
@@ -123,17 +124,10 @@ def _executed_rows(task, take, warehouse, arm, method, bar, source, checkpoint: 
     """A method whose trajectory the robot check executes, on each scene: `replay_top1` (the nearest valid
     screened-in episode), `transform_demo`, or `open_loop` (the keypoint policy's waypoints upsampled to the scene
     layout's episode length, as Table 3's `policy` column)."""
-    from demoforge.lib.sim import SimOptions, execute
-    from demoforge.lib.trajectories.augmentation import transform_demo
-    from demoforge.lib.trajectories.retrieval import KeypointIndex
-    from demoforge.tasks.table3 import _database, nearest_source
-
     db = _database(warehouse, task, take, arm.label)
     checkpoint_id, n_train, policy = "none", len(db["ids"]), None
     if method == OPEN_LOOP:
-        from demoforge.lib.policy.train import load_checkpoint
-        from demoforge.tasks.llm_eval import upsample
-        from demoforge.tasks.policy import checkpoint_row as policy_row
+        from demoforge.lib.policy.train import load_checkpoint  # lazy: torch
 
         if checkpoint is None:
             raise ValueError("method open_loop needs a trained keypoint policy (policy_checkpoints)")
@@ -172,9 +166,7 @@ def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpo
     `closed_loop_trials` rows."""
     from tqdm.auto import tqdm
 
-    from demoforge.envs.robot_env import DemoforgeEnv
-    from demoforge.envs.rollout import rollout
-    from demoforge.lib.sim.robots import get_robot
+    from demoforge.envs.robot_env import DemoforgeEnv  # lazy: mujoco
 
     arm = get_robot(robot, gripper)
     source = load_demo_source(take, task, warehouse)
@@ -182,6 +174,7 @@ def _trials(task, take, warehouse, robot, gripper, method, seed, scenes, checkpo
     todo = held_out_scenes(task, source, seed, scenes)
     bar = tqdm(todo, desc=f"{task}: {method} on {scenes} held-out scenes", unit="scene", disable=None)
     if method == "closed_loop":
+        # lazy: mujoco, torch
         from demoforge.lib.policy.chunk_train import load_chunk_checkpoint
         from demoforge.lib.policy.chunking import TemporalEnsemble
 

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.exports import ExportError, task_instruction
 from demoforge.lib.exports.joint_space import joint_episodes
 from demoforge.lib.exports.lerobot import (

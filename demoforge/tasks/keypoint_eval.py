@@ -7,7 +7,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.evaluation.arctic import ArcticDataset
+from demoforge.lib.evaluation.keypoints import (evaluate_arctic_take, evaluate_real_photos as run,
+                                                evaluate_synthetic_take)
+from demoforge.lib.perception.detectors import HandTrack, get_detector, select_best_hands
+from demoforge.lib.perception.simulated_detector import simulate_detections
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
@@ -28,8 +32,6 @@ def _write_rows(table: str, rows: list[dict], warehouse: str) -> Manifest:
 @stage_task(name="evaluate_synthetic_keypoints", version=EVAL_VERSION)
 def evaluate_synthetic_keypoints(take_dir: Path, warehouse: str, detector: str = "simulated") -> Manifest:
     """The thesis's keypoint metrics of one synthetic take (depth alignment on its rendered depth)."""
-    from demoforge.lib.evaluation.keypoints import evaluate_synthetic_take
-
     rows = evaluate_synthetic_take(take_dir, detector=detector)
     for r in rows:
         r.update(dataset="synthetic", take=take_dir.name, subject="")
@@ -43,9 +45,6 @@ def evaluate_arctic_keypoints(arctic_root: str, seq: str, subject: str | None, w
     """One ARCTIC take (egocentric view 0): run the detector on its frames, evaluate against ARCTIC.
 
     ARCTIC has no depth camera: the alignment reads the anchor's depth from the ground truth."""
-    from demoforge.lib.evaluation.arctic import ArcticDataset
-    from demoforge.lib.evaluation.keypoints import evaluate_arctic_take
-
     ds = ArcticDataset(arctic_root)
     take = ds.load(subject, seq, view=0, stride=stride, require_images=detector == "mediapipe")
     track = _detect_arctic(take, detector, predictions_dir)
@@ -56,12 +55,8 @@ def evaluate_arctic_keypoints(arctic_root: str, seq: str, subject: str | None, w
 
 
 def _detect_arctic(take, detector: str, predictions_dir: str | None):
-    from demoforge.lib.perception.detectors import HandTrack, get_detector, select_best_hands
-
     T = len(take.frame_indices)
     if detector == "simulated":
-        from demoforge.lib.perception.simulated_detector import simulate_detections
-
         K = take.K if np.ndim(take.K) == 2 else take.K[0]
         gt = np.where(take.valid[..., None, None], take.joints_cam, np.nan)
         sim = simulate_detections(gt, K, seed=0)
@@ -96,8 +91,6 @@ def _detect_arctic(take, detector: str, predictions_dir: str | None):
 @stage_task(name="evaluate_real_photos", version=EVAL_VERSION)
 def evaluate_real_photos(data_dir: Path, warehouse: str, detector: str = "mediapipe") -> Manifest:
     """The detector on the labelled real hand photos, per dataset."""
-    from demoforge.lib.evaluation.keypoints import evaluate_real_photos as run
-
     if detector != "mediapipe":
         raise ValueError("the real-photo evaluation runs the mediapipe detector (the other backends need "
                          "ground truth or precomputed predictions)")

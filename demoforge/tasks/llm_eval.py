@@ -9,7 +9,15 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.geometry import interpolate_poses
+from demoforge.lib.llm import Sampling, get_backend
+from demoforge.lib.llm.prompting import build_prompt, order_by_similarity, parse_actions
+from demoforge.lib.sim import execute
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import transform_demo
+from demoforge.lib.trajectories.keyframes import KeyframeSettings, answer_times, decode_keyframes
+from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
+from demoforge.schemas.catalog import query
 from demoforge.schemas.core import write_table
 from demoforge.schemas.reads.demonstration import load_demo_source
 from demoforge.schemas.reads.episodes import episode_actions
@@ -23,8 +31,6 @@ K_EXAMPLES = 3
 
 def query_scene(task: str, seed: int, trial: int) -> tuple[np.ndarray, np.ndarray]:
     """A new, seeded object placement of the task (not one of the database's samples): (poses, keypoints)."""
-    from demoforge.lib.task_library import get_task
-
     spec = get_task(task)
     rng = np.random.default_rng([int(seed), 7919, int(trial)])
     placement = spec.sample_placement(rng)
@@ -34,8 +40,6 @@ def query_scene(task: str, seed: int, trial: int) -> tuple[np.ndarray, np.ndarra
 def upsample(waypoints: np.ndarray, n_steps: int) -> np.ndarray:
     """(n, 2, 8) waypoints spread over an episode of n_steps frames: positions cubic, rotations slerp,
     gripper state from the nearest waypoint (open/close instants stay sharp)."""
-    from demoforge.lib.geometry import interpolate_poses
-
     n = len(waypoints)
     t_wp = np.linspace(0.0, 1.0, n)
     t = np.linspace(0.0, 1.0, n_steps)
@@ -46,8 +50,6 @@ def upsample(waypoints: np.ndarray, n_steps: int) -> np.ndarray:
 
 
 def _episode_data(warehouse: str, task: str, take: str):
-    from demoforge.schemas.catalog import query
-
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
                "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
     if ep.num_rows == 0:
@@ -69,9 +71,6 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     `structured`: constrained answers (see llm_predict; None: on for the local backend). `keyframes`:
     (pos_tol_m, rot_tol_rad, smooth_sigma_steps) of keyframe prompts (None: the task's settings; the
     flows pass them, so a change of the task's settings is a change of the key)."""
-    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
-    from demoforge.lib.sim import execute
-
     db = _episode_data(warehouse, task, take)
     index = KeypointIndex(db["keypoints"], ids=db["ids"])
     original = int(db["ids"][db["kinds"] == "original"][0])
@@ -79,8 +78,6 @@ def llm_trials(task: str, take: str, strategy: str, warehouse: str, episodes: Ma
     init = db["initial"][db["ids"] == original][0]
     llm = None
     if strategy in LLM_STRATEGIES:
-        from demoforge.lib.llm import get_backend
-
         llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
     rows = []
     for trial in range(trials):
@@ -140,9 +137,6 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
     never an exception.  `structured`: the answer is constrained to the action-list syntax with the
     prompt's waypoint count (demoforge.lib.llm.grammar); None: on for the local backend (the 270M
     model's free answers often do not parse), off for openai (servers differ in what they accept)."""
-    from demoforge.lib.llm import Sampling
-    from demoforge.lib.llm.prompting import build_prompt, order_by_similarity, parse_actions
-
     examples = order_by_similarity(examples, query_keypoints)
     prompt = build_prompt(examples, query_keypoints, initial, n_waypoints=n_waypoints, precision=precision,
                           number_format=number_format, keyframes=keyframes)
@@ -170,9 +164,6 @@ def llm_predict(llm, examples, query_keypoints: np.ndarray, initial: np.ndarray,
 def keyframe_settings(task: str, given: tuple | None = None):
     """The KeyframeSettings of a stage's prompts: the given (pos_tol_m, rot_tol_rad, smooth_sigma_steps),
     else the task's own (demoforge.lib.task_library: Task.keyframes)."""
-    from demoforge.lib.task_library import get_task
-    from demoforge.lib.trajectories.keyframes import KeyframeSettings
-
     return KeyframeSettings(*given) if given else get_task(task).keyframes
 
 
@@ -188,14 +179,10 @@ def decode_answer(prompt, answer: np.ndarray, n_steps: int) -> np.ndarray:
     """A parsed (n, 2, 8) answer as n_steps actions: keyframes decoded as the robot executor interpolates
     (on the last example's time curve), uniform waypoints upsampled."""
     if getattr(prompt, "encoding", "uniform") == "keyframes":
-        from demoforge.lib.trajectories.keyframes import answer_times, decode_keyframes
-
         return decode_keyframes(answer, answer_times(prompt.keyframe_times, len(answer), n_steps), n_steps)
     return upsample(answer, n_steps)
 
 
 def _transform_original(warehouse: str, task: str, take: str, poses: np.ndarray) -> np.ndarray:
     """The LLM-free baseline: the original demonstration carried to the new scene by the augmentation transform."""
-    from demoforge.lib.trajectories.augmentation import transform_demo
-
     return transform_demo(load_demo_source(take, task, warehouse), poses)

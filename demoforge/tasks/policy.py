@@ -11,11 +11,16 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.policy.data import PolicyData, resample_batch, split_by_placement
+from demoforge.lib.policy.scenes import MIRROR, in_box, ood_placement, placement_offsets, translation_box
+from demoforge.lib.sim import execute
+from demoforge.lib.sim.executor import object_poses_from_keypoints
+from demoforge.lib.task_library import get_task
 from demoforge.schemas.core import (
-    WrittenFile, file_sha256, get_schema, read_table, read_table_file, table_files, write_table,
+    WrittenFile, column_numpy, file_sha256, get_schema, read_table, read_table_file, table_files, write_table,
 )
 from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.llm_eval import query_scene, upsample
 from demoforge.tasks.screening import screened_ids
 
 POLICY_VERSION = "1"
@@ -44,9 +49,6 @@ def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20
     """(PolicyData of the valid episodes, the episodes table): every action sequence resampled to
     n_waypoints exactly as the prompts resample it. robot_label (an arm robot): only the episodes its
     screening lets through, and the original."""
-    from demoforge.lib.policy.data import PolicyData, resample_batch
-    from demoforge.schemas.core import column_numpy
-
     ep = read_table("episodes", warehouse, task=task, take=take).sort_by("episode_id")
     if ep.num_rows == 0:
         raise ValueError(f"no episodes of {task}/{take}: run `demoforge augment` on the take first")
@@ -94,7 +96,7 @@ def policy_train(task: str, take: str, warehouse: str, database: dict, seed: int
     from prefect import get_run_logger
     from tqdm import tqdm
 
-    from demoforge.lib.policy.data import split_by_placement
+    # lazy: torch
     from demoforge.lib.policy.model import PolicyConfig
     from demoforge.lib.policy.train import TrainConfig, checkpoint_id, save_checkpoint, train_policy
 
@@ -170,11 +172,6 @@ def evaluation_scenes(task: str, seed: int, trials: int, original_kp: np.ndarray
     scenes; mirrored = their mirror images; out_of_distribution = the original placement moved by
     an offset outside the augmentation's translation box; held_out = the given keypoints of
     database placements the policy was not trained on (validation episodes)."""
-    from demoforge.lib.policy.scenes import ood_placement
-    from demoforge.lib.sim.executor import object_poses_from_keypoints
-    from demoforge.lib.task_library import get_task
-    from demoforge.tasks.llm_eval import query_scene
-
     spec = get_task(task)
     original = object_poses_from_keypoints(spec, original_kp)
     out = []
@@ -212,13 +209,7 @@ def policy_eval(task: str, take: str, warehouse: str, checkpoint: Manifest, tria
     for the in-distribution scenes, `llm_trials` rows with strategy `policy` (Table 3 gains a row)."""
     import torch
 
-    from demoforge.lib.policy.scenes import MIRROR, in_box, placement_offsets, translation_box
-    from demoforge.lib.policy.train import load_checkpoint
-    from demoforge.lib.sim import execute
-    from demoforge.lib.sim.executor import object_poses_from_keypoints
-    from demoforge.lib.task_library import get_task
-    from demoforge.schemas.core import column_numpy
-    from demoforge.tasks.llm_eval import upsample
+    from demoforge.lib.policy.train import load_checkpoint  # lazy: torch
 
     bad = [k for k in kinds if k not in SCENE_KINDS]
     if bad:

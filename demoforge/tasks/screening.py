@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
 import demoforge.schemas.screening  # noqa: F401  (registers episode_screening)
-from demoforge.lib.sim.robots.aloha.screening import SCREEN_VERSION
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha.screening import SCREEN_VERSION, screen_episodes
+from demoforge.schemas.catalog import query
 from demoforge.schemas.core import read_table, table_files, write_table
 from demoforge.tasks.common import Manifest, stage_task
 
@@ -89,9 +90,6 @@ def screen_database(task: str, take: str, warehouse: str, source: list[Path], co
                     robot: str = "aloha", gripper: str | None = None) -> Manifest:
     """Screen every episode of the take's database for the robot's arms and write its `episode_screening` rows.
     `source` (database_files) and `code` (code_files) only key the cache."""
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.sim.robots.aloha.screening import screen_episodes
-
     arms = get_robot(robot, gripper)
     t0 = time.perf_counter()
     ids, actions, lengths, kp = database_arrays(warehouse, task, take)
@@ -109,8 +107,6 @@ def screen_database(task: str, take: str, warehouse: str, source: list[Path], co
 def screened_ids(warehouse: str, task: str, take: str, robot_label: str) -> np.ndarray:
     """The episodes of task/take that the arm robot's screening (`episode_screening`) lets through; ValueError
     naming the command when the database is not screened for it."""
-    from demoforge.schemas.catalog import query
-
     t = query("SELECT episode_id, executable FROM episode_screening WHERE task = ? AND take = ? AND robot = ?",
               warehouse, [task, take, robot_label])
     if t.num_rows == 0:
@@ -123,8 +119,6 @@ def screened_ids(warehouse: str, task: str, take: str, robot_label: str) -> np.n
 def screened_pairs(warehouse: str, task: str, robot_label: str, take: str | None = None) -> set | None:
     """(take, episode_id) of the episodes an arm robot's screening lets through, over the task's databases (or
     `take`'s); None when they are not screened for it."""
-    from demoforge.schemas.catalog import query
-
     rows = query("SELECT take, episode_id, executable FROM episode_screening WHERE task = ? AND robot = ? "
                  "AND (? IS NULL OR take = ?)", warehouse, [task, robot_label, take, take]).to_pylist()
     return {(r["take"], int(r["episode_id"])) for r in rows if r["executable"]} if rows else None

@@ -8,10 +8,14 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
-from demoforge.lib.sim import sim_options
-from demoforge.lib.takes import take_task_name
-from demoforge.schemas.core import write_table
+from demoforge.lib.errors import UserError, one_line
+from demoforge.lib.sim import execute, sim_options
+from demoforge.lib.sim.stability import scene_offsets, shift_scene
+from demoforge.lib.takes import open_take, take_task_name
+from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
+from demoforge.lib.trajectories.segmentation import fill_invalid_poses
+from demoforge.schemas.catalog import placeholders, query
+from demoforge.schemas.core import read_table, read_table_file, write_table
 from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.schemas.reads.per_hand import arrays
 from demoforge.tasks.common import Manifest, stage_task
@@ -24,9 +28,6 @@ SIM_VERSION = "4"
 
 def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
     """(ids, kinds, object keypoints (n, K, 3), {id: actions (L, 2, 8)}) of episodes of a take's database."""
-    from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
-    from demoforge.schemas.catalog import placeholders, query
-
     ids = [int(i) for i in episode_ids]
     ep = query("SELECT episode_id, kind, object_keypoints FROM episodes WHERE task = ? AND take = ? "
                f"AND episode_id IN ({placeholders(len(ids))}) ORDER BY episode_id", warehouse, [task, take, *ids])
@@ -41,7 +42,7 @@ def _load_episodes(task: str, take: str, episode_ids, warehouse: str):
 
 def _execute_with_bar(task: str, jobs: list, workers: int, desc: str, show_progress: bool, options=None) -> list:
     """demoforge.lib.sim.execute_many with a progress bar (closed even when a worker fails)."""
-    from demoforge.lib.sim import execute_many
+    from demoforge.lib.sim import execute_many  # imported when called: tests replace what it names
 
     bar = None
     if show_progress:
@@ -106,8 +107,6 @@ def stability_chunk(task: str, take: str, run: str, chunk: int, episode_ids: lis
     """Execute each of the given episodes `repeats` times, repeat 0 as is and the others with the scene
     shifted rigidly by demoforge.lib.sim.stability.scene_offsets, and write their `sim_stability` rows.
     `source` and `scene` are in the cache key only, as for simulate_chunk."""
-    from demoforge.lib.sim.stability import scene_offsets, shift_scene
-
     opt = sim_options(robot, gripper)
     eids, kinds, kps, acts = _load_episodes(task, take, episode_ids, warehouse)
     offsets = scene_offsets(eids, repeats, jitter_m, seed)
@@ -145,12 +144,6 @@ def check_ingested_demo(take_dir: Path, task: str | None, warehouse: str, grippe
     frames held at the nearest valid pose like the episode database's episode 0; its object keypoints) in
     MuJoCo and write its `ingested_demo_checks` row. `scene` (demoforge.lib.sim.scene_fingerprint) is in the
     cache key only, as for simulate_chunk."""
-    from demoforge.lib.errors import UserError, one_line
-    from demoforge.lib.takes import open_take
-    from demoforge.lib.sim import execute
-    from demoforge.lib.trajectories.segmentation import fill_invalid_poses
-    from demoforge.schemas.core import read_table, read_table_file
-
     take = open_take(take_dir)
     name = take_task_name(take, task)
     part = dict(task=name, take=take.take_id)

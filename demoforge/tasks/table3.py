@@ -9,12 +9,19 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
-from demoforge.lib.sim import sim_options
+from demoforge.lib.llm import get_backend
+from demoforge.lib.sim import execute, sim_options
+from demoforge.lib.trajectories.augmentation import mirror_source, transform_demo
+from demoforge.lib.trajectories.blend import knn_blend
+from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
+from demoforge.schemas.catalog import query
 from demoforge.schemas.core import get_schema, write_table
 from demoforge.schemas.reads.demonstration import load_demo_source
 from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.llm_eval import keyframe_settings, llm_predict, upsample
+from demoforge.tasks.policy import checkpoint_row
+from demoforge.tasks.screening import screened_ids
 
 TABLE3_VERSION = "7"  # 2: examples ordered most similar last; keyframe prompts (n_waypoints None); 3: structured answers; 4: 3 Retrieved prompts hold their examples; 5: keyframes of the smoothed sequences, the default; 6: no all-zero quaternion; 7: no dead end in the decoder
 LLM_STRATEGIES = ("single", "random", "retrieval")
@@ -27,8 +34,6 @@ K_EXAMPLES = 3
 def _database(warehouse: str, task: str, database: str, robot_label: str | None = None) -> dict:
     """The database's valid episodes (ids, kinds, keypoints, initial poses, lengths); with robot_label (an arm
     robot: `aloha+2f140`) only those its screening lets through (`episode_screening`), and the original."""
-    from demoforge.schemas.catalog import query
-
     ep = query("SELECT episode_id, kind, object_keypoints, initial_poses, length FROM episodes "
                "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, database])
     if ep.num_rows == 0:
@@ -41,8 +46,6 @@ def _database(warehouse: str, task: str, database: str, robot_label: str | None 
           "initial": np.asarray(ep.column("initial_poses").to_pylist(), float),
           "length": np.asarray(ep.column("length").to_numpy())}
     if robot_label is not None:  # selected in numpy: pyarrow 26 filters nested fixed-size lists wrongly
-        from demoforge.tasks.screening import screened_ids
-
         keep = np.isin(db["ids"], screened_ids(warehouse, task, database, robot_label)) | (kinds == "original")
         db = {k: v[keep] for k, v in db.items()}
     return db
@@ -51,8 +54,6 @@ def _database(warehouse: str, task: str, database: str, robot_label: str | None 
 def nearest_source(source, query_keypoints: np.ndarray):
     """The demonstration or its mirror image, whichever is nearer to the scene in keypoint MSE (the
     augmentation's two layouts), for transform_demo."""
-    from demoforge.lib.trajectories.augmentation import mirror_source
-
     m = mirror_source(source)
     q = np.asarray(query_keypoints, float)
     return m if np.mean(np.sum((m.keypoints - q) ** 2, -1)) < np.mean(np.sum((source.keypoints - q) ** 2, -1)) \
@@ -77,11 +78,7 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
     replays only the episodes its screening lets through (`screening`: that manifest, keying the cell)."""
     from tqdm import tqdm
 
-    from demoforge.lib.trajectories.retrieval import KeypointIndex, select_random
-    from demoforge.lib.sim import execute
-
     opt = sim_options(robot or "grippers", gripper)
-    from demoforge.tasks.llm_eval import keyframe_settings, llm_predict, upsample
 
     if strategy not in ALL_STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose from {', '.join(ALL_STRATEGIES)}")
@@ -92,13 +89,10 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
     source = load_demo_source(take, task, warehouse) if strategy in ("knn_blend", "transform_demo") else None
     llm, model, policy = None, "", None
     if strategy in LLM_STRATEGIES:
-        from demoforge.lib.llm import get_backend
-
         llm = get_backend(backend, cache_dir=Path(warehouse) / "_llm_cache", **(backend_options or {}))
         model = str(getattr(llm, "model", "") or "")
     elif strategy == POLICY:
-        from demoforge.lib.policy.train import load_checkpoint
-        from demoforge.tasks.policy import checkpoint_row
+        from demoforge.lib.policy.train import load_checkpoint  # lazy: torch
 
         if policy_checkpoint is None:
             raise ValueError("strategy `policy` needs a trained checkpoint")
@@ -147,15 +141,11 @@ def table3_trials(task: str, protocol: str, take: str, take_index: int, database
         elif strategy in ("replay_original", "replay_top1"):
             actions = episode_actions(warehouse, task, database, ids)[ids[0]]
         elif strategy == "knn_blend":
-            from demoforge.lib.trajectories.blend import knn_blend
-
             acts = episode_actions(warehouse, task, database, ids)
             pos = {int(i): r for r, i in enumerate(db["ids"])}
             actions = knn_blend(source, [(acts[i], db["keypoints"][pos[i]], db["kinds"][pos[i]] == "mirrored")
                                          for i in ids], poses)
         elif strategy == "transform_demo":
-            from demoforge.lib.trajectories.augmentation import transform_demo
-
             actions = transform_demo(nearest_source(source, kp), poses)
         else:  # policy
             actions = upsample(policy.predict(kp, init), n_steps)

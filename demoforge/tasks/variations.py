@@ -11,8 +11,13 @@ from typing import Sequence
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
 import demoforge.schemas.variations  # noqa: F401  (registers variation_trials)
+from demoforge.lib.sim.variation_scene import VariationScene
+from demoforge.lib.sim.variations import make_variation
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import estimate_object_poses, from_scripted_demo, transform_demo
+from demoforge.lib.trajectories.retrieval import KeypointIndex
+from demoforge.schemas.catalog import query
 from demoforge.schemas.core import table_files, write_table
 from demoforge.schemas.reads.demonstration import load_demo_source
 from demoforge.schemas.reads.episodes import episode_actions
@@ -40,15 +45,10 @@ class _Strategies:
     """Trajectory producers for one (task, take), loading each input once."""
 
     def __init__(self, warehouse: str, task: str, take: str, strategies: Sequence[str]):
-        from demoforge.lib.task_library import get_task
-
         self.warehouse, self.task, self.take = warehouse, task, take
         self.base = get_task(task)
         self.index = self.source = self.scripted = None
         if "replay_top1" in strategies:
-            from demoforge.lib.trajectories.retrieval import KeypointIndex
-            from demoforge.schemas.catalog import query
-
             ep = query("SELECT episode_id, object_keypoints FROM episodes "
                        "WHERE task = ? AND take = ? AND valid ORDER BY episode_id", warehouse, [task, take])
             if ep.num_rows == 0:
@@ -63,8 +63,6 @@ class _Strategies:
     def actions(self, strategy: str, keypoints: np.ndarray) -> tuple[np.ndarray, int, float | None]:
         """(actions (n, 2, 8), replayed episode id or -1, retrieval MSE or None) for a scene seen through
         its object keypoints (what a deployed system observes)."""
-        from demoforge.lib.trajectories.augmentation import estimate_object_poses, transform_demo
-
         if strategy == "replay_top1":
             hit = self.index.query(keypoints, k=1)
             eid = int(hit.ids[0, 0])
@@ -76,10 +74,6 @@ class _Strategies:
 
 def _scripted_source(warehouse: str, task: str, take: str):
     """The take's scripted ground-truth demonstration (synthetic takes only) as a DemoSource."""
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo
-    from demoforge.lib.task_library import get_task
-    from demoforge.schemas.catalog import query
-
     rows = query("SELECT source, seed, mirror FROM takes WHERE take = ? AND task = ?",
                  warehouse, [take, task]).to_pylist()
     if not rows or rows[0]["source"] != "synthetic" or rows[0]["seed"] < 0:
@@ -97,9 +91,6 @@ def variation_trials(task: str, take: str, warehouse: str, database: list[Path],
     """`trials` seeded scenes per variation kind; each strategy's trajectory executed on the varied scene.
     `database` (the episode table's files), `code` (code_files()), `library_version` and
     `variations_version` key the cache; they are not used otherwise."""
-    from demoforge.lib.sim.variation_scene import VariationScene
-    from demoforge.lib.sim.variations import make_variation
-
     producers = _Strategies(warehouse, task, take, strategies)
     rows = []
     for kind in kinds:

@@ -31,6 +31,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from demoforge.lib.ingest.gripper_open_close import gripper_state
+from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
 from demoforge.lib.takes.metadata import parse_annotations
 from demoforge.lib.takes.task_definition import SIDES, TaskDefinition
 from demoforge.lib.takes.types import TakeError
@@ -96,8 +98,6 @@ def mask_to_ranges(mask: np.ndarray) -> list[list[int]]:
 
 def suggest_closed_ranges(fingertip_distance: np.ndarray) -> dict[str, list[list[int]]]:
     """The automatic open/close method's closed ranges per hand, from (T, 2) fingertip distances (m)."""
-    from demoforge.lib.ingest.gripper_open_close import gripper_state
-
     d = np.asarray(fingertip_distance, float)
     if d.ndim != 2 or d.shape[1] != 2:
         raise ValueError(f"fingertip_distance must be (T, 2), got {d.shape}")
@@ -110,8 +110,6 @@ def suggest_closed_ranges(fingertip_distance: np.ndarray) -> dict[str, list[list
 def point_info(uv: np.ndarray, depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray) -> list[dict]:
     """Per clicked pixel: the robust depth (5x5 median of valid pixels, as ingest reads it), the
     camera- and world-frame point, whether the clicked pixel itself has depth, and a warning."""
-    from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
-
     uv = np.asarray(uv, float).reshape(-1, 2)
     r = backproject_keypoints_detailed(uv, depth, K, T_world_camera)
     H, W = depth.shape

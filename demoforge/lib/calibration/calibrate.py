@@ -9,6 +9,7 @@ import numpy as np
 
 from demoforge.lib.calibration.board import BoardSpec, T_world_board, fit_board
 from demoforge.lib.calibration.plane import CalibrationError, frame_on_plane, median_depth, rays_on_plane, table_plane
+from demoforge.lib.geometry import project_points, transform_inverse, transform_points
 from demoforge.lib.takes.reader import iter_frames
 from demoforge.lib.takes.types import Take
 
@@ -76,8 +77,6 @@ def draw_table_frame(rgb: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
                      extent_m: float = 0.5) -> np.ndarray:
     """The frame with the table frame drawn on it: a 10 cm grid on the table, x red, y green, z blue."""
     import cv2
-
-    from demoforge.lib.geometry import project_points, transform_inverse, transform_points
 
     img = np.ascontiguousarray(rgb).copy()
     T_cw = transform_inverse(np.asarray(T_world_camera, float))

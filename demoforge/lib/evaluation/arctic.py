@@ -54,6 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
+from demoforge.lib.joints import PARENTS
+
 __all__ = [
     "ArcticError",
     "ArcticDataset",
@@ -174,7 +176,6 @@ class ArcticTake:
         lengths of the kinematic tree (demoforge.lib.joints.PARENTS) for the loaded order and for the raw
         (un-re-indexed) order. Rigid bones vary little; a wrong order connects non-adjacent joints
         whose distance changes with the pose. Returns {"loaded": cv, "raw_as_openpose": cv}."""
-        from demoforge.lib.joints import PARENTS
 
         def cv(j):
             ch = np.arange(1, 21)

@@ -33,6 +33,10 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from demoforge.lib.perception.detectors import get_detector
+from demoforge.lib.takes import open_take
+from demoforge.lib.takes.reader import iter_frames
+
 SIDES = ("left", "right")
 SUBSETS = ("all", "occluded")
 
@@ -154,9 +158,6 @@ def detect_candidates(take_dir: str | os.PathLike, detector: Any, batch_size: in
                       progress: Callable[[int, int], None] | None = None) -> tuple[list[list[Any]], float]:
     """Raw candidates per frame of a take (frames in order; a detector with ``start_take`` -- MediaPipe
     -- is told a take starts, so its video mode tracks) and the seconds the detector itself took."""
-    from demoforge.lib.takes import open_take
-    from demoforge.lib.takes.reader import iter_frames
-
     take = open_take(take_dir)
     per_frame: list[list[Any]] = [[] for _ in range(take.n_frames)]
     seconds = 0.0
@@ -183,8 +184,6 @@ def evaluate_detection(take_dir: str | os.PathLike, detector: str = "mediapipe",
     """Rows of ``detection_metrics`` for one synthetic take and one detector (a fresh detector per
     take, so a video-mode tracker starts clean)."""
     import json
-
-    from demoforge.lib.perception.detectors import get_detector
 
     take_dir = Path(take_dir)
     meta = json.loads((take_dir / "take.json").read_text())

@@ -40,8 +40,13 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, read_depth_robust
+from demoforge.lib import SHARED_DATA
+from demoforge.lib.evaluation import real_photos as rpe
 from demoforge.lib.evaluation.metrics import mpjpe, mpjpe_2d, pa_mpjpe, pck, root_relative_mpjpe
+from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, read_depth_robust
+from demoforge.lib.perception.detectors import get_detector
+from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
+from demoforge.lib.takes import iter_depth, open_take
 
 __all__ = [
     "BIG_OBJECTS", "SMALL_OBJECTS", "OBJECT_LABELS", "APPENDIX_B_ORDER", "APPENDIX_B_SECTIONS",
@@ -316,9 +321,6 @@ def evaluate_synthetic_take(take_path: str | os.PathLike, detector: str = "simul
     ``anchor_depth_source``: "depth" (default: the take's rendered depth maps, read in batches
     at the prediction's 2D anchors like the ingest does) or "ground_truth" (as for ARCTIC).
     """
-    from demoforge.lib.perception.detectors import get_detector
-    from demoforge.lib.takes import iter_depth, open_take
-
     take = open_take(take_path)
     det = get_detector(detector, **detector_kw)
     track = det.detect_take(take)
@@ -387,13 +389,9 @@ def real_photo_rows(results, detector: str = "mediapipe", alphas: Sequence[float
 def evaluate_real_photos(detector=None, data_dir: str | os.PathLike | None = None, **kw) -> list[dict]:
     """Run demoforge.lib.evaluation.real_photos.evaluate (default: MediaPipe on shared/data/real_hands)
     and return :func:`real_photo_rows`."""
-    from demoforge.lib.evaluation import real_photos as rpe
-
-    from demoforge.lib import SHARED_DATA
 
     data = Path(data_dir) if data_dir is not None else SHARED_DATA / "real_hands"
     if detector is None:
-        from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
         with MediaPipeDetector() as det:
             return real_photo_rows(rpe.evaluate(det, data, **kw), detector="mediapipe")
     return real_photo_rows(rpe.evaluate(detector, data, **kw), detector=getattr(detector, "name", str(detector)))

@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from demoforge.lib import SHARED_DATA
+from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
+
 DATASETS = ("freihand", "onehand10k", "panoptic", "coco_wholebody")
 
 
@@ -195,10 +198,7 @@ def format_table(results: list[DatasetResult]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
-
     args = sys.argv[1:] if argv is None else argv
-    from demoforge.lib import SHARED_DATA
 
     data = Path(args[0]) if args else SHARED_DATA / "real_hands"
     with MediaPipeDetector() as det:

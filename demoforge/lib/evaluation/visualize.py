@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from demoforge.lib.geometry import pose8_to_transform, project_points, transform_inverse, transform_points
 from demoforge.lib.joints import HAND_CONNECTIONS
 
 # One colour per finger (thumb, index, middle, ring, pinky), RGB.
@@ -82,8 +83,6 @@ def draw_gripper(rgb: np.ndarray, pose8: np.ndarray, K: np.ndarray, T_world_came
     """Draw a gripper frame (world pose [x, y, z, qx, qy, qz, qw, g]) as three projected axes; the
     origin is a filled dot when open (g = 1) and a ring when closed."""
     import cv2
-
-    from demoforge.lib.geometry import pose8_to_transform, project_points, transform_inverse, transform_points
 
     out = np.ascontiguousarray(rgb.copy())
     p = np.asarray(pose8, float)

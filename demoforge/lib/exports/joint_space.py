@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from demoforge.lib.exports import episode_starts
+from demoforge.lib.sim import SimOptions, planned_execution
 
 
 @dataclass
@@ -38,8 +39,6 @@ def joint_episodes(robot, task: str, poses: np.ndarray, lengths: np.ndarray, key
                    progress: Callable[[int], None] | None = None, fps: float = 30.0) -> JointEpisodes:
     """The joint trajectories of concatenated episodes poses (F, 2, 8) with lengths (N,) and each episode's
     object keypoints at its start (N, K, 3)."""
-    from demoforge.lib.sim import SimOptions, planned_execution
-
     starts = episode_starts(lengths)
     n = len(lengths)
     keep = np.zeros(n, bool)

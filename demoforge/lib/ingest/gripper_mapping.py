@@ -41,7 +41,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from demoforge.lib.geometry import matrix_to_quat, quat_to_matrix, rotation_between_vectors
+from demoforge.lib.geometry import matrix_to_quat, quat_slerp, quat_to_matrix, rotation_between_vectors, umeyama
 from demoforge.lib.ingest.gripper_open_close import (
     GripperStateConfig,
     grasp_basins,
@@ -271,8 +271,6 @@ def _robust_mean(R: np.ndarray, p: np.ndarray, iterations: int) -> tuple[np.ndar
 def _hand_motion(joints: np.ndarray, ok: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid motion (R (L, 3, 3), t (L, 3)) of the whole hand per frame: joints_t ~ R ref + t (Kabsch,
     21 points, so far better conditioned than the fingertip pair); identity where not ok."""
-    from demoforge.lib.geometry import umeyama
-
     L = joints.shape[0]
     R = np.tile(np.eye(3), (L, 1, 1))
     t = np.zeros((L, 3))
@@ -313,7 +311,6 @@ def stabilize_grasps(pose7: np.ndarray, g: np.ndarray, joints: np.ndarray,
                          f"{p.shape}, {g.shape}, {j.shape}")
     if cfg.mode == "off":
         return p
-    from demoforge.lib.geometry import quat_slerp
 
     T, H = p.shape[:2]
     out = p.copy()

@@ -122,7 +122,7 @@ class FakeBackend(LLMBackend):
         self.calls = 0
 
     def complete(self, prompt: Any, sampling: Sampling) -> Completion:
-        from demoforge.lib.llm.prompting import approx_token_count
+        from demoforge.lib.llm.prompting import approx_token_count  # lazy (CLI --help): numpy, scipy
 
         if callable(self._responses):
             text = self._responses(prompt, sampling)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from demoforge.lib.llm.base import LLMError
+from demoforge.lib.settings import read_settings
 
 GGUF_NAME = "gemma-3-270m-q4_k_m.gguf"
 
@@ -24,8 +25,6 @@ LOAD_TIMES: dict[tuple, float] = {}
 
 
 def default_gguf_path() -> Path:
-    from demoforge.lib.settings import read_settings
-
     configured = read_settings().gguf_path
     if configured:
         return configured
@@ -61,8 +60,6 @@ def ensure_gguf(path: str | os.PathLike | None = None) -> Path:
 
 def cpu_threads() -> int:
     """Threads of a model: $DEMOFORGE_LLM_THREADS, else one per core this process may run on."""
-    from demoforge.lib.settings import read_settings
-
     configured = read_settings().llm_threads
     if configured:
         return configured

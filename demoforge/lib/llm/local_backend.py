@@ -38,7 +38,10 @@ from pathlib import Path
 from typing import Any
 
 from demoforge.lib.llm.base import Completion, LLMBackend, LLMError, Sampling
+from demoforge.lib.llm.grammar import MAX_ROWS, structured_grammar
 from demoforge.lib.llm.llama_models import GGUF_NAME, MODEL_LOCK, ensure_gguf, load_model, load_time_s
+from demoforge.lib.llm.reduced_vocab import reduced_model
+from demoforge.lib.llm.structured_decoding import language_for_prompt
 
 # greedy structured answers: "fast" (demoforge.lib.llm.structured_decoding on the reduced-vocabulary model,
 # the same tokens), "fast-full" (the same decoder on the full model) or "gbnf" (llama.cpp's grammar
@@ -79,8 +82,6 @@ class LocalBackend(LLMBackend):
         """The reduced-vocabulary model of the fast decoder (demoforge.lib.llm.reduced_vocab), None when it
         cannot be built (the answers then come from the full model)."""
         if self._reduced is None:
-            from demoforge.lib.llm.reduced_vocab import reduced_model
-
             try:
                 self._reduced = reduced_model(self.llm, ensure_gguf(self.model_path), self.n_ctx, self.n_threads,
                                               self.n_batch, self.swa_full)
@@ -136,8 +137,6 @@ class LocalBackend(LLMBackend):
                 return self._complete_fast(llm, prompt, text, max_tokens)
             grammar = None
             if sampling.structured:
-                from demoforge.lib.llm.grammar import structured_grammar
-
                 grammar = structured_grammar(prompt, text)
             t0 = time.perf_counter()
             out = llm.create_completion(
@@ -159,9 +158,7 @@ class LocalBackend(LLMBackend):
     def _complete_fast(self, llm, prompt: Any, text: str, max_tokens: int) -> Completion:
         """A greedy structured answer by demoforge.lib.llm.structured_decoding: the grammar path's answer
         token for token, without testing the whole vocabulary at every step."""
-        from demoforge.lib.llm.grammar import MAX_ROWS
-        from demoforge.lib.llm.reduced_vocab import decode
-        from demoforge.lib.llm.structured_decoding import language_for_prompt
+        from demoforge.lib.llm.reduced_vocab import decode  # imported when called: tests replace what it names
 
         # the prompt's tokens as create_completion builds them (BOS, then special tokens parsed)
         tokens = llm.tokenize(text.encode("utf-8"), add_bos=True, special=True)

@@ -37,9 +37,11 @@ import urllib.parse
 import urllib.request
 from typing import Any
 
+from demoforge.lib.llm import grammar
 from demoforge.lib.llm.base import (
     Completion, LLMBackend, LLMBudgetExceeded, LLMError, LLMRequestError, LLMTimeoutError, Sampling,
 )
+from demoforge.lib.llm.prompting import approx_token_count
 from demoforge.lib.settings import read_settings
 
 log = logging.getLogger(__name__)
@@ -143,8 +145,6 @@ class OpenAIBackend(LLMBackend):
             body["prompt"] = getattr(prompt, "text", None) or str(prompt)
             path = "/completions"
         if sampling.structured and self.structured_supported is not False:
-            from demoforge.lib.llm import grammar
-
             if self.mode == "chat":
                 body["response_format"] = grammar.response_format(grammar.answer_rows(prompt))
             else:
@@ -239,8 +239,6 @@ class OpenAIBackend(LLMBackend):
         raise err from None
 
     def _completion(self, raw: bytes, latency: float, prompt: Any) -> Completion:
-        from demoforge.lib.llm.prompting import approx_token_count
-
         try:
             resp = json.loads(raw.decode("utf-8"))
             choice = resp["choices"][0]

@@ -52,6 +52,7 @@ from demoforge.lib.llm.number_format import get_number_format
 # the answer parser, re-exported (callers read a prompt's answer from here); ANSWER_PREFIX: what a
 # completion prompt opens and the parser expects it to continue
 from demoforge.lib.llm.parsing import ANSWER_PREFIX, PARSE_STATUSES, ParseResult, parse_actions
+from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, keyframe_fractions
 
 __all__ = [
     "SYSTEM_PROMPT",
@@ -360,7 +361,6 @@ def _encode_examples(exs: Sequence[Example], encoding: str, n_waypoints: int | N
         return [resample_actions(e.actions, n_waypoints) for e in exs], ()
     if encoding == "raw":
         return [np.asarray(e.actions, np.float64) for e in exs], ()
-    from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, keyframe_fractions
 
     blocks, times = [], ()
     for e in exs:

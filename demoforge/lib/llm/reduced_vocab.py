@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 
 from demoforge.lib.llm.llama_models import MODEL_LOCK, load_model
+from demoforge.lib.llm.number_format import NUMBER_FORMATS
+from demoforge.lib.llm.prompting import build_prompt
 from demoforge.lib.llm.structured_decoding import ALPHABET, DecodeResult, greedy_structured, token_piece
 
 __all__ = ["WIDE_ALPHABET", "ReducedModel", "decode", "reduced_gguf", "reduced_ids", "reduced_model"]
@@ -49,9 +51,6 @@ _VERIFIED: set[str] = set()
 def _sample_prompt_texts() -> list[str]:
     """Prompts of every number format and encoding with made-up numbers: their tokens include the
     template's words as the tokenizer merges them in context."""
-    from demoforge.lib.llm.number_format import NUMBER_FORMATS
-    from demoforge.lib.llm.prompting import build_prompt
-
     rng = np.random.default_rng(0)
     n = 40
     acts = np.zeros((n, 2, 8))

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from demoforge.lib.llm.grammar import answer_spec
+
 __all__ = ["ALPHABET", "ActionListLanguage", "DecodeResult", "action_tokens", "greedy_structured",
            "language_for_prompt", "token_piece"]
 
@@ -170,8 +172,6 @@ class ActionListLanguage:
 
 def language_for_prompt(prompt: Any, text: str, max_rows: int) -> ActionListLanguage:
     """The language :func:`demoforge.lib.llm.grammar.structured_grammar` compiles for ``prompt``."""
-    from demoforge.lib.llm.grammar import answer_spec
-
     n, precision, prefix, int_digits = answer_spec(prompt, text)
     lo, hi = (n, n) if n is not None else (1, int(max_rows))
     return ActionListLanguage(lo, hi, precision, prefix, int_digits)

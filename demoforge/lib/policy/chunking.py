@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from demoforge.lib.policy.joint_demos import GRIPPER_COLUMNS
+from demoforge.lib.sim.robots import resolve_robot
 
 PINCH_SCALE = 0.3  # m: the scale of the pinch points and of the keypoints relative to them
 DELTA_FLOOR = 1e-3  # rad: the smallest scale of a joint's change over a horizon
@@ -151,8 +152,6 @@ class PinchKinematics:
     joint-space export's poses)."""
 
     def __init__(self, robot_label: str, task: str):
-        from demoforge.lib.sim.robots import resolve_robot
-
         ik = resolve_robot(robot_label).ik(task)  # the label parsed by RobotSpec
         self.model, self.data, self.sites = ik.model, mujoco.MjData(ik.model), ik.sites
 

@@ -24,11 +24,11 @@ def mirror_flags(mirror: str) -> list[bool]:
 
 def __getattr__(name):
     if name in ("generate_take", "write_take", "TakeSummary"):
-        from demoforge.lib.synth import take
+        from demoforge.lib.synth import take  # lazy: mujoco
 
         return getattr(take, name)
     if name == "SceneRenderer":
-        from demoforge.lib.synth.render import SceneRenderer
+        from demoforge.lib.synth.render import SceneRenderer  # lazy: mujoco
 
         return SceneRenderer
     raise AttributeError(name)

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.perception.hand_model import HandStyle, palm_local
+from demoforge.lib.perception.hand_model import HandStyle, hand_capsules, palm_local, thumb_frame
 
 #: Parts of the skin look: (name, colour from the style: "skin" or "sleeve", body: "hand" or "forearm").
 PARTS: tuple[tuple[str, str, str], ...] = (("palm", "skin", "hand"), ("forearm", "skin", "forearm"),
@@ -166,8 +166,6 @@ def nail_poses(joints: np.ndarray, wrist_T: np.ndarray, side, style: HandStyle |
     """(5, 4, 4) poses of the nails (x along the distal phalanx towards the tip, z out of the nail)
     of one hand's joints (21, 3) with its wrist pose (4, 4): on the back of each distal phalanx,
     centred a third of its length from the tip, at the phalanx's flesh radius."""
-    from demoforge.lib.perception.hand_model import thumb_frame, hand_capsules
-
     style = style or HandStyle()
     J = np.asarray(joints, float)
     R = np.asarray(wrist_T, float)[:3, :3]

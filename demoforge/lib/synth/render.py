@@ -30,13 +30,16 @@ from typing import Sequence
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL=egl before mujoco is imported)
 import mujoco
 
 from demoforge.lib.geometry import project_points
 from demoforge.lib.perception.hand_model import (
     HandStyle, capsule_segments, hand_capsules, joint_radii, wrist_pose_from_joints,
 )
+from demoforge.lib.synth import hand_skin
+from demoforge.lib.synth.hand_skin import (NAIL_SIZE, PARTS, forearm_pose, mesh_asset_xml, mesh_name, nail_poses,
+                                           nail_rgba, skin_meshes)
+from demoforge.lib.task_library.objects import SIM_ONLY_GROUP
 
 WIDTH, HEIGHT = 640, 480
 FX = FY = 570.3422
@@ -140,9 +143,6 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
     """Mocap bodies (one capsule each, no contacts) of both hands, for the scene's worldbody; with
     ``hand_style="skin"`` also one mocap body per hand carrying the palm, forearm and sleeve meshes
     (:func:`hands_assets_xml` defines them)."""
-    from demoforge.lib.synth import hand_skin
-    from demoforge.lib.synth.hand_skin import NAIL_SIZE, PARTS, mesh_name, nail_rgba
-
     _check_hand_style(hand_style)
     out = []
     for side, style in zip(SIDES, styles):
@@ -174,8 +174,6 @@ def hands_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()), hand_sty
 def hands_assets_xml(styles: Sequence[HandStyle] = (HandStyle(), HandStyle()),
                      hand_style: str = DEFAULT_HAND_STYLE) -> str:
     """The hands' materials and (skin look) meshes, for the scene's ``<asset>``."""
-    from demoforge.lib.synth.hand_skin import mesh_asset_xml, mesh_name, skin_meshes
-
     _check_hand_style(hand_style)
     out = [f'<material name="{HAND_PREFIX}_skin" specular="0.15" shininess="0.2" reflectance="0"/>']
     if hand_style == "skin":
@@ -358,7 +356,6 @@ class SceneRenderer:
 
         self._renderer = mujoco.Renderer(self.model, height=height, width=width)
         self._option = mujoco.MjvOption()
-        from demoforge.lib.task_library.objects import SIM_ONLY_GROUP
 
         self._option.geomgroup[SIM_ONLY_GROUP] = 0  # the un-simulated liquid is not drawn
         scn = self._renderer.scene
@@ -390,8 +387,6 @@ class SceneRenderer:
                         d.mocap_pos[self._nail_mocap[h]] = [0.0, 0.0, -5.0]
                     continue
                 if self._wrist_mocap:
-                    from demoforge.lib.synth.hand_skin import forearm_pose, nail_poses
-
                     W = wrist_pose_from_joints(np.asarray(hand_joints[h], float), SIDES[h], self.styles[h])
                     F = forearm_pose(W, h)
                     d.mocap_pos[self._wrist_mocap[h]] = W[:3, 3]

@@ -50,15 +50,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (MUJOCO_GL before mujoco)
 import demoforge.schemas.synthetic  # noqa: F401  (registers the gt_* tables)
 from demoforge.lib.geometry import transform_to_pose8
 from demoforge.lib.perception.hand_model import HandStyle, hand_from_pinch, sample_style
 from demoforge.lib.synth.render import (
-    DEFAULT_HAND_STYLE, HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, camera_K,
-    camera_T_world_camera, extra_worldbody_xml, hands_assets_xml, joint_visibility, project,
-    world_to_camera,
+    DEFAULT_HAND_STYLE, HEIGHT, WIDTH, Frame, SceneRenderer, add_depth_noise, board_xml, camera_K,
+    camera_T_world_camera, extra_worldbody_xml, hands_assets_xml, joint_visibility, project, world_to_camera,
 )
+from demoforge.lib.task_library import get_task
 from demoforge.schemas.core import write_table_file
 
 GENERATOR = "demoforge.synth"
@@ -381,8 +380,6 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
 
         import cv2
 
-        from demoforge.lib.synth.render import board_xml
-
         with tempfile.TemporaryDirectory(prefix="demoforge_board_") as d:
             png = os.path.join(d, "board.png")
             cv2.imwrite(png, board.image(px_per_m=4000))  # 4 px per mm: sharper than the camera sees it
@@ -396,8 +393,6 @@ def generate_take(task_name: str, seed: int, mirror: bool, out_dir: str | os.Pat
 
 def _generate(task_name, seed, mirror, out_dir, depth_noise, video, progress, max_frames, write_queue, hand_style,
               hands: Sequence[str], extra_xml: tuple[str, str], extra_meta: dict) -> TakeSummary:
-    from demoforge.lib.task_library import get_task
-
     task = get_task(task_name)
     demo = task.scripted_demo(seed, mirror=mirror)
     if max_frames is not None:

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from demoforge.lib.trajectories.augmentation import DemoSource, mirror_source, transform_demo
+
 
 def carry_episode(source, actions: np.ndarray, keypoints: np.ndarray, mirrored: bool,
                   query_object_poses: np.ndarray) -> np.ndarray:
     """One episode of source's database carried to a scene with object poses (n_obj, 4, 4)."""
-    from demoforge.lib.trajectories.augmentation import DemoSource, mirror_source, transform_demo
-
     base = mirror_source(source) if mirrored else source
     ep = DemoSource(task=base.task, trajectory=np.asarray(actions, float), keypoints=np.asarray(keypoints, float),
                     keypoint_object=base.keypoint_object, keypoints_local=base.keypoints_local,

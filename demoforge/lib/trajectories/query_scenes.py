@@ -23,6 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from demoforge.lib.trajectories.augmentation import estimate_object_poses, generate_episodes
+from demoforge.lib.trajectories.retrieval import KeypointIndex
+
 PROTOCOLS = ("thesis", "novel")
 # Entropy word of the held-out stream: the database uses default_rng(seed), the queries
 # default_rng([seed, QUERY_STREAM, attempt]) -- a different SeedSequence, so different draws.
@@ -59,8 +62,6 @@ class QueryScenes:
 def nearest_mse(query_keypoints: np.ndarray, database_keypoints: np.ndarray) -> np.ndarray:
     """(n,) keypoint MSE of each query (n, K, 3) to its nearest database scene (N, K, 3) (the thesis's
     retrieval metric)."""
-    from demoforge.lib.trajectories.retrieval import KeypointIndex
-
     q = np.asarray(query_keypoints, float)
     if len(q) == 0:
         return np.zeros(0)
@@ -75,8 +76,6 @@ def augmentation_queries(source, n: int, seed: int, database_keypoints: np.ndarr
     scene within SAME_SCENE_MSE of a database episode (database_keypoints: (N, K, 3), all of them,
     valid or not). Plain and mirrored draws are shuffled together; the result depends only on the
     arguments."""
-    from demoforge.lib.trajectories.augmentation import estimate_object_poses, generate_episodes
-
     if n < 0:
         raise ValueError(f"need n >= 0 query scenes, got {n}")
     if not 0.0 <= n_mirrored_fraction <= 1.0:
@@ -137,8 +136,6 @@ def covering_options(task, source_keypoints: np.ndarray, n_draws: int = 4000, se
     centroid), with translation and yaw ranges spanning the offsets of n_draws sampled placements
     (plus a margin). Each range is shared by all objects (the augmentation draws every group from one
     box), so it is the union of the objects' ranges."""
-    from demoforge.lib.trajectories.augmentation import estimate_object_poses
-
     kl, ko = task.keypoints_local, task.keypoint_object
     src_kp = np.asarray(source_keypoints, float)
     P0 = estimate_object_poses(src_kp, kl, ko)

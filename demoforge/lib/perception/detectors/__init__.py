@@ -242,7 +242,7 @@ class HandDetector(abc.ABC):
 
         Frames whose RGB cannot be read have no hands (and are flagged on ``take.frames``).
         """
-        from demoforge.lib.takes.reader import iter_frames
+        from demoforge.lib.takes.reader import iter_frames  # lazy (CLI --help)
 
         per_frame: dict[int, list[HandCandidate]] = {}
         done = 0

@@ -52,6 +52,7 @@ import numpy as np
 from demoforge.lib.perception.detectors import (
     N_JOINTS, DetectorError, HandCandidate, HandDetector, fit_translation_to_2d,
 )
+from demoforge.lib.settings import read_settings
 
 __all__ = ["MediaPipeDetector", "default_model_path", "LABEL_IS_PERSON_HAND", "native_stderr"]
 
@@ -84,8 +85,6 @@ class NativeStderr:
 
     @contextlib.contextmanager
     def diverted(self):
-        from demoforge.lib.settings import read_settings
-
         if read_settings().native_logs:
             yield
             return
@@ -128,8 +127,6 @@ native_stderr = NativeStderr()
 
 
 def default_model_path() -> Path:
-    from demoforge.lib.settings import read_settings
-
     configured = read_settings().hand_landmarker
     if configured:
         return configured

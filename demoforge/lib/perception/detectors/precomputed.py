@@ -45,6 +45,8 @@ from demoforge.lib.perception.detectors import (
     N_JOINTS, SIDES, DetectorError, HandCandidate, HandDetector, HandTrack, project_points,
     select_best_hands,
 )
+from demoforge.lib.takes.reader import TakeError
+from demoforge.lib.takes.thesis_json import read_thesis_keypoints_json
 
 __all__ = ["PrecomputedDetector", "load_predictions", "write_predictions"]
 
@@ -116,9 +118,6 @@ def load_predictions(path: str | os.PathLike, *, K: np.ndarray | None = None, ta
         K = take.camera.K
     suffix = p.suffix.lower()
     if suffix == ".json":
-        from demoforge.lib.takes.reader import TakeError
-        from demoforge.lib.takes.thesis_json import read_thesis_keypoints_json
-
         try:
             hands = read_thesis_keypoints_json(p, take=take)
         except TakeError as e:

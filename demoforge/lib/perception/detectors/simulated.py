@@ -21,6 +21,7 @@ from demoforge.lib.perception.detectors import N_JOINTS, DetectorError, HandCand
 from demoforge.lib.perception.simulated_detector import (
     DETECTOR_NAME, SimulatedDetections, SimulatedDetectorConfig, simulate_detections,
 )
+from demoforge.lib.takes.reader import Take, open_take
 
 __all__ = ["SimulatedDetector", "load_gt_hand_joints"]
 
@@ -89,8 +90,6 @@ class SimulatedDetector(HandDetector):
     # -- take handling -----------------------------------------------------------------------------
     def bind(self, take: Any) -> "SimulatedDetector":
         """Simulate the whole take now (refuses a take without ground truth)."""
-        from demoforge.lib.takes.reader import Take, open_take
-
         if not isinstance(take, Take):
             take = open_take(take)
         gt = load_gt_hand_joints(take.meta_dir or take.path, take.n_frames)

@@ -29,8 +29,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from demoforge.lib.perception.detectors import DetectorError, HandCandidate, HandDetector, SIDES
+from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
 from demoforge.lib.perception.hamer.camera import box_from_keypoints
-from demoforge.lib.perception.hamer.model import HamerConfig, HamerPredictor
+from demoforge.lib.perception.hamer.checkpoint import CheckpointError, load_hamer
+from demoforge.lib.perception.hamer.mano import MANOError
+from demoforge.lib.perception.hamer.model import HamerConfig, HamerPredictor, default_device
 
 __all__ = ["HamerDetector", "get_predictor", "clear_predictor_cache"]
 
@@ -47,10 +50,6 @@ def _file_key(p: str | os.PathLike) -> tuple:
 def get_predictor(checkpoint: str | os.PathLike, mano_model: str | os.PathLike, device: str | None = None,
                   config: HamerConfig | None = None, **options: Any) -> HamerPredictor:
     """A loaded :class:`HamerPredictor`, shared by every detector with the same files and device."""
-    from demoforge.lib.perception.hamer.checkpoint import CheckpointError, load_hamer
-    from demoforge.lib.perception.hamer.mano import MANOError
-    from demoforge.lib.perception.hamer.model import default_device
-
     for what, p, flag in (("HaMeR checkpoint", checkpoint, "--hamer-checkpoint"), ("MANO model", mano_model, "--mano-model")):
         if p is None or not Path(p).expanduser().is_file():
             raise DetectorError(f"the 'hamer' detector needs the {what} file ({flag} PATH); not found: {p}")
@@ -135,8 +134,6 @@ class HamerDetector(HandDetector):
 
     def _mediapipe(self):
         if self._mp is None:
-            from demoforge.lib.perception.detectors.mediapipe_backend import MediaPipeDetector
-
             self._mp = MediaPipeDetector(**self._mp_options)
         return self._mp
 

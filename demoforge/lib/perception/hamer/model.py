@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from demoforge.lib.perception.detectors import fit_translation_to_2d
 from demoforge.lib.perception.hamer.camera import (
     BBOX_SHAPE, FOCAL_LENGTH, IMAGE_SIZE, boxes_to_crops, cam_crop_to_camera, crop_images,
     crop_points_to_image,
@@ -155,8 +156,6 @@ class HamerPredictor:
             is_right: (N,) True for a right hand (left hands are flipped for the network and back).
             K: (3, 3) intrinsics of the images.
         """
-        from demoforge.lib.perception.detectors import fit_translation_to_2d
-
         boxes = np.asarray(boxes_xyxy, float).reshape(-1, 4)
         n = boxes.shape[0]
         right = np.asarray(is_right, bool).reshape(-1)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from demoforge.lib.perception.hamer.mano import MANO_PARENTS, MANO_TIP_VERTEX_IDS, ManoModelData
+from demoforge.lib.perception.hamer.mano import MANO_PARENTS, MANO_TIP_VERTEX_IDS, MANO_TO_OPENPOSE, ManoModelData
 
 #: a flat right hand in MANO's frame (metres): wrist at the origin, fingers along +x, thumb towards +z
 _FINGER_BASES = {  # MANO joint index of the finger's first joint -> (base position, direction)
@@ -56,7 +56,6 @@ def synthetic_mano(seed: int = 0, n_verts: int = 778, n_betas: int = 10, bone: f
     posedirs = rng.normal(0, posedirs_scale, (V, 3, 135)) if posedirs_scale > 0 else np.zeros((V, 3, 135))
     model = ManoModelData(v_template=v, shapedirs=shapedirs, posedirs=posedirs, J_regressor=J_reg,
                           weights=weights, parents=np.array(MANO_PARENTS), faces=np.zeros((0, 3), np.int64))
-    from demoforge.lib.perception.hamer.mano import MANO_TO_OPENPOSE
     rest21 = np.concatenate([J, np.stack([tips[f] for f in (13, 1, 4, 10, 7)])])[list(MANO_TO_OPENPOSE)]
     return model.validate("synthetic MANO"), rest21
 
