@@ -6,15 +6,21 @@ from pathlib import Path
 from typing import Sequence
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.errors import one_line
 from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.perception.detectors import DETECTORS
+from demoforge.lib.sim import scene_fingerprint
 from demoforge.lib.takes import take_task_name
+from demoforge.lib.takes.sources import take_root
+from demoforge.lib.task_library import TASK_NAMES
+from demoforge.runtime.runners import run_flow
 from demoforge.tasks.common import Manifest, opened_take, run_stage
 from demoforge.tasks.ingest import (
     align_keypoints, detect_hands, hand_presence, index_frames, map_grippers, object_keypoints, take_media_key,
 )
 from demoforge.tasks.ingest_drawing import overlay_video
-from demoforge.tasks.ingest_evaluation import ingest_metrics
+from demoforge.tasks.ingest_evaluation import ingest_keypoint_metrics, ingest_metrics
+from demoforge.tasks.sim import check_ingested_demo, demo_failure_row
 
 
 @flow(name="ingest-take")
@@ -38,9 +44,6 @@ def ingest_take(
     variant: None (where augment and every later stage read the take) or {"detector": detector} to keep
     this detector's rows beside those (demoforge.schemas.core.variant_parts; see ingest_side_by_side).
     """
-    from demoforge.lib.perception.detectors import DETECTORS
-    from demoforge.lib.takes.sources import take_root
-
     logger = get_run_logger()
     opts = options or IngestOptions()
     detector = opts.detector
@@ -109,13 +112,6 @@ def ingest_side_by_side(
     A detector whose ingest or demonstration fails (e.g. untrustworthy depth, a hand never found) is
     recorded in `ingested_demo_checks` with the reason, and the other detectors go on.
     Returns {detector: {"ingest": manifests or None, "demo": manifest or None, "error": str}}."""
-    from demoforge.runtime.runners import run_flow
-    from demoforge.lib.errors import one_line
-    from demoforge.lib.takes.sources import take_root
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.tasks.ingest_evaluation import ingest_keypoint_metrics
-    from demoforge.tasks.sim import demo_failure_row
-
     logger = get_run_logger()
     take_dir = take_root(path)
     name = take_task_name(opened_take(take_dir), task)
@@ -151,10 +147,6 @@ def check_demonstration(take_dir: Path, warehouse: str, task: str | None, task_n
     """The robot executing the ingested demonstration in MuJoCo (`ingested_demo_checks`, cached), or None
     for a take without object keypoints or a task the robot simulator does not know (a custom task).
     ``variant``: the detector's variant of the ingest (see detector_variant)."""
-    from demoforge.lib.sim import scene_fingerprint
-    from demoforge.lib.task_library import TASK_NAMES
-    from demoforge.tasks.sim import check_ingested_demo
-
     if ingested["object_keypoints"] is None or task_name not in TASK_NAMES:
         return None
     return run_stage(check_ingested_demo, warehouse, take_dir=take_dir, task=task, warehouse=warehouse,

@@ -6,18 +6,20 @@ from __future__ import annotations
 from pathlib import Path
 from prefect import flow, get_run_logger
 
-import demoforge.lib  # noqa: F401
+from demoforge.flows.augment import augment_take_flow
 from demoforge.flows.ingest import ingest_take
+from demoforge.lib.annotate import annotation_status, not_annotated_message
 from demoforge.lib.ingest.options import IngestOptions
+from demoforge.lib.takes.sources import find_takes
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
+from demoforge.runtime.runners import run_flow
+from demoforge.schemas.core import write_table
 from demoforge.tasks.common import opened_take
 
 
 def find_take_folders(folder: str | Path) -> list[Path]:
     """Takes under ``folder`` (any depth), sorted by path: folders holding a camera.json and recordings
     (demoforge.lib.takes.sources.find_takes)."""
-    from demoforge.lib.takes.sources import find_takes
-
     root = Path(folder)
     if not root.is_dir():
         raise ValueError(f"{root}: no such folder to ingest takes from")
@@ -43,12 +45,7 @@ def ingest_folder(
     ingest: how each take is ingested (IngestOptions; default: the simulated detector). With `augment`
     (AugmentOptions), each annotated take also gets its episode database.
     """
-    from demoforge.lib.annotate import annotation_status, not_annotated_message
     import pyarrow as pa
-
-    from demoforge.flows.augment import augment_take_flow
-    from demoforge.runtime.runners import run_flow
-    from demoforge.schemas.core import write_table
 
     logger = get_run_logger()
     opts = ingest or IngestOptions()

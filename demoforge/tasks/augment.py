@@ -7,10 +7,15 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha.screening import screen_episodes
 from demoforge.lib.takes import take_task_name
-from demoforge.schemas.core import write_table
+from demoforge.lib.trajectories.augmentation import generate_episodes
+from demoforge.lib.trajectories.augmentation.servable import generate_servable
+from demoforge.lib.trajectories.segmentation import Segment, boundaries, boundary_error, segment_trajectory
+from demoforge.schemas.core import file_sha256, read_table_file, table_files, write_table
 from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source, require_task
+from demoforge.schemas.sim import drop_results
 from demoforge.tasks.common import Manifest, opened_take, stage_task
 
 AUGMENT_VERSION = "1"
@@ -20,11 +25,6 @@ AUGMENT_VERSION = "1"
 def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  manual: dict | None = None) -> Manifest:
     """Motion/skill segments per arm; on synthetic takes also the boundary error against the script."""
-    from demoforge.lib.trajectories.segmentation import (
-        Segment, boundaries, boundary_error, segment_trajectory,
-    )
-    from demoforge.schemas.core import read_table_file
-
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     spec = require_task(name, take)
@@ -64,8 +64,6 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     database of the same take (other augmentation options) beside the first. robot (an arm robot, e.g.
     "aloha" with its gripper): the placements the arms' screening rejects are drawn again, up to
     redraw_rounds rounds (lib/trajectories/augmentation/servable.py)."""
-    from demoforge.lib.trajectories.augmentation import generate_episodes
-
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     spec = require_task(name, take)
@@ -86,8 +84,6 @@ def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
         # report or query mixes them with the new database (simulate again to refill)
         from prefect import get_run_logger
 
-        from demoforge.schemas.sim import drop_results
-
         gone = drop_results(warehouse, name, key)
         if gone:
             get_run_logger().warning("%s/%s: the episodes changed; removed %d robot-check file(s) (sim_results, "
@@ -100,10 +96,6 @@ def _servable_batch(source, task: str, robot: str, gripper: str | None, n: int, 
     """The database drawn where the robot's arms can serve it (every redraw screened as `screen` does)."""
     from prefect import get_run_logger
     from tqdm.auto import tqdm
-
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.sim.robots.aloha.screening import screen_episodes
-    from demoforge.lib.trajectories.augmentation.servable import generate_servable
 
     arms = get_robot(robot, gripper)
 
@@ -126,8 +118,6 @@ def _servable_batch(source, task: str, robot: str, gripper: str | None, n: int, 
 
 def _episode_file_digests(warehouse: str, task: str, take: str) -> dict[str, str]:
     """{path: sha256} of the take's `episodes` and `episode_steps` files (empty before the first write)."""
-    from demoforge.schemas.core import file_sha256, table_files
-
     files = [*table_files("episodes", warehouse, task=task, take=take),
              *table_files("episode_steps", warehouse, task=task, take=take)]
     return {str(f): file_sha256(f) for f in files}

@@ -13,12 +13,19 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.annotate import annotation_status, not_annotated_message
 from demoforge.lib.errors import UserError
-from demoforge.lib.takes import take_task_name
-from demoforge.schemas.core import read_table, write_table
+from demoforge.lib.geometry import transform_points
+from demoforge.lib.ingest.depth_checks import (DepthFrameStats, check_depth, coverage_warning, depth_coverage,
+                                               frame_depth_stats)
+from demoforge.lib.ingest.gripper_mapping import (clamp_above_table, gripper_state, hand_to_gripper, smooth_poses,
+                                                  stabilize_grasps, to_pose8)
+from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
+from demoforge.lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, hand_trust, track_hands
+from demoforge.lib.takes import iter_depth, iter_frames, read_frame, take_task_name
+from demoforge.schemas.core import read_table, read_table_file, unsliced_table, write_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays, rows
-from demoforge.tasks.common import Manifest, opened_take, stage_task
+from demoforge.tasks.common import Manifest, _dir_file_digests, _file_digest, key_inputs_of, opened_take, stage_task
 
 INGEST_VERSION = "1"
 ANNOTATIONS = "annotations.json"
@@ -31,8 +38,6 @@ def take_media_key(take_dir: Path) -> str:
     from the same remembered records as every other key (demoforge.tasks.common), so an unchanged take,
     a multi-GB recording too, is only stat'ed."""
     import hashlib
-
-    from demoforge.tasks.common import _dir_file_digests, _file_digest, key_inputs_of
 
     take_dir = Path(take_dir)
     h = hashlib.sha256(take_dir.name.encode())
@@ -60,8 +65,6 @@ def index_frames(take_dir: Path, task: str | None, warehouse: str, verify_decode
                  media_key: str) -> Manifest:
     """Index the take's frames; with ``verify_decode`` every frame is decoded once so unreadable
     files are reported here, per frame, instead of surfacing later."""
-    from demoforge.lib.takes import iter_depth, iter_frames
-
     take = opened_take(take_dir)
     if verify_decode:
         for _ in iter_frames(take, batch_size=32):
@@ -91,7 +94,7 @@ def detect_hands(take_dir: Path, task: str | None, warehouse: str, detector: str
     ``variant`` (every stage of the ingest): None writes the take's rows where every later stage reads
     them; ``{"detector": name}`` keeps them beside those (demoforge.schemas.core.variant_parts), for a second
     detector's ingest of the same take (demoforge.flows.ingest.ingest_side_by_side)."""
-    from demoforge.lib.perception.detectors import get_detector
+    from demoforge.lib.perception.detectors import get_detector  # imported when called: tests replace what it names
 
     take = opened_take(take_dir)
     det = get_detector(detector, **(detector_options or {}))
@@ -152,11 +155,8 @@ def align_keypoints(take_dir: Path, task: str | None, warehouse: str, hand_keypo
 
     Raises :class:`DepthError` when the take's depth fails a check, unless ``accept_bad_depth``
     (then every row carries the problem in ``depth_problem`` and the tracker ignores depth)."""
+    # imported when called: tests replace what it names
     from demoforge.lib.ingest.alignment import AlignmentConfig, align_to_depth, project, read_depth_robust
-    from demoforge.lib.geometry import transform_points
-    from demoforge.lib.takes import iter_depth
-    from demoforge.lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
-    from demoforge.lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, track_hands
 
     take = opened_take(take_dir)
     name = take_task_name(take, task)
@@ -218,9 +218,6 @@ def hand_presence(take_dir: Path, task: str | None, warehouse: str, aligned: Man
                   tracker: dict | None = None, variant: dict | None = None) -> Manifest:
     """Per hand: frames detected / accepted / rejected / filled / tracked, the trust verdict and the
     share without depth at the hand (warned about above DepthCheckConfig.warn_missing_fraction)."""
-    from demoforge.lib.ingest.depth_checks import coverage_warning, depth_coverage
-    from demoforge.lib.perception.tracking import TrackerConfig, hand_trust
-
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
@@ -259,10 +256,6 @@ def map_grippers(take_dir: Path, task: str | None, warehouse: str, aligned: Mani
                  table_clearance: float | None = 0.010, variant: dict | None = None) -> Manifest:
     """The thesis's hand-to-gripper mapping per frame and arm, with all three open/close methods,
     then the rigid-grasp prior while a hand is closed and the table floor (see demoforge.lib.ingest.gripper_mapping)."""
-    from demoforge.lib.ingest.gripper_mapping import (
-        clamp_above_table, gripper_state, hand_to_gripper, smooth_poses, stabilize_grasps, to_pose8,
-    )
-
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     al = read_table("aligned_keypoints", warehouse, variant=variant, task=name, take=take.take_id)
@@ -301,11 +294,6 @@ def object_keypoints(take_dir: Path, task: str | None, warehouse: str) -> Manife
     """Object keypoints at the first frame: ground truth for synthetic takes, else the 2D annotation
     back-projected with depth. None (nothing written) for a take not annotated yet: the stages
     before this one stand, and `demoforge annotate` is what is missing."""
-    from demoforge.lib.annotate import annotation_status, not_annotated_message
-    from demoforge.lib.takes import read_frame
-    from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
-    from demoforge.schemas.core import read_table_file, unsliced_table
-
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     status = annotation_status(take)

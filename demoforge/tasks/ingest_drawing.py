@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from demoforge.lib.takes import take_task_name
-from demoforge.schemas.core import read_table
+from demoforge.lib.evaluation.visualize import draw_gripper, draw_hand
+from demoforge.lib.ingest.alignment import project
+from demoforge.lib.takes import iter_frames, take_task_name
+from demoforge.schemas.core import file_sha256, read_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays
 from demoforge.tasks.common import Manifest, opened_take, stage_task
 from demoforge.tasks.ingest import INGEST_VERSION
@@ -17,11 +19,6 @@ def overlay_video(take_dir: Path, task: str | None, warehouse: str, aligned: Man
     """An MP4 of the take with the corrected hand skeletons and the gripper frames drawn on the RGB
     frames (like the GIFs of the thesis's public code): warehouse/videos/<take>.<detector>.mp4."""
     import cv2
-
-    from demoforge.lib.ingest.alignment import project
-    from demoforge.lib.takes import iter_frames
-    from demoforge.lib.evaluation.visualize import draw_gripper, draw_hand
-    from demoforge.schemas.core import file_sha256
 
     take = opened_take(take_dir)
     name = take_task_name(take, task)

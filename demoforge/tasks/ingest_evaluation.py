@@ -9,8 +9,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from demoforge.lib.takes import take_task_name
-from demoforge.schemas.core import read_table, write_table
+from demoforge.lib.evaluation import metrics as M
+from demoforge.lib.evaluation.keypoints import evaluate_take, load_synth_ground_truth
+from demoforge.lib.ingest.alignment import AlignmentConfig, read_depth_robust
+from demoforge.lib.ingest.depth_checks import depth_coverage
+from demoforge.lib.takes import iter_depth, take_task_name
+from demoforge.schemas.core import get_schema, read_table, read_table_file, write_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays
 from demoforge.tasks.common import Manifest, opened_take, stage_task
 from demoforge.tasks.ingest import INGEST_VERSION
@@ -21,10 +25,6 @@ def ingest_metrics(take_dir: Path, task: str | None, warehouse: str, hand_keypoi
                    aligned: Manifest, grippers: Manifest, variant: dict | None = None) -> Manifest | None:
     """Per hand: keypoint errors before/after alignment, gripper errors, open/close accuracy, swaps, the
     share without depth at the hand."""
-    from demoforge.lib.evaluation import metrics as M
-    from demoforge.lib.ingest.depth_checks import depth_coverage
-    from demoforge.schemas.core import read_table_file
-
     take = opened_take(take_dir)
     if not take.has_ground_truth:
         return None
@@ -86,11 +86,6 @@ def ingest_keypoint_metrics(take_dir: Path, task: str | None, warehouse: str, ha
     is not run a second time: demoforge.lib.evaluation.keypoints.evaluate_take on the `hand_keypoints` rows, with the
     anchor depth read from the take's depth maps as demoforge.lib.evaluation.keypoints.evaluate_synthetic_take does.
     None for a take without ground truth."""
-    from demoforge.lib.ingest.alignment import AlignmentConfig, read_depth_robust
-    from demoforge.lib.takes import iter_depth
-    from demoforge.lib.evaluation.keypoints import load_synth_ground_truth, evaluate_take
-    from demoforge.schemas.core import get_schema
-
     take = opened_take(take_dir)
     if not take.has_ground_truth:
         return None

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pyarrow as pa
 
-import demoforge.lib  # noqa: F401
+from demoforge.lib.sim.replay import replay
+from demoforge.lib.task_library import get_task
 from demoforge.schemas.core import read_table_file, write_table
 from demoforge.schemas.synthetic import GT_TABLES
 from demoforge.tasks.common import Manifest, stage_task
@@ -37,9 +38,8 @@ def synthesize_take(task: str, seed: int, mirror: bool, takes_dir: str, warehous
                     depth_noise: bool = True, video: bool = True, max_frames: int | None = None,
                     show_progress: bool = True, hand_style: str = "capsule") -> Manifest:
     """Script, render and write one synthetic take, replay it in physics, register it in `takes`."""
-    from demoforge.lib.sim.replay import replay
+    # imported when called: tests replace what it names
     from demoforge.lib.synth.take import GENERATOR, GENERATOR_VERSION, PROVENANCE, generate_take, take_id
-    from demoforge.lib.task_library import get_task
 
     name = take_id(task, seed, mirror)
     final = Path(takes_dir) / name

@@ -19,11 +19,11 @@ from .executor import (SimOptions, SimResult, as_object_poses, execute, execute_
 from .failures import FAILURES
 from .gripper import GripperSpec
 from .options import sim_options
+from .render import render_episode as _r
 from .scene import PhysicsOptions, get_scene
 
 
 def render_episode(*args, **kwargs):
-    from .render import render_episode as _r
     return _r(*args, **kwargs)
 
 

@@ -37,14 +37,13 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401
 from demoforge.lib.geometry import interpolate_poses, umeyama, xyzw_to_wxyz
 
 from .failures import FAILURES, classify
 from .loop import FingerCommand, Records, contact_scan, frame_timing, preroll, record_frame, run_frames, settle
 from .robots import PlanEvent, Robot
 from .robots.grippers import GrippersRobot
-from .scene import PhysicsOptions, SimScene, get_scene
+from .scene import PhysicsOptions, SimScene, get_scene, robot_scene
 
 
 @dataclass(frozen=True)
@@ -330,8 +329,6 @@ def scene_fingerprint(task_name: str, options: SimOptions | None = None) -> str:
     physics, control). A cache of results keyed by it goes stale by itself when a task's objects or the
     robot change."""
     import hashlib
-
-    from .scene import robot_scene
 
     opt = options or SimOptions()
     xml, assets = robot_scene(task_name, opt.robot)

@@ -6,8 +6,6 @@ from pathlib import Path
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (MUJOCO_GL=egl before mujoco)
-
 from .executor import SimOptions, SimResult, execute
 from .scene import get_scene
 

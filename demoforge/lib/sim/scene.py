@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 from demoforge.lib.geometry import matrix_to_quat, xyzw_to_wxyz
 from demoforge.lib.task_library import Placement, Task, get_task
 

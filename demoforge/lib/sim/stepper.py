@@ -43,7 +43,6 @@ from typing import Any
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (MUJOCO_GL before mujoco)
 from demoforge.lib.geometry import interpolate_poses, quat_normalize, xyzw_to_wxyz
 
 from .executor import SimOptions, SimResult, _finish, _stroke_events, as_object_poses

@@ -34,8 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-import demoforge.lib  # noqa: F401  (MUJOCO_GL before mujoco)
-from demoforge.lib.task_library import TASK_NAMES, Task, get_task, register_variant
+from demoforge.lib.task_library import TASK_NAMES, Placement, Task, get_task, register_variant
 from demoforge.lib.task_library import objects as ob
 
 VARIATIONS_VERSION = "1"
@@ -169,8 +168,6 @@ def object_footprints(task: Task, object_poses: np.ndarray) -> tuple[np.ndarray,
     """Circles (centres (n_obj, 2), radii (n_obj,)) enclosing each task object's geometry on the table,
     from the compiled scene (each geom's bounding box, turned into the world)."""
     import mujoco
-
-    from demoforge.lib.task_library import Placement
 
     object_poses = np.asarray(object_poses, float)
     m = mujoco.MjModel.from_xml_string(task.scene_xml(Placement(object_poses)))

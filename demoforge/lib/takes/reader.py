@@ -44,8 +44,9 @@ from pathlib import Path
 from typing import Iterator, Sequence
 import numpy as np
 
-from demoforge.lib.takes.types import CameraInfo, FrameBatch, FrameInfo, Take, TakeError  # noqa: F401  (re-exported)
 from demoforge.lib.takes.metadata import parse_annotations, parse_camera  # noqa: F401  (re-exported)
+from demoforge.lib.takes.sources import source_for
+from demoforge.lib.takes.types import CameraInfo, FrameBatch, FrameInfo, Take, TakeError  # noqa: F401  (re-exported)
 
 
 def open_take(path: str | os.PathLike, *, prefer: str = "images",
@@ -70,8 +71,6 @@ def open_take(path: str | os.PathLike, *, prefer: str = "images",
         TakeError: no such path, not a take, missing or invalid camera.json, no frames, RGB size
             different from camera.json, malformed annotations.json, a recording that cannot be read.
     """
-    from demoforge.lib.takes.sources import source_for
-
     root = Path(path)
     return source_for(root)().open(root, require_pose=require_pose, prefer=prefer, cache_dir=cache_dir, **options)
 

@@ -24,6 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from demoforge.lib.takes.types import TakeError
+from demoforge.lib.task_library import TASK_NAMES, get_task
 
 SIDES = ("left", "right")
 #: Object keypoints per scene in the episode tables (schemas/augment.py) and prompts: a custom task has these.
@@ -116,8 +117,6 @@ def _definition(name: str, objects: Sequence[tuple[str, str | None, Sequence[str
 
 def library_task(name: str) -> TaskDefinition:
     """A task of the library (demoforge.lib.task_library), its keypoints in the library's order."""
-    from demoforge.lib.task_library import TASK_NAMES, get_task
-
     if name not in TASK_NAMES:
         raise TakeError(f"unknown task {name!r}; choose one of {', '.join(TASK_NAMES)}, or --task custom "
                    f"--keypoints NAME,NAME,... (or --task-file FILE) for a task of your own")
@@ -208,7 +207,6 @@ def task_for_take(take: Any, task: str | None = None, keypoints: str | None = No
     meta_task = (getattr(take, "meta", None) or {}).get("task")
     if meta_task:
         return library_task(str(meta_task))
-    from demoforge.lib.task_library import TASK_NAMES
 
     raise TakeError(f"which task does this take show? give --task NAME ({', '.join(TASK_NAMES)}), or "
                f"--task custom --keypoints NAME,NAME,... for a task of your own")

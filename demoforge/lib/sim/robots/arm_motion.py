@@ -54,6 +54,7 @@ from demoforge.lib.geometry import matrix_to_quat, quat_slerp, quat_to_matrix
 
 from .ik import AT_LIMIT, POSITION_TOL, ROTATION_TOL_DEG, ArmsIK, IKSolution
 from .retiming import at, max_speed_ratio, step_of, velocity_limited
+from demoforge.lib.trajectories.segmentation import segment_trajectory
 
 #: m of the hand's path before its first skill segment (and after its last) that the arm follows as
 #: recorded: the approach into a grasp, so that the joint-space transit ends clear of the object
@@ -109,8 +110,6 @@ def follow_windows(actions: np.ndarray, keypoints0: np.ndarray, keypoint_object:
     to the episode's end when its gripper is closed after that), grown by the last `approach` metres of
     the hand's path into it and the first out of it; (n, n) for an arm without a skill segment and
     never closed (it stays at its ready pose)."""
-    from demoforge.lib.trajectories.segmentation import segment_trajectory
-
     actions = np.asarray(actions, float)
     n = len(actions)
     segs = segment_trajectory(actions, np.asarray(keypoints0, float), np.asarray(keypoint_object, int))

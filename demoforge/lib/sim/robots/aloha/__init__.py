@@ -28,10 +28,12 @@ from typing import ClassVar
 import numpy as np
 
 from demoforge.lib.sim.gripper import GripperSpec
+from demoforge.lib.sim.robots import ik
 from demoforge.lib.sim.robots.base import (NO_ARM, PART_FINGER_L, PART_FINGER_R, PART_LINK, PART_PALM, Execution,
                                            MotionPlan, PlanEvent, Robot, RobotBinding, SceneParts, as_index)
 
 from demoforge.lib.sim.robots.arm_motion import plan_arm_motion
+from demoforge.lib.sim.robots.ik import ArmsIK
 from demoforge.lib.task_library import get_task
 from demoforge.lib.trajectories.keyframes import smooth_actions
 
@@ -102,8 +104,6 @@ class AlohaRobot(Robot):
         return AlohaBinding(model, self, task_name)
 
     def settings(self, task_name: str) -> str:
-        from demoforge.lib.sim.robots import ik
-
         return (f"ik {IK_VERSION}: speed {SPEED}, ready {REST}, tolerance {ik.POSITION_TOL} m {ik.ROTATION_TOL_DEG} deg, "
                 f"converged {ik.CONVERGED_POSITION} m {ik.CONVERGED_ROTATION} rad, iterations {ik.TRIES} tries, "
                 f"feed-forward {LEAD.tolist()}")
@@ -156,8 +156,6 @@ _RETARGET_CACHE: dict = {}
 
 
 def _make_ik(bases: tuple[BasePose, BasePose], hand: str, spec: GripperSpec):
-    from demoforge.lib.sim.robots.ik import ArmsIK
-
     xml, files = kinematic_model_xml(bases, hand, spec)
     geometry = []
 

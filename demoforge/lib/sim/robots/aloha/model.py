@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from demoforge.lib.geometry import matrix_to_quat, xyzw_to_wxyz
 from demoforge.lib.sim.gripper import BITS, COLORS, PAD_SOL, GripperSpec, finger_drive, hand_body
 from demoforge.lib.sim.gripper import mjcf_numbers as _f
 
@@ -98,8 +99,6 @@ class BasePose:
 
 
 def _quat_wxyz(R: np.ndarray) -> tuple[float, ...]:
-    from demoforge.lib.geometry import matrix_to_quat, xyzw_to_wxyz
-
     return tuple(float(v) for v in xyzw_to_wxyz(matrix_to_quat(R)))
 
 

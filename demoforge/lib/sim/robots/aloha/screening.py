@@ -51,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
 from .grasp_choice import ARM_GAP
 from .retargeting import GRASP_REACH
 from .screening_arm import (REASONS, ArmScreen, ArmsContext, closer_bound, hand_points, min_distance, screen_arm,
@@ -127,8 +128,6 @@ def episode_groups(actions: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]
 
 def _screen_part(ctx: ArmsContext, actions: np.ndarray, kp: np.ndarray, out: Screening, idx: np.ndarray) -> None:
     """Screen a chunk of one group's episodes into out[idx]."""
-    from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
-
     traj = smooth_batch(actions, SMOOTH_SIGMA)
     held_all = held_batch(traj, kp, ctx.ko)
     _, first, inverse = np.unique(held_all.reshape(len(traj), -1), axis=0, return_index=True, return_inverse=True)
