@@ -194,13 +194,13 @@ def _hands_text() -> str:
 
 
 def _task_names() -> tuple[str, ...]:
-    from demoforge.lib.task_library import TASK_NAMES  # lazy (CLI start-up): numpy, scipy
+    from demoforge.lib.task_names import TASK_NAMES  # lazy (CLI start-up)
 
     return tuple(TASK_NAMES)
 
 
 def _detector_names() -> list[str]:
-    from demoforge.lib.perception.detectors import available_detectors  # lazy (CLI start-up): numpy, scipy
+    from demoforge.lib.perception.detector_registry import available_detectors  # lazy (CLI start-up)
 
     return available_detectors()
 

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from demoforge.lib.errors import UnknownTaskError
 from demoforge.lib.geometry import transform_inverse
+from demoforge.lib.task_names import TASK_NAMES
 from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, KeyframeSettings
 from demoforge.lib.trajectories.segmentation import Segment  # noqa: F401  (re-exported: Demo.segments hold these)
 
@@ -462,9 +463,8 @@ def local_point(T: np.ndarray, p_world: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ the tasks by name
-# The six of the library (registered by tasks.py when the package is imported) and their registered
-# variants; Demo.keypoints looks its task up here.
-TASK_NAMES = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
+# The six of the library (TASK_NAMES; registered by tasks.py when the package is imported) and their
+# registered variants; Demo.keypoints looks its task up here.
 
 _TASKS: dict[str, Task] = {}
 #: Registered task variants (Task.variant), by name: "<task>@<tag>"; looked up by get_task like a task,

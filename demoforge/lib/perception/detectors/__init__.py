@@ -26,7 +26,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from demoforge.lib.geometry import project_points  # noqa: F401  (re-exported for the backends)
-from demoforge.lib.registry import Registry
+from demoforge.lib.perception.detector_registry import DETECTORS, available_detectors
 
 __all__ = [
     "N_JOINTS",
@@ -260,23 +260,9 @@ class HandDetector(abc.ABC):
 # registry
 # ------------------------------------------------------------------------------------------------
 
-#: name -> a callable returning a HandDetector (its class), or a lazy "module:attribute"; an unknown name
-#: is an UnknownNameError (a user error, and a ValueError) listing the names
-DETECTORS: Registry[Callable[..., HandDetector]] = Registry("hand detector", {
-    "hamer": "demoforge.lib.perception.hamer.backend:HamerDetector",
-    "mediapipe": "demoforge.lib.perception.detectors.mediapipe_backend:MediaPipeDetector",
-    "precomputed": "demoforge.lib.perception.detectors.precomputed:PrecomputedDetector",
-    "simulated": "demoforge.lib.perception.detectors.simulated:SimulatedDetector",
-})
-
-
 def register_detector(name: str, factory: Callable[..., HandDetector] | str) -> None:
     """Register a backend: a callable returning a HandDetector, or a lazy "module:attribute" string."""
     DETECTORS.register(name, factory)
-
-
-def available_detectors() -> list[str]:
-    return sorted(DETECTORS.names())
 
 
 def get_detector(name: str, **options: Any) -> HandDetector:
