@@ -17,19 +17,24 @@ aloha2f140 ``aloha --gripper 2f140``        the same 14, the Robotiq 2F-140 on t
 grippers   ``grippers`` (2F-140)            16 pose values: per arm x y z qx qy qz qw g
 ========== ================================ ===================================================
 
-This module imports only Gymnasium: the environment (demoforge/envs/robot_env.py: MuJoCo, the
-simulator of demoforge.lib.sim) is imported by ``gymnasium.make``. The task names are listed here (the
-library's fixed six; tests/test_envs.py checks them against TASK_NAMES) so that registering needs no
-task library.
+This module imports only Gymnasium and two pure-Python name tables: the environment
+(demoforge/envs/robot_env.py: MuJoCo, the simulator of demoforge.lib.sim) is imported by
+``gymnasium.make``. The tasks are demoforge.lib.task_names.TASK_NAMES and the robot keys come from the
+robots' registry (demoforge.lib.robot_spec.robot_labels, the ``+`` dropped), so a registered robot gets its
+environments without a second list.
 """
 
 from __future__ import annotations
 
 import gymnasium
 
-TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
+from demoforge.lib.robot_spec import RobotSpec, robot_labels
+from demoforge.lib.task_names import TASK_NAMES
+
+TASKS = TASK_NAMES
 #: robot key of an id -> (robot, gripper) as demoforge.lib.sim.robots.get_robot takes them
-ROBOTS = {"aloha": ("aloha", "aloha"), "aloha2f140": ("aloha", "2f140"), "grippers": ("grippers", "2f140")}
+ROBOTS = {label.replace("+", ""): (spec.robot, spec.gripper)
+          for label, spec in ((label, RobotSpec.parse(label)) for label in robot_labels())}
 ENTRY_POINT = "demoforge.envs.robot_env:DemoforgeEnv"
 
 
