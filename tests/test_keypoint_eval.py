@@ -7,11 +7,12 @@ import pytest
 
 from demoforge.lib.ingest.alignment import AlignmentConfig
 from demoforge.lib.evaluation.keypoints import (
-    APPENDIX_B_SECTIONS, BIG_OBJECTS, SMALL_OBJECTS, appendix_b, big_vs_small, common_K,
+    APPENDIX_B_SECTIONS, BIG_OBJECTS, SMALL_OBJECTS, big_vs_small, common_K,
     evaluate_arctic_take, evaluate_synthetic_take, evaluate_take, format_markdown, gt_anchor_depth,
     per_object, plot_big_vs_small, plot_per_object_bars, plot_per_take_bars, project_per_frame,
-    real_photo_rows, size_group, table1, table2,
+    real_photo_rows, size_group,
 )
+from tests.keypoint_tables import appendix_b, table1, table2
 
 K = np.array([[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 1.0]])
 

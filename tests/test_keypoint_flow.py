@@ -6,7 +6,7 @@ from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.flows.keypoint_eval import evaluate_keypoints
-from demoforge.lib.evaluation.keypoints import table1, table2
+from tests.keypoint_tables import table1, table2
 from demoforge.schemas.catalog import query
 from tests.arctic_fixture import build_arctic_tree
 from tests.conftest import SHARED_DATA, require_mediapipe_model

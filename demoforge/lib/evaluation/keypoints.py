@@ -20,8 +20,9 @@ eq. 4-7); the detection rate is reported beside them:
   ``*_aligned_*``: the same for the aligned prediction (Figure 20b speaks of "MPJPE after
   alignment"); ``*_pred_*``: the detector's own 2D keypoints when given.
 
-Tables (lists of dicts): :func:`table1`, :func:`table2`, :func:`appendix_b`,
-:func:`per_object` (Figures 19-20), :func:`big_vs_small` (Figure 21). The thesis's Table 1/2 values
+Tables 1, 2 and Appendix B are SQL views over `keypoint_metrics` (schemas/reports.py: report_table1,
+report_table2, report_appendix_b); here, as lists of dicts: :func:`per_object` (Figures 19-20) and
+:func:`big_vs_small` (Figure 21). The thesis's Table 1/2 values
 are NOT the plain mean over takes of its Appendix B (e.g. left MPJPE: mean of the 18 takes 1.296 vs
 Table 1's 1.301; left aligned 0.0224 vs 0.024), which fits eq. (4)'s pooling over all N frames;
 ``weighting="frames"`` (default) weights each take by its evaluated frames, ``weighting="takes"``
@@ -52,7 +53,7 @@ __all__ = [
     "BIG_OBJECTS", "SMALL_OBJECTS", "OBJECT_LABELS", "APPENDIX_B_ORDER", "APPENDIX_B_SECTIONS",
     "GT_ANCHOR_NOTE", "size_group", "gt_anchor_depth", "project_per_frame", "common_K", "evaluate_take",
     "evaluate_arctic_take", "evaluate_synthetic_take", "real_photo_rows", "evaluate_real_photos",
-    "table1", "table2", "appendix_b", "per_object", "big_vs_small", "plot_per_take_bars",
+    "per_object", "big_vs_small", "plot_per_take_bars",
     "plot_per_object_bars", "plot_big_vs_small", "format_markdown",
 ]
 
@@ -69,7 +70,7 @@ APPENDIX_B_ORDER: tuple[str, ...] = (
     "espressomachine_use_02", "ketchup_grab_01", "ketchup_use_01", "ketchup_use_02", "phone_grab_01",
     "phone_use_01", "phone_use_02", "scissors_use_01", "scissors_grab_01",
 )
-#: Appendix B's three sub-tables: (title, columns of :func:`appendix_b`'s rows).
+#: Appendix B's three sub-tables: (title, columns of the report_appendix_b view's rows).
 APPENDIX_B_SECTIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("MPJPE (m)", ("take", "mpjpe_left", "mpjpe_left_aligned", "mpjpe_right", "mpjpe_right_aligned")),
     ("PA-MPJPE (m)", ("take", "pa-mpjpe_left", "pa-mpjpe_left_aligned", "pa-mpjpe_right", "pa-mpjpe_right_aligned")),
@@ -415,72 +416,10 @@ def _avg(rows: Sequence[dict], key: str, weighting: str, weight_key: str = "n_ev
     return float(np.average(vals, weights=ws)) if vals else float("nan")
 
 
-def _by_hand(rows, side):
-    return [r for r in rows if r.get("hand") == side]
-
-
-def table1(rows: Sequence[dict], weighting: str = "frames") -> list[dict]:
-    """Thesis Table 1: MPJPE / PA-MPJPE (m) per hand, raw and aligned, averaged over takes
-    (``weighting``: "frames" = eq. (4) pooled over all evaluated frames, "takes" = plain mean)."""
-    out = []
-    for side in SIDES:
-        rs = _by_hand(rows, side)
-        for aligned in (False, True):
-            sfx = "_aligned" if aligned else ""
-            wk = "n_eval_aligned" if aligned else "n_eval"
-            out.append({"method": HAND_LABEL[side] + (" (Aligned)" if aligned else ""), "hand": side,
-                        "aligned": aligned, "mpjpe_m": _avg(rs, f"mpjpe{sfx}_m", weighting, wk),
-                        "pa_mpjpe_m": _avg(rs, f"pa_mpjpe{sfx}_m", weighting, wk), "n_takes": len(rs)})
-    return out
-
-
-_2D_VARIANTS = {"projected": ("mpjpe_2d_px", "pck05", "pck15", "n_eval"),
-                "aligned": ("mpjpe_2d_aligned_px", "pck05_aligned", "pck15_aligned", "n_eval_aligned"),
-                "pred_px": ("mpjpe_2d_pred_px", "pck05_pred", "pck15_pred", "n_eval")}
-
-
-def table2(rows: Sequence[dict], weighting: str = "frames", variant: str = "projected") -> list[dict]:
-    """Thesis Table 2: 2D MPJPE (px), PCK@0.05, PCK@0.15 per hand. ``variant``: "projected" (the raw
-    3D prediction projected with K, thesis 4.2.2), "aligned" (the aligned one), "pred_px" (the
-    detector's own 2D)."""
-    k_mp, k05, k15, wk = _2D_VARIANTS[variant]
-    out = []
-    for side in SIDES:
-        rs = _by_hand(rows, side)
-        out.append({"hand": HAND_LABEL[side], "mpjpe_2d_px": _avg(rs, k_mp, weighting, wk),
-                    "pck05": _avg(rs, k05, weighting, wk), "pck15": _avg(rs, k15, weighting, wk),
-                    "n_takes": len(rs), "variant": variant})
-    return out
-
-
 def _take_order(rows: Sequence[dict]) -> list[str]:
     takes = list(dict.fromkeys(r.get("take", "") for r in rows))
     rank = {t: i for i, t in enumerate(APPENDIX_B_ORDER)}
     return sorted(takes, key=lambda t: (rank.get(t, len(rank)), takes.index(t)))
-
-
-def appendix_b(rows: Sequence[dict]) -> list[dict]:
-    """Thesis Appendix B: one row per take (Appendix B's take order first), with its column names:
-    mpjpe_left, mpjpe_left_aligned, mpjpe_right, mpjpe_right_aligned, pa-mpjpe_{left,right}[_aligned],
-    2D_mpjpe_r, 2D_mpjpe_l, pck05_r, pck15_r, pck05_l, pck15_l (+ object, size_group). The three
-    sub-tables' columns are :data:`APPENDIX_B_SECTIONS`."""
-    out = []
-    nan = float("nan")
-    for t in _take_order(rows):
-        hs = {r["hand"]: r for r in rows if r.get("take", "") == t}
-        L, R = hs.get("left", {}), hs.get("right", {})
-        any_r = L or R
-        out.append({
-            "take": t, "object": any_r.get("object"), "size_group": any_r.get("size_group"),
-            "mpjpe_left": L.get("mpjpe_m", nan), "mpjpe_left_aligned": L.get("mpjpe_aligned_m", nan),
-            "mpjpe_right": R.get("mpjpe_m", nan), "mpjpe_right_aligned": R.get("mpjpe_aligned_m", nan),
-            "pa-mpjpe_left": L.get("pa_mpjpe_m", nan), "pa-mpjpe_left_aligned": L.get("pa_mpjpe_aligned_m", nan),
-            "pa-mpjpe_right": R.get("pa_mpjpe_m", nan), "pa-mpjpe_right_aligned": R.get("pa_mpjpe_aligned_m", nan),
-            "2D_mpjpe_r": R.get("mpjpe_2d_px", nan), "2D_mpjpe_l": L.get("mpjpe_2d_px", nan),
-            "pck05_r": R.get("pck05", nan), "pck15_r": R.get("pck15", nan),
-            "pck05_l": L.get("pck05", nan), "pck15_l": L.get("pck15", nan),
-        })
-    return out
 
 
 GROUP_METRICS = ("mpjpe_aligned_m", "pa_mpjpe_m", "mpjpe_m", "mpjpe_2d_px", "mpjpe_2d_aligned_px", "pck05", "pck15")
