@@ -37,7 +37,8 @@ REPORT_INGESTED_DEMOS_SQL = """
            count(*) FILTER (WHERE status = 'executed') AS executed,
            count(*) FILTER (WHERE success) AS successes,
            round(avg(CASE WHEN success THEN 1.0 ELSE 0.0 END), 3) AS success_rate,
-           string_agg(DISTINCT CASE WHEN success THEN NULL ELSE failure END, ', ') AS failures,
+           string_agg(DISTINCT CASE WHEN success THEN NULL ELSE failure END, ', '
+                      ORDER BY CASE WHEN success THEN NULL ELSE failure END) AS failures,  -- sorted: the same every run
            round(avg(valid_left), 3) AS valid_left, round(avg(valid_right), 3) AS valid_right
     FROM ingested_demo_checks GROUP BY task, detector
     ORDER BY task, CASE detector WHEN 'simulated' THEN 0 ELSE 1 END, detector
