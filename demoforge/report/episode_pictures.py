@@ -75,6 +75,8 @@ def _success_maps(rows, ids: np.ndarray, kp_all: np.ndarray, spec, task: str, re
         sel = np.array([(r, g) == (robot, gripper) for r, g in zip(robots, grippers)])
         sim_ids = rows.column("episode_id").to_numpy()[sel]
         success = rows.column("success").to_numpy(zero_copy_only=False)[sel]
+        order = np.argsort(sim_ids, kind="stable")  # the rows come in file order: draw overlapping markers alike
+        sim_ids, success = sim_ids[order], success[order]
         pos = np.argsort(ids)[np.searchsorted(np.sort(ids), sim_ids)]
         kp = kp_all[pos]                                                              # (n, 11, 3)
         obj = spec.keypoint_object
