@@ -75,7 +75,7 @@ def test_fit_translation_recovers_exact_translation():
     np.testing.assert_allclose(est, t, atol=1e-9)
 
 
-def test_registry():
+def test_registry(monkeypatch):
     assert {"mediapipe", "simulated", "precomputed"} <= set(available_detectors())
     with pytest.raises(ValueError, match="mediapipe, precomputed, simulated"):
         get_detector("hamer_torch")
@@ -86,6 +86,9 @@ def test_registry():
         def detect(self, rgb_batch, K, frame_indices):
             return [[] for _ in frame_indices]
 
+    from demoforge.lib.perception.detectors import DETECTORS
+
+    monkeypatch.setattr(DETECTORS, "_entries", dict(DETECTORS._entries))  # the registration ends with the test
     register_detector("dummy", Dummy)
     d = get_detector("dummy")
     assert d.detect(np.zeros((2, 4, 4, 3), np.uint8), K, [0, 1]) == [[], []]
