@@ -45,10 +45,10 @@ def _judge(serves: Serves, batch: EpisodeBatch, rows: np.ndarray) -> np.ndarray:
     """Valid (generation's own checks) and served, for rows of batch, JUDGE_CHUNK at a time."""
     ok = batch.valid[rows].copy()
     for i in range(0, len(rows), JUDGE_CHUNK):
-        part = rows[i:i + JUDGE_CHUNK]
-        todo = part[ok[i:i + JUDGE_CHUNK]]
+        part = ok[i:i + JUDGE_CHUNK]  # a view: what serves says lands in ok
+        todo = rows[i:i + JUDGE_CHUNK][part]
         if len(todo):
-            ok[i:i + JUDGE_CHUNK][ok[i:i + JUDGE_CHUNK]] = np.asarray(serves(batch, todo), bool)
+            part[part] = np.asarray(serves(batch, todo), bool)
     return ok
 
 
