@@ -11,7 +11,7 @@ from prefect import flow
 from demoforge.flows.ingest import check_demonstration, ingest_take
 from demoforge.lib.annotate import annotation_status, not_annotated_message
 from demoforge.lib.ingest.options import IngestOptions
-from demoforge.lib.takes import TakeError, open_take, take_task_name
+from demoforge.lib.takes import TakeError, take_task_name
 from demoforge.lib.takes.sources import take_root
 from demoforge.lib.task_library import TASK_NAMES
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
@@ -20,7 +20,7 @@ from demoforge.runtime.runners import run_flow
 from demoforge.schemas.catalog import query
 from demoforge.schemas.core import read_table_file
 from demoforge.tasks.augment import augment_take, segment_take
-from demoforge.tasks.common import Manifest, run_stage
+from demoforge.tasks.common import Manifest, opened_take, run_stage
 
 
 @flow(name="augment-take")
@@ -55,12 +55,13 @@ def augment_take_flow(
     up to redraw_rounds rounds (0: drawn as without a robot).
     """
     aug = augment or AugmentOptions()
+    take_dir = take_root(path)
     ingested = run_flow(ingest_take, path, warehouse, task=task, options=ingest, show_progress=show_progress)
     if ingested["object_keypoints"] is None:  # the episodes are placed by the object keypoints
-        raise TakeError(not_annotated_message(path, annotation_status(open_take(path)).detail))
+        raise TakeError(not_annotated_message(path, annotation_status(opened_take(take_dir)).detail))
     if not allow_untrusted_hands:
         require_trusted_hands(ingested["hand_presence"])
-    common = dict(take_dir=take_root(path), task=task, warehouse=warehouse,
+    common = dict(take_dir=take_dir, task=task, warehouse=warehouse,
                   grippers=ingested["gripper_poses"], objects=ingested["object_keypoints"])
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
@@ -69,7 +70,7 @@ def augment_take_flow(
                             if robot is not None and redraw_rounds > 0 else {}))
     # the robot executing the demonstration every episode is built from: when it fails, so will the
     # episodes, and the user hears it at once instead of after a whole-database robot check
-    demo_check = check_demonstration(take_root(path), warehouse, task, take_task_name(open_take(path), task),
+    demo_check = check_demonstration(take_dir, warehouse, task, take_task_name(opened_take(take_dir), task),
                                      ingested)
     return {**ingested, "segments": segments, "episodes": episodes, "demo_check": demo_check}
 

@@ -11,14 +11,14 @@ import pyarrow as pa
 from demoforge.lib.errors import UserError, one_line
 from demoforge.lib.sim import execute, sim_options
 from demoforge.lib.sim.stability import scene_offsets, shift_scene
-from demoforge.lib.takes import open_take, take_task_name
+from demoforge.lib.takes import take_task_name
 from demoforge.lib.task_library import TASK_LIBRARY_VERSION  # noqa: F401  (scenes: part of the code version)
 from demoforge.lib.trajectories.segmentation import fill_invalid_poses
 from demoforge.schemas.catalog import placeholders, query
 from demoforge.schemas.core import read_table, read_table_file, write_table
 from demoforge.schemas.reads.episodes import episode_actions
 from demoforge.schemas.reads.per_hand import arrays
-from demoforge.tasks.common import Manifest, stage_task
+from demoforge.tasks.common import Manifest, opened_take, stage_task
 
 # 2: settle phase stopped at rest, constraint islands off (lib/sim)
 # 3: results per selection; the key holds the episode database's content and the scene fingerprint
@@ -144,7 +144,7 @@ def check_ingested_demo(take_dir: Path, task: str | None, warehouse: str, grippe
     frames held at the nearest valid pose like the episode database's episode 0; its object keypoints) in
     MuJoCo and write its `ingested_demo_checks` row. `scene` (demoforge.lib.sim.scene_fingerprint) is in the
     cache key only, as for simulate_chunk."""
-    take = open_take(take_dir)
+    take = opened_take(take_dir)  # the take the ingest that ran before opened
     name = take_task_name(take, task)
     part = dict(task=name, take=take.take_id)
     gp_t = read_table("gripper_poses", warehouse, variant=variant, **part)
