@@ -162,13 +162,6 @@ def _dir_file_digests(folder: Path) -> list[tuple[str, str]]:
     return out
 
 
-def key_inputs_of(path: Path) -> dict[str, Path]:
-    """What else holds the content of a take given as ``path``, by name, as its take source says
-    (demoforge.lib.takes.sources.cache_key_inputs: a recording's side folder with its pose, annotations
-    and options); nothing for a path that is not a take."""
-    return cache_key_inputs(path)
-
-
 def _path_digest(path: Path) -> str:
     """sha256 over a folder's files (relative path and digest of each), or a file's own digest."""
     if path.is_file():
@@ -187,7 +180,7 @@ def _path_fingerprint(value: Path) -> Any:
         out = {"dir": value.name, "sha256": _path_digest(value)}
     else:
         return {"missing_path": str(value)}
-    for name, extra in key_inputs_of(value).items():
+    for name, extra in cache_key_inputs(value).items():  # e.g. a recording's side folder
         out[name] = _path_digest(extra)
     return out
 

@@ -23,9 +23,10 @@ from demoforge.lib.ingest.gripper_mapping import (clamp_above_table, gripper_sta
 from demoforge.lib.ingest.object_keypoints import backproject_keypoints_detailed
 from demoforge.lib.perception.tracking import REJECT_REASONS, TrackerConfig, depth_size_ratio, hand_trust, track_hands
 from demoforge.lib.takes import iter_depth, iter_frames, read_frame, take_task_name
+from demoforge.lib.takes.sources import cache_key_inputs
 from demoforge.schemas.core import read_table, read_table_file, unsliced_table, write_table
 from demoforge.schemas.reads.per_hand import HANDS, arrays, rows
-from demoforge.tasks.common import Manifest, _dir_file_digests, _file_digest, key_inputs_of, opened_take, stage_task
+from demoforge.tasks.common import Manifest, _dir_file_digests, _file_digest, opened_take, stage_task
 
 INGEST_VERSION = "1"
 ANNOTATIONS = "annotations.json"
@@ -46,7 +47,7 @@ def take_media_key(take_dir: Path) -> str:
         files = []
     else:
         files = _dir_file_digests(take_dir)
-    for extra in key_inputs_of(take_dir).values():  # a recording's side folder
+    for extra in cache_key_inputs(take_dir).values():  # a recording's side folder
         if extra.is_dir():
             files = files + [(f"{extra.name}/{rel}", d) for rel, d in _dir_file_digests(extra) if rel != ANNOTATIONS]
         else:
