@@ -18,7 +18,8 @@ from demoforge.schemas.reads.demonstration import demo_arrays, load_demo_source,
 from demoforge.schemas.sim import drop_results
 from demoforge.tasks.common import Manifest, opened_take, stage_task
 
-AUGMENT_VERSION = "1"
+# 2: the held object named by hull distance (trajectories/segmentation.py held_objects)
+AUGMENT_VERSION = "2"
 
 
 @stage_task(name="segment_take", version=AUGMENT_VERSION)

@@ -8,8 +8,10 @@ A frame is "skill" when d < enter (hysteresis: stays skill until d > exit), or w
 frames of a gripper open/close event, or while the arm holds an object that has not moved further
 than `carry_distance` from where it was grasped (a hand holding the receiving object in place).
 Then skill runs shorter than `min_skill` frames and motion gaps shorter than `min_motion` frames are
-removed.  "Held": the gripper is closed (g < 0.5) and the object is the one whose keypoints were
-nearest at the closing frame.  Keypoints may be given per frame (T, K, 3) or at frame 0 only (K, 3):
+removed.  "Held": the gripper is closed (g < 0.5) and the object is the one nearest at the closing frame,
+by the distance to its keypoints' convex hull plus a tenth of the distance to its nearest keypoint (the
+hull: a stem pinched between its keypoints lies farther from all of them than from the rim of the vase
+it stands in; the keypoint: a pinch around a vase lies inside the hulls of the vase and its flowers).  Keypoints may be given per frame (T, K, 3) or at frame 0 only (K, 3):
 then a held object's keypoints are carried rigidly with the gripper from its grasp frame on and stay
 where released (static scene otherwise).  Each segment's object: for skill, the object it is nearest
 to / acting on (the other object when the held one is brought to it); for motion, the object of the
@@ -24,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import nnls
 
 from demoforge.lib import geometry as geo
 from demoforge.lib.errors import UserError
@@ -80,12 +83,32 @@ def _remove_short(mask: np.ndarray, value: bool, min_len: int) -> np.ndarray:
     return out
 
 
+def hull_distance(points: np.ndarray, p: np.ndarray) -> float:
+    """Distance (m) from p (3,) to the convex hull of points (K, 3), flat or degenerate hulls included: the
+    nearest convex combination, as a non-negative least-squares problem whose last row weighs sum = 1."""
+    A = np.vstack([np.asarray(points, float).T, np.full(len(points), _HULL_WEIGHT)])
+    w, _ = nnls(A, np.append(np.asarray(p, float), _HULL_WEIGHT))
+    return float(np.linalg.norm(np.asarray(points, float).T @ w - p))
+
+
+_HULL_WEIGHT = 100.0  # the sum-to-one row's weight: 1e-4 m of slack costs as much as 1 cm off the hull
+NEAREST_KEYPOINT_WEIGHT = 0.1  # of the nearest keypoint's distance in the held object's score (see the docstring)
+
+
+def grasped_object_scores(keypoints: np.ndarray, keypoint_object: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(n_obj,) how far (m) the pinch point p (3,) is from each object (keypoints (K, 3)): the lowest is held."""
+    out = []
+    for o in range(int(keypoint_object.max()) + 1):
+        K = keypoints[keypoint_object == o]
+        out.append(hull_distance(K, p) + NEAREST_KEYPOINT_WEIGHT * np.linalg.norm(K - p, axis=-1).min())
+    return np.array(out)
+
+
 def held_objects(trajectory: np.ndarray, keypoints: np.ndarray, keypoint_object: np.ndarray,
                  closed_below: float = 0.5) -> np.ndarray:
     """(T, 2) index of the object each arm holds (-1 = none)."""
     T = trajectory.shape[0]
     kp = keypoints if keypoints.ndim == 3 else keypoints[None]
-    n_obj = int(keypoint_object.max()) + 1
     held = np.full((T, 2), -1)
     for arm in range(2):
         closed = trajectory[:, arm, 7] < closed_below
@@ -93,9 +116,7 @@ def held_objects(trajectory: np.ndarray, keypoints: np.ndarray, keypoint_object:
             if not v:
                 continue
             K = kp[min(a, len(kp) - 1)]
-            d = np.linalg.norm(K - trajectory[a, arm, :3], axis=-1)
-            per_obj = np.array([d[keypoint_object == o].min() for o in range(n_obj)])
-            held[a:b, arm] = int(np.argmin(per_obj))
+            held[a:b, arm] = int(np.argmin(grasped_object_scores(K, keypoint_object, trajectory[a, arm, :3])))
     return held
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from demoforge.lib.geometry import pose7_to_transform, quat_to_matrix, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
-from demoforge.lib.trajectories.segmentation import SegmentationParams
+from demoforge.lib.trajectories.segmentation import NEAREST_KEYPOINT_WEIGHT, SegmentationParams, grasped_object_scores
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -53,17 +53,25 @@ def smooth_batch(actions: np.ndarray, sigma: float) -> np.ndarray:
 
 def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
                closed_below: float = 0.5) -> np.ndarray:
-    """(E, T, 2) segmentation.held_objects of each episode of a group (E, T, 2, 8) with its keypoints (E, K, 3):
-    the object whose keypoints are nearest each closed run's first step (the runs: the group's)."""
+    """(E, T, 2) segmentation.held_objects of each episode of a group (E, T, 2, 8) with its keypoints (E, K, 3)
+    (the runs: the group's). An object's score lies between NEAREST_KEYPOINT_WEIGHT and 1 + that times its
+    nearest keypoint's distance, so the hull distances are solved only where those bounds leave more than one
+    object in the running."""
     E, T = traj.shape[:2]
     ko = np.asarray(keypoint_object, int)
     n_obj = int(ko.max()) + 1
     held = np.full((E, T, 2), -1)
     for arm in range(2):
         for a, b in runs(traj[0, :, arm, 7] < closed_below):  # the group's closed runs
-            d = np.linalg.norm(keypoints0 - traj[:, a, arm, None, :3], axis=-1)  # (E, K)
-            per_obj = np.stack([d[:, ko == o].min(axis=1) for o in range(n_obj)], axis=1)
-            held[:, a:b, arm] = np.argmin(per_obj, axis=1)[:, None]
+            p = traj[:, a, arm, :3]
+            d = np.linalg.norm(keypoints0 - p[:, None], axis=-1)  # (E, K)
+            near = np.stack([d[:, ko == o].min(axis=1) for o in range(n_obj)], axis=1)  # (E, n_obj)
+            low, high = NEAREST_KEYPOINT_WEIGHT * near, (1.0 + NEAREST_KEYPOINT_WEIGHT) * near
+            choice = np.argmin(high, axis=1)
+            open_rows = np.flatnonzero((low <= high.min(axis=1, keepdims=True)).sum(axis=1) > 1)
+            for e in open_rows:
+                choice[e] = np.argmin(grasped_object_scores(keypoints0[e], ko, p[e]))
+            held[:, a:b, arm] = choice[:, None]
     return held
 
 
