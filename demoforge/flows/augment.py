@@ -21,6 +21,7 @@ from demoforge.schemas.catalog import query
 from demoforge.schemas.core import read_table_file
 from demoforge.tasks.augment import augment_take, segment_take
 from demoforge.tasks.common import Manifest, opened_take, run_stage
+from demoforge.tasks.screening import code_files
 
 
 @flow(name="augment-take")
@@ -66,8 +67,8 @@ def augment_take_flow(
     segments = run_stage(segment_take, warehouse, **common, manual=manual_segments)
     episodes = run_stage(augment_take, warehouse, **common, segments=segments, n=aug.n, n_mirrored=aug.n_mirrored,
                          seed=aug.seed, options=dict(aug.generation), **({"database": database} if database else {}),
-                         **({"robot": robot, "gripper": gripper, "redraw_rounds": redraw_rounds}
-                            if robot is not None and redraw_rounds > 0 else {}))
+                         **({"robot": robot, "gripper": gripper, "redraw_rounds": redraw_rounds,
+                             "screening_code": code_files()} if robot is not None and redraw_rounds > 0 else {}))
     # the robot executing the demonstration every episode is built from: when it fails, so will the
     # episodes, and the user hears it at once instead of after a whole-database robot check
     demo_check = check_demonstration(take_dir, warehouse, task, take_task_name(opened_take(take_dir), task),

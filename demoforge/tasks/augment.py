@@ -55,16 +55,18 @@ def segment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Man
     return Manifest.from_written("segments", written)
 
 
-@stage_task(name="augment_take", version=AUGMENT_VERSION)
+@stage_task(name="augment_take", version=AUGMENT_VERSION, key_optional=("screening_code",))
 def augment_take(take_dir: Path, task: str | None, warehouse: str, grippers: Manifest, objects: Manifest,
                  segments: Manifest, n: int = 10_000, n_mirrored: int = 5_000, seed: int = 0,
                  options: dict | None = None, database: str | None = None, robot: str | None = None,
-                 gripper: str | None = None, redraw_rounds: int = 8) -> Manifest:
+                 gripper: str | None = None, redraw_rounds: int = 8, screening_code: list[Path] | None = None) -> Manifest:
     """The task database: the demonstration, n - n_mirrored translated and n_mirrored mirrored episodes.
     database: the key written to `episodes.take` (default: the take's id); another key keeps a second
     database of the same take (other augmentation options) beside the first. robot (an arm robot, e.g.
     "aloha" with its gripper): the placements the arms' screening rejects are drawn again, up to
-    redraw_rounds rounds (lib/trajectories/augmentation/servable.py)."""
+    redraw_rounds rounds (lib/trajectories/augmentation/servable.py). screening_code: the screening's
+    sources (tasks/screening.py code_files), only in the cache key: a database drawn for the arms is drawn
+    again when their planner or the task library changes."""
     take = opened_take(take_dir)
     name = take_task_name(take, task)
     spec = require_task(name, take)
