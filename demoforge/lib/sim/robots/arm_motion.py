@@ -63,9 +63,6 @@ CARTESIAN_JUMP = 0.5  # rad a joint may move between two frames of a Cartesian t
 ON_PATH_ROUNDS = 3  # rounds of moving the samples between steps onto the path and retiming
 NEAR_WINDOW = 3  # frames of a transit next to its window that the collision check leaves out
 LIFTS = (0.10, 0.20, 0.30, 0.40)  # m: how much higher a transit's waypoint is when the straight transit touches something
-#: s both arms hold still before a hand closes inside its window: a servo trails a moving command by about
-#: 0.1 s (1-2 cm on an approach), and fingers that close before the arm has caught up miss a 6 mm stem
-GRASP_DWELL_S = 0.3
 
 
 @dataclass
@@ -305,23 +302,6 @@ def _off_path(ik: ArmsIK, q: np.ndarray, pos: np.ndarray, R: np.ndarray, s_demo:
     return failure, float(pe.max()), float(re.max())
 
 
-def _dwell_before_closes(q: np.ndarray, s_demo: np.ndarray, actions: np.ndarray, windows: np.ndarray,
-                         fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """(q, s_demo) with the last executed frame before each close inside an arm's window held GRASP_DWELL_S
-    (both arms wait: their coordination is the demonstration's)."""
-    hold = int(round(GRASP_DWELL_S * fps))
-    closed = actions[:, :, 7] < 0.5
-    closes = [t for a in range(2) for t in np.flatnonzero(closed[1:, a] & ~closed[:-1, a]) + 1
-              if windows[a, 0] <= t < windows[a, 1]]
-    if hold <= 0 or not closes:
-        return q, s_demo
-    # the frame each close waits at: the last one whose demonstrated step is still before the close
-    frames = sorted({int(np.searchsorted(s_demo, t - 1.0, side="right")) - 1 for t in closes})
-    repeat = np.ones(len(q), int)
-    repeat[[f for f in frames if f >= 0]] += hold
-    return np.repeat(q, repeat, axis=0), np.repeat(s_demo, repeat)
-
-
 def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
                     fps: float = 30.0, ready: np.ndarray | None = None, until_failure: bool = False,
                     collides: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -355,7 +335,6 @@ def plan_arm_motion(ik: ArmsIK, actions: np.ndarray, keypoints0: np.ndarray, key
         # the samples moved onto the path made a joint too fast: retime, and the new samples go onto the path too
         r2 = velocity_limited(q, fps, ik.speed)
         q, s_demo = at(q, r2.s), at(s_demo, r2.s)
-    q, s_demo = _dwell_before_closes(q, s_demo, actions, windows, fps)
     pos, R = ik.fk(q)
     # checked as finally run: the second retiming interpolates again between the samples moved onto the path
     sample_failure, spe, sre = _off_path(ik, q, pos, R, s_demo, actions, sol, stop)

@@ -50,10 +50,9 @@ HANDS = ("aloha", "2f140")
 # grasp chosen as a path over turns and branches clear of the other arm, transits with clearance, the path checked
 # as finally run; 7: a grasp path forced across a joint jump is not feasible; 8: mink collision limits and posture
 # task, fingertips 2 mm above the table, a thin held object turns only in a hand that grips it; 9: the held
-# object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's); 10: both
-# arms hold still GRASP_DWELL_S before a hand closes.
+# object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's).
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "10"
+IK_VERSION = "9"
 # mink's collision limits in the IK (lib/sim/robots/ik.py): the two forearms, wrists and hands apart, every link
 # from the upper arm on above the table top; (geoms, geoms, distance kept m)
 _FOREARM = ("5_lower_forearm", "6_wrist", "7_gripper")
