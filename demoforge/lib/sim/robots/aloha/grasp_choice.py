@@ -124,11 +124,16 @@ def _best_path(q, good, margin, turns, transit0, max_turn_step, may_turn, jumps)
     held_still[:, 1:] += BAD
     cost = transit0 + node[:, 0]
     back = np.zeros((S, C, B), int)  # the predecessor (k * B + b) of each state
+    # every sample's jumps at once (S - 1, C, K, B, B'): from each state at the sample before to each state, the
+    # joints' largest move taken joint by joint (numpy's reduction over a short last axis costs ten times more)
+    jump = None
+    for j in range(q.shape[-1]):
+        qj = q[..., j].transpose(1, 0, 2)  # (S, C, B)
+        d = np.abs(qj[:-1, nbr][..., None] - qj[1:, :, None, None])
+        jump = d if jump is None else np.maximum(jump, d, out=jump)
+    jumped = BAD * (jump >= jumps[1:, None, None, None, None])
     for s in range(1, S):
-        prev = q[nbr, s - 1]  # (C, K, B, 6)
-        jump = np.abs(prev[:, :, :, None] - q[:, s][:, None, None]).max(axis=-1)  # (C, K, B, B')
-        total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + BAD * (jump >= jumps[s])
-                 ).reshape(C, K * B, B)
+        total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + jumped[s - 1]).reshape(C, K * B, B)
         arg = np.argmin(total, axis=1)  # (C, B')
         cost = np.take_along_axis(total, arg[:, None], axis=1)[:, 0] + node[:, s]
         back[s] = arg
@@ -165,6 +170,19 @@ def _gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a[..., :, None, :] - b[..., None, :, :], axis=-1).min(axis=(-2, -1))
 
 
+def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray, avoid: tuple[np.ndarray, np.ndarray]) -> None:
+    """good (C, S, B) cleared in place where the arm's segment points (C, S, B, P1, 3) or its hand's points
+    (C, S, P2, 3) come closer than avoid[1] (S,) to the other arm's points avoid[0] (S, P, 3) (NaN where that arm
+    is out of its window: nothing to keep apart from). The segments' distances are taken only for states still
+    followed at samples where the other arm is in its window (the others stay as they are): the same
+    distances, element by element, as over every state."""
+    pts, need = avoid
+    with np.errstate(invalid="ignore"):
+        good &= ~(_gap(hands, pts[None]) < need[None])[..., None]
+        c, s, b = np.nonzero(good & np.isfinite(pts).all(axis=(1, 2))[None, :, None])
+        good[c, s, b] = ~(_gap(segments[c, s, b], pts[s]) < need[s])
+
+
 def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.ndarray, w: _Window,
            avoid: tuple[np.ndarray, np.ndarray] | None = None) -> list[_Path]:
     """The arm's best path for each half-turn of the gripper, best first. avoid: (points (S, P, 3) of the other
@@ -181,10 +199,7 @@ def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.n
         # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
         good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
         if avoid is not None:
-            with np.errstate(invalid="ignore"):
-                hand_near = _gap(_hand_points(P, solver.g.wrist_to_pinch), avoid[0][None]) < avoid[1][None]  # (C, S)
-                good &= ~(_gap(_segment_points(solver, base, q), avoid[0][None, :, None]) < avoid[1][None, :, None])
-                good &= ~hand_near[..., None]
+            _keep_apart(good, _segment_points(solver, base, q), _hand_points(P, solver.g.wrist_to_pinch), avoid)
         live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
         live = live if len(live) else np.arange(good.shape[2])
         transit0 = (np.abs(q[:, 0] - ready) / speed).max(axis=-1)  # (C, B)
