@@ -53,6 +53,9 @@ AT_LIMIT = 0.02  # rad from a range's end counts as at the limit (mink approache
 TRIES = 4  # candidates tried per arm and window
 COLLISION_DETECTION = 0.05  # m: geoms closer than this enter the QP's collision constraints
 ANALYTIC_NEAR = 1.5  # rad: a closed-form answer farther than this from the interpolated joints is another branch
+# a start this far inside the convergence thresholds needs no QP whichever way its errors are rounded (batched
+# errors may differ from _errors' in the last bits)
+SETTLED = 1.0 - 1e-9
 
 
 @dataclass
@@ -145,8 +148,9 @@ class ArmsIK:
         import mujoco
         import qpsolvers
 
-        self.mink, self.qpsolvers = mink, qpsolvers
+        self.mink, self.qpsolvers, self.mujoco = mink, qpsolvers, mujoco
         self.model = mujoco.MjModel.from_xml_string(xml, assets)
+        self._kinematics = mujoco.MjData(self.model)  # _site_poses' own data: the IK's configuration stays as it is
         self.cfg = mink.Configuration(self.model)
         self.sites = np.array([self.model.site(s).id for s in sites])
         self.site_names = list(sites)
@@ -203,6 +207,29 @@ class ArmsIK:
                 self.tasks[a].set_target(SE3(wxyz_xyz=np.concatenate([wxyz[a], pos[a]])))
             else:
                 self.tasks[a].set_target(self.cfg.get_transform_frame_to_world(self.site_names[a], "site"))
+
+    def _site_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (m, 2, 3), R (m, 2, 3, 3)) of the pinch sites for configurations q (m, nq): fk's, by MuJoCo's
+        kinematics alone (what the sites' poses need) on a data of its own."""
+        d, kinematics = self._kinematics, self.mujoco.mj_kinematics
+        pos, R = np.empty((len(q), 2, 3)), np.empty((len(q), 2, 9))
+        for i, qi in enumerate(q):
+            d.qpos[:] = qi
+            kinematics(self.model, d)
+            pos[i], R[i] = d.site_xpos[self.sites], d.site_xmat[self.sites]
+        return pos, R.reshape(-1, 2, 3, 3)
+
+    def _settled(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, active: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(settled (m,), pe (m, 2) m, re (m, 2) rad) of configurations q (m, nq) with targets pos, R (m, 2, ...):
+        the rows whose active arms are all converged (SETTLED), where _iterate would stop before its first QP,
+        and the errors it gives there (_errors' formulas over all rows at once; 0 for arms not active)."""
+        xpos, xmat = self._site_poses(q)
+        diff = xpos - pos
+        pe = np.where(active, np.sqrt(np.einsum("mai,mai->ma", diff, diff)), 0.0)
+        re = np.where(active, _rotation_angle(xmat, R), 0.0)
+        off = np.maximum(pe / CONVERGED_POSITION, re / CONVERGED_ROTATION)
+        return (off < SETTLED).all(axis=1), pe, re
 
     def _errors(self, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self.cfg.data
@@ -457,7 +484,11 @@ class ArmsIK:
                 use = ((exact >= self.lower[dofs]) & (exact <= self.upper[dofs])).all(axis=1) & \
                     (np.abs(exact - near).max(axis=1) < ANALYTIC_NEAR)
                 out[rows[use][:, None], dofs] = exact[use]
-        for i in np.flatnonzero(active.any(axis=1)):
+        rows = np.flatnonzero(active.any(axis=1))
+        # rows already on their targets (the closed form's exact joints) keep them: no QP, no per-row Python
+        settled, pe, re = self._settled(out[rows], pos[rows], R[rows], active[rows])
+        pe_all[rows[settled]], re_all[rows[settled]] = pe[settled], np.degrees(re[settled])
+        for i in rows[~settled]:
             self.cfg.update(out[i])
             # without the closed form's start (near the wrist's singularity) the interpolated joints may be far off
             pe, re, _ = self._iterate(pos[i], R[i], wxyz[i], self.iterations if analytic else self.first_iterations, dt,
