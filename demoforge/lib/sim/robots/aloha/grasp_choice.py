@@ -89,6 +89,9 @@ class _Window:
     symmetry: int
     may_turn: np.ndarray  # (S,) the turn may change from the previous sample (the object held at both)
     lowest: Callable[[np.ndarray], np.ndarray]
+    # per half-turn (flip, poses (C, S, 4, 4), closed form, followed (C, S, B) before the other arm is weighed):
+    # _states' answer, kept for the window's second choice around the other arm
+    states: list | None = None
 
 
 @dataclass
@@ -166,8 +169,15 @@ def _hand_points(P: np.ndarray, reach: float) -> np.ndarray:
 
 
 def _gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...)."""
-    return np.linalg.norm(a[..., :, None, :] - b[..., None, :, :], axis=-1).min(axis=(-2, -1))
+    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...). The squares
+    summed x, y, z in that order, as np.linalg.norm sums them, coordinate by coordinate (numpy's reduction over a
+    short last axis costs ten times more), and the root taken of the smallest (the root keeps the order)."""
+    sq = None
+    for k in range(3):
+        d = a[..., :, None, k] - b[..., None, :, k]
+        d *= d
+        sq = d if sq is None else np.add(sq, d, out=sq)
+    return np.sqrt(sq.reshape(sq.shape[:-2] + (-1,)).min(axis=-1))
 
 
 def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray, avoid: tuple[np.ndarray, np.ndarray]) -> None:
@@ -183,22 +193,31 @@ def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray, avoid
         good[c, s, b] = ~(_gap(segments[c, s, b], pts[s]) < need[s])
 
 
+def _states(solver: ViperXBatchIK, base: BasePose, w: _Window, turns: np.ndarray, flip: bool) -> tuple:
+    """(flip, P (C, S, 4, 4) the pinch poses of each turn at the samples, the closed form's solution of them,
+    followed (C, S, B): the states within reach and range, the wrist and the fingertips above the table)."""
+    P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])  # (C, S, 4, 4)
+    sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
+    good = sol.closes & (sol.margin > MIN_MARGIN)
+    good &= solver.points(base, sol.q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
+    # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
+    good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
+    return flip, P, sol, good
+
+
 def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.ndarray, w: _Window,
            avoid: tuple[np.ndarray, np.ndarray] | None = None) -> list[_Path]:
     """The arm's best path for each half-turn of the gripper, best first. avoid: (points (S, P, 3) of the other
     arm at the samples (NaN where it is not in its window), the gap (S,) to keep from them)."""
     turns = grasp_turns(w.symmetry) if w.obj is not None else np.zeros(1)
     max_step = np.radians(TURN_STEP_MAX_DEG) if w.obj is not None and w.symmetry == 0 else 0.0
+    if w.states is None:
+        w.states = [_states(solver, base, w, turns, flip) for flip in (False, True)]
     out = []
-    for flip in (False, True):
-        P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])  # (C, S, 4, 4)
-        sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
+    for flip, P, sol, good in w.states:
         q = sol.q  # (C, S, B, 6)
-        good = sol.closes & (sol.margin > MIN_MARGIN)
-        good &= solver.points(base, q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
-        # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
-        good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
         if avoid is not None:
+            good = good.copy()
             _keep_apart(good, _segment_points(solver, base, q), _hand_points(P, solver.g.wrist_to_pinch), avoid)
         live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
         live = live if len(live) else np.arange(good.shape[2])
