@@ -14,7 +14,8 @@ own pose, so the QP leaves it. Along the window the solution is warm-started: ea
 the previous step's joints moved on with their last velocity, so at 30 fps one iteration usually
 lands within 0.5 mm and 0.25 degrees of the target (no QP at all), and at most `iterations` are spent
 per step, while each brings the arm closer. Each iteration is mink's QP (mink.build_ik: the tasks'
-weighted residuals and the configuration limits) solved by DAQP through qpsolvers. mink's
+weighted residuals and the configuration limits) solved by DAQP as qpsolvers does (ik_qp.py: the same
+arithmetic without their per-call Python layers). mink's
 ConfigurationLimit keeps every joint inside its range. There is no speed limit here: the IK solves
 for the path, and lib/sim/robots/retiming.py then slows down whatever a joint cannot follow at the
 demonstrated speed.
@@ -43,6 +44,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
+
+from .ik_qp import StepQP
 
 POSITION_TOL = 0.01  # m
 ROTATION_TOL_DEG = 5.0
@@ -146,9 +149,8 @@ class ArmsIK:
                  posture_cost: float = 0.0):
         import mink
         import mujoco
-        import qpsolvers
 
-        self.mink, self.qpsolvers, self.mujoco = mink, qpsolvers, mujoco
+        self.mink, self.mujoco = mink, mujoco
         self.model = mujoco.MjModel.from_xml_string(xml, assets)
         self._kinematics = mujoco.MjData(self.model)  # _site_poses' own data: the IK's configuration stays as it is
         self.cfg = mink.Configuration(self.model)
@@ -166,6 +168,7 @@ class ArmsIK:
             posture = mink.PostureTask(self.model, cost=posture_cost)
             posture.set_target(np.asarray(rest, float))
             self.tasks = self.tasks + [posture]
+        self.qp = StepQP(self.cfg, self.tasks, self.limits)  # mink's QP per iteration, without its Python layers
         self.arm_dofs = [np.asarray(list(j), int) for j in arm_joints]
         self.speed = np.asarray(speed, float)
         self.rest = np.asarray(rest, float)
@@ -251,12 +254,11 @@ class ArmsIK:
         if (off > 1.0).any():
             self._set_targets(pos, wxyz, active)  # only when a QP is solved (the prediction often lands already)
         while k < max_iter and (off > 1.0).any():
-            result = self.qpsolvers.solve_problem(self.mink.build_ik(self.cfg, self.tasks, dt, 1e-12, self.limits),
-                                                  solver="daqp")
-            if not result.found:  # no step within the limits: the configuration stays
+            dq = self.qp.solve(dt)
+            if dq is None:  # no step within the limits: the configuration stays
                 break
             q_before = self.cfg.q.copy()
-            self.cfg.integrate_inplace(result.x / dt, dt)
+            self.cfg.integrate_inplace(dq / dt, dt)
             pe1, re1 = self._errors(pos, R)
             pe1, re1 = np.where(active, pe1, 0.0), np.where(active, re1, 0.0)
             k += 1

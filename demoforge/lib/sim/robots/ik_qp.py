@@ -1,0 +1,125 @@
+"""One IK iteration's quadratic program of ArmsIK (ik.py), without mink's and qpsolvers' per-call Python layers.
+
+    qp = StepQP(configuration, tasks, limits)   # mink's FrameTasks (sites), an optional PostureTask, its limits
+    dq = qp.solve(dt)                            # mink.build_ik(...) solved with DAQP: the step, or None
+
+Each iteration mink.build_ik assembles the objective of the two pinch-site frame tasks and the posture task
+and the inequalities of the configuration and collision limits, and qpsolvers hands them to DAQP. For
+ArmsIK's fixed tasks and limits that assembly, a few hundred small numpy calls through mink's classes, costs
+more than the solve. StepQP does the same arithmetic, in the same order, on the same arrays: mink's own
+native Lie-group operations (the ones its FrameTask calls), MuJoCo's site Jacobian, the same weights,
+products and stacking, mink's collision limits as they are, and DAQP called with the arguments qpsolvers
+passes it. The step is bit for bit mink's (tests/test_robot_arms.py compares the two); where mink runs
+without its native operations (MINK_DISABLE_NATIVE), or with other tasks, solve() is mink's own path.
+"""
+
+from __future__ import annotations
+
+from ctypes import c_int
+from typing import Sequence
+
+import numpy as np
+
+DAMPING = 1e-12  # mink.build_ik's global Levenberg-Marquardt damping, as ArmsIK passes it
+NO_LOWER = -1e30  # qpsolvers' lower bound of a one-sided inequality for DAQP
+
+
+class StepQP:
+    """mink.build_ik(configuration, tasks, dt, DAMPING, limits) solved by DAQP (see the module docstring)."""
+
+    def __init__(self, configuration, tasks: Sequence, limits: Sequence):
+        # imported where the solver is built, as ik.py imports mink (DAQP is qpsolvers' backend)
+        import daqp
+        import mink
+        import mujoco
+        import qpsolvers
+
+        self.mink, self.qpsolvers, self.daqp, self.mujoco = mink, qpsolvers, daqp, mujoco
+        self.cfg, self.tasks, self.limits = configuration, list(tasks), list(limits)
+        model = configuration.model
+        self.nv = model.nv
+        native = getattr(mink.tasks.frame_task, "_native", None)
+        frames = [t for t in self.tasks if type(t) is mink.FrameTask and t.frame_type == "site"]
+        postures = [t for t in self.tasks if type(t) is mink.PostureTask and t._v_ids is None]
+        config = [lim for lim in self.limits if type(lim) is mink.ConfigurationLimit]
+        others = [lim for lim in self.limits if type(lim) is not mink.ConfigurationLimit]
+        # the fast path only for what it reproduces: site frame tasks first, then at most one posture task, the
+        # configuration limit (hinge and slide joints, no ball joint) first among the limits
+        self.lean = (native is not None and getattr(mink.configuration, "_native", None) is native
+                     and self.tasks == frames + postures and len(postures) <= 1 and len(config) == 1
+                     and self.limits[0] is config[0] and not len(config[0]._ball_qposadr)
+                     and config[0].projection_matrix is not None)
+        if not self.lean:
+            return
+        self.native = native
+        self.frames = [(t, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, t.frame_name)
+                        if isinstance(t.frame_name, str) else int(t.frame_name)) for t in frames]
+        self.posture = postures[0] if postures else None
+        if self.posture is not None:  # its Jacobian is the identity: the weighted one is a constant
+            self.posture_jacobian = self.posture.cost[:, None] * np.eye(self.nv)
+        self.config, self.others = config[0], others
+        P = self.config.projection_matrix
+        self.config_G = np.vstack([P, -P])
+
+    def solve(self, dt: float) -> np.ndarray | None:
+        """The step dq (nv,) of mink's QP at the configuration's current joints, None when DAQP finds none."""
+        if not self.lean:
+            result = self.qpsolvers.solve_problem(
+                self.mink.build_ik(self.cfg, self.tasks, dt, DAMPING, self.limits), solver="daqp")
+            return result.x if result.found else None
+        H, c = self._objective()
+        G, h = self._inequalities(dt)
+        x, _, exitflag, _ = self.daqp.solve(H, c, G, h, np.full(len(h), NO_LOWER), np.zeros(len(h), dtype=c_int),
+                                            primal_start=None)
+        return x if exitflag > 0 else None
+
+    def _objective(self) -> tuple[np.ndarray, np.ndarray]:
+        """mink's _compute_qp_objective: H = W^T W + (damping + sum of the tasks' mu) I, c = -e W."""
+        native, mujoco = self.native, self.mujoco
+        d, model, nv = self.cfg.data, self.cfg.model, self.nv
+        weighted_jacobians, weighted_errors, mu_total = [], [], 0.0
+        for task, site in self.frames:  # FrameTask._error_and_jacobian and Task._weighted_residual
+            xmat = d.site_xmat[site]
+            frame = native.xmat_xpos_to_wxyz_xyz(xmat, d.site_xpos[site])
+            jac = np.empty((6, nv))
+            mujoco.mj_jacSite(model, d, jac[:3], jac[3:], site)
+            jac = native.se3_rotation_adjoint_from_xmat(xmat) @ jac  # Configuration.get_frame_jacobian
+            target = task.transform_target_to_world.wxyz_xyz
+            error = native.se3_rminus(target, frame)
+            jacobian = -native.se3_jlog(native.se3_inverse_multiply(target, frame)) @ jac
+            weighted_error = task.cost * (-task.gain * error)
+            weighted_jacobians.append(task.cost[:, None] * jacobian)
+            weighted_errors.append(weighted_error)
+            mu_total += task.lm_damping * float(weighted_error @ weighted_error)
+        if self.posture is not None:  # PostureTask.compute_error: q minus its target
+            task = self.posture
+            error = np.empty(nv)
+            mujoco.mj_differentiatePos(model, error, 1.0, task.target_q, d.qpos)
+            weighted_error = task.cost * (-task.gain * error)
+            weighted_jacobians.append(self.posture_jacobian)
+            weighted_errors.append(weighted_error)
+            mu_total += task.lm_damping * float(weighted_error @ weighted_error)
+        W = np.vstack(weighted_jacobians)
+        H = W.T @ W
+        c = -(np.concatenate(weighted_errors) @ W)
+        H.flat[:: nv + 1] += DAMPING + mu_total
+        return H, c
+
+    def _inequalities(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """mink's _compute_qp_inequalities: the configuration limit's rows (ConfigurationLimit's arithmetic), then
+        each other limit's own."""
+        lim, model, q = self.config, self.cfg.model, self.cfg.data.qpos
+        delta_q_max, delta_q_min = np.empty(self.nv), np.empty(self.nv)
+        self.mujoco.mj_differentiatePos(model, delta_q_max, 1.0, q, lim.upper)
+        self.mujoco.mj_differentiatePos(model, delta_q_min, 1.0, lim.lower, q)
+        G_list = [self.config_G]
+        h_list = [lim.gain * delta_q_max[lim.indices], lim.gain * delta_q_min[lim.indices]]
+        for other in self.others:
+            inequality = other.compute_qp_inequalities(self.cfg, dt)
+            if not inequality.inactive:
+                G_list.append(inequality.G)
+                h_list.append(inequality.h)
+        return np.vstack(G_list), np.hstack(h_list)
+
+
+__all__ = ["StepQP"]
