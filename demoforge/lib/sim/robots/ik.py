@@ -59,6 +59,7 @@ ANALYTIC_NEAR = 1.5  # rad: a closed-form answer farther than this from the inte
 # a start this far inside the convergence thresholds needs no QP whichever way its errors are rounded (batched
 # errors may differ from _errors' in the last bits)
 SETTLED = 1.0 - 1e-9
+RUN = 4  # steps _track takes at once first, twice as many after each run that needs no QP
 
 
 @dataclass
@@ -418,8 +419,17 @@ class ArmsIK:
         dt = 1.0 / fps
         cur = np.array(ref, float)
         iters, until = 0, n
-        t0 = min(lo[a] for a in arms)
-        for t in range(t0, int(max(hi[a] for a in arms))):
+        t0, t_end = min(lo[a] for a in arms), int(max(hi[a] for a in arms))
+        run, skip = RUN, t0
+        for t in range(t0, t_end):
+            if t < skip:  # taken by _settled_steps
+                continue
+            if guess is not None:
+                skip, cur = self._settled_steps(t, min(t + run, t_end), cur, guess, follows, lo, hi, (pos, Rt),
+                                                (q, pe_all, re_all))
+                run = 2 * run if skip == min(t + run, t_end) else RUN
+                if skip > t:
+                    continue
             active = follows & (lo <= t) & (t < hi)
             if not active.any():
                 q[t] = cur
@@ -453,6 +463,7 @@ class ArmsIK:
             if until_failure and (active & ((pe > POSITION_TOL) | (re > ROTATION_TOL))).any():
                 until = t + 1
                 break
+        self.cfg.update(cur)  # where the loop leaves the configuration (candidates() starts from it)
         out = {"iterations": iters}
         for a in arms:
             dofs = self.arm_dofs[a]
@@ -467,6 +478,35 @@ class ArmsIK:
             out[a] = {"q": qa, "pe": pe_a, "re": re_a, "range": rng, "bad": int(bad.sum()),
                       "first_bad": _first_bad(bad), "until": until}
         return out
+
+    def _settled_steps(self, t: int, stop: int, cur: np.ndarray, guess: np.ndarray, follows, lo, hi, targets,
+                       out) -> tuple[int, np.ndarray]:
+        """_track's steps t, t + 1, ... before `stop` that need no QP, taken at once: each starts from the joints
+        of the step before with every active arm's replaced by its guess (finite, past its window's first step),
+        and all its active arms are already converged there (_settled). Writes their joints and errors into
+        out = (q, pe_all, re_all) as _track's loop would; returns (the first step it leaves to the loop, the
+        joints after the last one it took)."""
+        steps = np.arange(t, stop)
+        active = follows & (lo <= steps[:, None]) & (steps[:, None] < hi)  # (m, 2)
+        takes = active.any(axis=1)
+        starts = np.empty((len(steps), len(cur)))
+        for a, dofs in enumerate(self.arm_dofs):
+            g = guess[steps][:, dofs]
+            takes &= ~active[:, a] | (np.isfinite(g).all(axis=1) & (steps != lo[a]))
+            # the arm's joints: its guess where active, else the last ones it had (cur before the first)
+            last = np.maximum.accumulate(np.where(active[:, a], np.arange(len(steps)), -1))
+            starts[:, dofs] = np.where((last >= 0)[:, None], g[np.maximum(last, 0)], cur[dofs])
+        m = len(steps) if takes.all() else int(np.argmin(takes))
+        if m == 0:
+            return t, cur
+        pos, R = targets
+        settled, pe, re = self._settled(starts[:m], pos[t:t + m], R[t:t + m], active[:m])
+        m = m if settled.all() else int(np.argmin(settled))
+        if m == 0:
+            return t, cur
+        q, pe_all, re_all = out
+        q[t:t + m], pe_all[t:t + m], re_all[t:t + m] = starts[:m], pe[:m], re[:m]
+        return t + m, starts[m - 1].copy()
 
     def refine(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, wxyz: np.ndarray, active: np.ndarray,
                fps: float = 30.0, analytic: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
