@@ -195,12 +195,9 @@ class ArmsIK:
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pos (m, 2, 3), R (m, 2, 3, 3)) of the pinch sites for joint configurations q (m, nq)."""
         q = np.atleast_2d(np.asarray(q, float))
-        pos, R = np.zeros((len(q), 2, 3)), np.zeros((len(q), 2, 3, 3))
-        d = self.cfg.data
-        for i, qi in enumerate(q):
-            self.cfg.update(qi)
-            pos[i] = d.site_xpos[self.sites]
-            R[i] = d.site_xmat[self.sites].reshape(2, 3, 3)
+        pos, R = self._site_poses(q)
+        if len(q):  # the IK's configuration left at the last one, as it always was (candidates() starts from it)
+            self.cfg.update(q[-1])
         return pos, R
 
     def _set_targets(self, pos: np.ndarray, wxyz: np.ndarray, active: np.ndarray) -> None:

@@ -60,6 +60,7 @@ class StepQP:
         self.config, self.others = config[0], others
         P = self.config.projection_matrix
         self.config_G = np.vstack([P, -P])
+        self.sense_dtype = np.dtype(c_int)  # numpy's ctypes lookup costs more than the array
 
     def solve(self, dt: float) -> np.ndarray | None:
         """The step dq (nv,) of mink's QP at the configuration's current joints, None when DAQP finds none."""
@@ -69,7 +70,7 @@ class StepQP:
             return result.x if result.found else None
         H, c = self._objective()
         G, h = self._inequalities(dt)
-        x, _, exitflag, _ = self.daqp.solve(H, c, G, h, np.full(len(h), NO_LOWER), np.zeros(len(h), dtype=c_int),
+        x, _, exitflag, _ = self.daqp.solve(H, c, G, h, np.full(len(h), NO_LOWER), np.zeros(len(h), dtype=self.sense_dtype),
                                             primal_start=None)
         return x if exitflag > 0 else None
 
@@ -115,11 +116,42 @@ class StepQP:
         G_list = [self.config_G]
         h_list = [lim.gain * delta_q_max[lim.indices], lim.gain * delta_q_min[lim.indices]]
         for other in self.others:
-            inequality = other.compute_qp_inequalities(self.cfg, dt)
-            if not inequality.inactive:
-                G_list.append(inequality.G)
-                h_list.append(inequality.h)
+            if type(other) is self.mink.CollisionAvoidanceLimit and not (
+                    other.broadphase and other.max_num_contacts >= other.broadphase_min_pairs):
+                G, h = self._collision(other, dt)
+            else:
+                G, h = other.compute_qp_inequalities(self.cfg, dt)
+            if G is not None or h is not None:  # Constraint.inactive
+                G_list.append(G)
+                h_list.append(h)
         return np.vstack(G_list), np.hstack(h_list)
+
+    def _collision(self, lim, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """mink's CollisionAvoidanceLimit.compute_qp_inequalities without its broadphase (as mink skips it for
+        fewer than broadphase_min_pairs pairs): a row per geom pair within its detection distance, the pair's
+        normal velocity bounded."""
+        mujoco, model, data = self.mujoco, self.cfg.model, self.cfg.data
+        upper_bound = np.full((lim.max_num_contacts,), np.inf)
+        coefficient_matrix = np.zeros((lim.max_num_contacts, model.nv))
+        fromto, normal, jac1, jac2 = lim._fromto, lim._normal, lim._jac1, lim._jac2
+        distmax, min_dist = lim.collision_detection_distance, lim.minimum_distance_from_collisions
+        for idx, (geom1_id, geom2_id) in enumerate(lim.geom_id_pairs):
+            dist = mujoco.mj_geomDistance(model, data, geom1_id, geom2_id, distmax, fromto)
+            if abs(dist - distmax) < 1e-12:
+                continue
+            # compute_contact_normal_jacobian
+            normal[:] = fromto[3:] - fromto[:3]
+            mujoco.mju_normalize3(normal)
+            mujoco.mj_jac(model, data, jac2, None, fromto[3:], model.geom_bodyid[geom2_id])
+            mujoco.mj_jac(model, data, jac1, None, fromto[:3], model.geom_bodyid[geom1_id])
+            jac2 -= jac1
+            row = normal @ jac2
+            if dist > min_dist:
+                upper_bound[idx] = (lim.gain * (dist - min_dist) / dt) + lim.bound_relaxation
+            else:
+                upper_bound[idx] = lim.bound_relaxation
+            coefficient_matrix[idx] = (-1.0 if dist >= 0 else 1.0) * row
+        return coefficient_matrix, upper_bound
 
 
 __all__ = ["StepQP"]
