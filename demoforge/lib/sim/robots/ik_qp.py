@@ -22,6 +22,9 @@ import numpy as np
 
 DAMPING = 1e-12  # mink.build_ik's global Levenberg-Marquardt damping, as ArmsIK passes it
 NO_LOWER = -1e30  # qpsolvers' lower bound of a one-sided inequality for DAQP
+# m a geom pair's distance lower bound must exceed its detection distance by for FarPairs to leave it out: far
+# above the rounding of the bound and of MuJoCo's single-precision mesh vertices
+FAR_SLACK = 1e-3
 
 
 class StepQP:
@@ -58,6 +61,11 @@ class StepQP:
         if self.posture is not None:  # its Jacobian is the identity: the weighted one is a constant
             self.posture_jacobian = self.posture.cost[:, None] * np.eye(self.nv)
         self.config, self.others = config[0], others
+        # the collision limits whose pairs mink checks one by one (no broadphase of its own): their far pairs are
+        # left out by FarPairs first
+        self.pairwise = [lim for lim in others if type(lim) is mink.CollisionAvoidanceLimit
+                         and not (lim.broadphase and lim.max_num_contacts >= lim.broadphase_min_pairs)]
+        self.far = FarPairs(model, self.pairwise, mujoco)
         P = self.config.projection_matrix
         self.config_G = np.vstack([P, -P])
         self.sense_dtype = np.dtype(c_int)  # numpy's ctypes lookup costs more than the array
@@ -115,10 +123,10 @@ class StepQP:
         self.mujoco.mj_differentiatePos(model, delta_q_min, 1.0, lim.lower, q)
         G_list = [self.config_G]
         h_list = [lim.gain * delta_q_max[lim.indices], lim.gain * delta_q_min[lim.indices]]
+        far = self.far(self.cfg.data)
         for other in self.others:
-            if type(other) is self.mink.CollisionAvoidanceLimit and not (
-                    other.broadphase and other.max_num_contacts >= other.broadphase_min_pairs):
-                G, h = self._collision(other, dt)
+            if other in self.pairwise:
+                G, h = self._collision(other, dt, far[self.far.of(other)])
             else:
                 G, h = other.compute_qp_inequalities(self.cfg, dt)
             if G is not None or h is not None:  # Constraint.inactive
@@ -126,16 +134,18 @@ class StepQP:
                 h_list.append(h)
         return np.vstack(G_list), np.hstack(h_list)
 
-    def _collision(self, lim, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def _collision(self, lim, dt: float, far: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """mink's CollisionAvoidanceLimit.compute_qp_inequalities without its broadphase (as mink skips it for
         fewer than broadphase_min_pairs pairs): a row per geom pair within its detection distance, the pair's
-        normal velocity bounded."""
+        normal velocity bounded. far (pairs,): the pairs FarPairs proves beyond it (mj_geomDistance would return
+        the detection distance itself, which mink skips)."""
         mujoco, model, data = self.mujoco, self.cfg.model, self.cfg.data
         upper_bound = np.full((lim.max_num_contacts,), np.inf)
         coefficient_matrix = np.zeros((lim.max_num_contacts, model.nv))
         fromto, normal, jac1, jac2 = lim._fromto, lim._normal, lim._jac1, lim._jac2
         distmax, min_dist = lim.collision_detection_distance, lim.minimum_distance_from_collisions
-        for idx, (geom1_id, geom2_id) in enumerate(lim.geom_id_pairs):
+        for idx in np.flatnonzero(~far).tolist():
+            geom1_id, geom2_id = lim.geom_id_pairs[idx]
             dist = mujoco.mj_geomDistance(model, data, geom1_id, geom2_id, distmax, fromto)
             if abs(dist - distmax) < 1e-12:
                 continue
@@ -154,4 +164,54 @@ class StepQP:
         return coefficient_matrix, upper_bound
 
 
-__all__ = ["StepQP"]
+class FarPairs:
+    """Which geom pairs of collision limits are provably farther apart than their detection distance, from the
+    geoms' bounding spheres (MuJoCo's geom_rbound about geom_xpos) and, for a box, its faces: the distance of two
+    geoms is at least that of their centres less both radii, and at least that of one's centre from the box
+    less its radius. A pair is far when that lower bound exceeds the detection distance by FAR_SLACK; for such a
+    pair mj_geomDistance returns the detection distance itself (its distances are bounded from above by it) and
+    mink's limit skips it, so leaving it out changes no row. Pairs with an unbounded geom (a plane, a height
+    field) are never far."""
+
+    def __init__(self, model, limits: Sequence, mujoco):
+        pairs = [(g1, g2) for lim in limits for g1, g2 in lim.geom_id_pairs]
+        self.slices, start = {}, 0
+        for lim in limits:
+            self.slices[id(lim)] = slice(start, start + len(lim.geom_id_pairs))
+            start += len(lim.geom_id_pairs)
+        g1, g2 = (np.array([p[k] for p in pairs], int) for k in (0, 1))
+        rb, kind = model.geom_rbound, model.geom_type
+        solid = {int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
+                                  mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_CYLINDER,
+                                  mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_MESH)}
+        self.bounded = np.array([int(kind[a]) in solid and int(kind[b]) in solid and rb[a] > 0 and rb[b] > 0
+                                 for a, b in zip(g1, g2)], bool)
+        reach = np.array([lim.collision_detection_distance for lim in limits for _ in lim.geom_id_pairs]) + FAR_SLACK
+        self.g1, self.g2 = g1, g2
+        self.apart = (rb[g1] + rb[g2] + reach) ** 2  # squared centre distance beyond which a pair is far
+        box = int(mujoco.mjtGeom.mjGEOM_BOX)
+        is_box2, is_box1 = kind[g2] == box, kind[g1] == box
+        self.boxed = np.flatnonzero(is_box1 | is_box2)  # pairs with a box: the other's centre against it
+        self.box = np.where(is_box2, g2, g1)[self.boxed]
+        self.other = np.where(is_box2, g1, g2)[self.boxed]
+        self.box_size = model.geom_size[self.box]
+        self.box_apart = (rb[self.other] + reach[self.boxed]) ** 2
+
+    def of(self, lim) -> slice:
+        """The limit's pairs in the mask __call__ returns."""
+        return self.slices[id(lim)]
+
+    def __call__(self, data) -> np.ndarray:
+        """(pairs,) bool: the pairs provably beyond their detection distance at the data's geom poses."""
+        x = data.geom_xpos
+        d = x[self.g1] - x[self.g2]
+        far = np.einsum("ij,ij->i", d, d) > self.apart
+        if len(self.boxed):
+            # the other geom's centre in the box's frame, its distance from the box (0 inside)
+            local = np.einsum("ikj,ik->ij", data.geom_xmat[self.box].reshape(-1, 3, 3), x[self.other] - x[self.box])
+            out = np.maximum(np.abs(local) - self.box_size, 0.0)
+            far[self.boxed] |= np.einsum("ij,ij->i", out, out) > self.box_apart
+        return far & self.bounded
+
+
+__all__ = ["FarPairs", "StepQP"]
