@@ -196,10 +196,15 @@ def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray, avoid
 def _states(solver: ViperXBatchIK, base: BasePose, w: _Window, turns: np.ndarray, flip: bool) -> tuple:
     """(flip, P (C, S, 4, 4) the pinch poses of each turn at the samples, the closed form's solution of them,
     followed (C, S, B): the states within reach and range, the wrist and the fingertips above the table)."""
-    P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])  # (C, S, 4, 4)
+    if w.obj is not None and np.any(turns):
+        # every turn at once (the same products, matrix by matrix); the demonstrated grasp (turn 0) as it is
+        P = turn_grasp(w.hand[None], w.obj[None], turns[:, None], flip)  # (C, S, 4, 4)
+        P[turns == 0] = turn_grasp(w.hand, w.obj, 0.0, flip)
+    else:
+        P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])
     sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
     good = sol.closes & (sol.margin > MIN_MARGIN)
-    good &= solver.points(base, sol.q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
+    good &= solver.wrist(base, sol.q)[..., 2] > WRIST_ABOVE_TABLE
     # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
     good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
     return flip, P, sol, good
