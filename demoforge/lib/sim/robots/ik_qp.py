@@ -66,6 +66,7 @@ class StepQP:
         self.pairwise = [lim for lim in others if type(lim) is mink.CollisionAvoidanceLimit
                          and not (lim.broadphase and lim.max_num_contacts >= lim.broadphase_min_pairs)]
         self.far = FarPairs(model, self.pairwise, mujoco)
+        self.other_pairs = [(lim, self.far.of(lim) if any(lim is p for p in self.pairwise) else None) for lim in others]
         P = self.config.projection_matrix
         self.config_G = np.vstack([P, -P])
         self.sense_dtype = np.dtype(c_int)  # numpy's ctypes lookup costs more than the array
@@ -124,9 +125,9 @@ class StepQP:
         G_list = [self.config_G]
         h_list = [lim.gain * delta_q_max[lim.indices], lim.gain * delta_q_min[lim.indices]]
         far = self.far(self.cfg.data)
-        for other in self.others:
-            if other in self.pairwise:
-                G, h = self._collision(other, dt, far[self.far.of(other)])
+        for other, pairs in self.other_pairs:
+            if pairs is not None:
+                G, h = self._collision(other, dt, far[pairs])
             else:
                 G, h = other.compute_qp_inequalities(self.cfg, dt)
             if G is not None or h is not None:  # Constraint.inactive
@@ -134,18 +135,19 @@ class StepQP:
                 h_list.append(h)
         return np.vstack(G_list), np.hstack(h_list)
 
-    def _collision(self, lim, dt: float, far: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _collision(self, lim, dt: float, far: list[bool]) -> tuple[np.ndarray, np.ndarray]:
         """mink's CollisionAvoidanceLimit.compute_qp_inequalities without its broadphase (as mink skips it for
         fewer than broadphase_min_pairs pairs): a row per geom pair within its detection distance, the pair's
-        normal velocity bounded. far (pairs,): the pairs FarPairs proves beyond it (mj_geomDistance would return
+        normal velocity bounded. far: per pair, FarPairs proves it beyond it (mj_geomDistance would return
         the detection distance itself, which mink skips)."""
         mujoco, model, data = self.mujoco, self.cfg.model, self.cfg.data
         upper_bound = np.full((lim.max_num_contacts,), np.inf)
         coefficient_matrix = np.zeros((lim.max_num_contacts, model.nv))
         fromto, normal, jac1, jac2 = lim._fromto, lim._normal, lim._jac1, lim._jac2
         distmax, min_dist = lim.collision_detection_distance, lim.minimum_distance_from_collisions
-        for idx in np.flatnonzero(~far).tolist():
-            geom1_id, geom2_id = lim.geom_id_pairs[idx]
+        for idx, ((geom1_id, geom2_id), skip) in enumerate(zip(lim.geom_id_pairs, far)):
+            if skip:
+                continue
             dist = mujoco.mj_geomDistance(model, data, geom1_id, geom2_id, distmax, fromto)
             if abs(dist - distmax) < 1e-12:
                 continue
@@ -184,34 +186,39 @@ class FarPairs:
         solid = {int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
                                   mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_CYLINDER,
                                   mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_MESH)}
-        self.bounded = np.array([int(kind[a]) in solid and int(kind[b]) in solid and rb[a] > 0 and rb[b] > 0
-                                 for a, b in zip(g1, g2)], bool)
+        bounded = np.array([int(kind[a]) in solid and int(kind[b]) in solid and rb[a] > 0 and rb[b] > 0
+                            for a, b in zip(g1, g2)], bool)
         reach = np.array([lim.collision_detection_distance for lim in limits for _ in lim.geom_id_pairs]) + FAR_SLACK
         self.g1, self.g2 = g1, g2
-        self.apart = (rb[g1] + rb[g2] + reach) ** 2  # squared centre distance beyond which a pair is far
+        # the squared centre distance beyond which a pair is far (never, for an unbounded geom)
+        self.apart = np.where(bounded, (rb[g1] + rb[g2] + reach) ** 2, np.inf)
         box = int(mujoco.mjtGeom.mjGEOM_BOX)
         is_box2, is_box1 = kind[g2] == box, kind[g1] == box
         self.boxed = np.flatnonzero(is_box1 | is_box2)  # pairs with a box: the other's centre against it
         self.box = np.where(is_box2, g2, g1)[self.boxed]
         self.other = np.where(is_box2, g1, g2)[self.boxed]
         self.box_size = model.geom_size[self.box]
-        self.box_apart = (rb[self.other] + reach[self.boxed]) ** 2
+        self.box_apart = np.where(bounded[self.boxed], (rb[self.other] + reach[self.boxed]) ** 2, np.inf)
 
     def of(self, lim) -> slice:
         """The limit's pairs in the mask __call__ returns."""
         return self.slices[id(lim)]
 
-    def __call__(self, data) -> np.ndarray:
-        """(pairs,) bool: the pairs provably beyond their detection distance at the data's geom poses."""
+    def __call__(self, data) -> list[bool]:
+        """Per pair: it is provably beyond its detection distance at the data's geom poses."""
         x = data.geom_xpos
         d = x[self.g1] - x[self.g2]
-        far = np.einsum("ij,ij->i", d, d) > self.apart
+        d *= d
+        far = d.sum(axis=1) > self.apart
         if len(self.boxed):
-            # the other geom's centre in the box's frame, its distance from the box (0 inside)
-            local = np.einsum("ikj,ik->ij", data.geom_xmat[self.box].reshape(-1, 3, 3), x[self.other] - x[self.box])
-            out = np.maximum(np.abs(local) - self.box_size, 0.0)
-            far[self.boxed] |= np.einsum("ij,ij->i", out, out) > self.box_apart
-        return far & self.bounded
+            # the other geom's centre in the box's frame (R^T v as v R), its distance from the box (0 inside)
+            R = data.geom_xmat[self.box].reshape(-1, 3, 3)
+            out = np.abs(np.matmul((x[self.other] - x[self.box])[:, None], R)[:, 0])
+            out -= self.box_size
+            np.maximum(out, 0.0, out=out)
+            out *= out
+            far[self.boxed] |= out.sum(axis=1) > self.box_apart
+        return far.tolist()
 
 
 __all__ = ["FarPairs", "StepQP"]
