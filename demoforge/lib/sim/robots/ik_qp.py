@@ -58,8 +58,11 @@ class StepQP:
         self.frames = [(t, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, t.frame_name)
                         if isinstance(t.frame_name, str) else int(t.frame_name)) for t in frames]
         self.posture = postures[0] if postures else None
+        rows = 6 * len(self.frames)
+        self.W = np.empty((rows + (self.nv if self.posture is not None else 0), self.nv))
+        self.e, self.jac = np.empty(len(self.W)), np.empty((6, self.nv))
         if self.posture is not None:  # its Jacobian is the identity: the weighted one is a constant
-            self.posture_jacobian = self.posture.cost[:, None] * np.eye(self.nv)
+            self.W[rows:] = self.posture.cost[:, None] * np.eye(self.nv)
         self.config, self.others = config[0], others
         # the collision limits whose pairs mink checks one by one (no broadphase of its own): their far pairs are
         # left out by FarPairs first
@@ -84,34 +87,34 @@ class StepQP:
         return x if exitflag > 0 else None
 
     def _objective(self) -> tuple[np.ndarray, np.ndarray]:
-        """mink's _compute_qp_objective: H = W^T W + (damping + sum of the tasks' mu) I, c = -e W."""
+        """mink's _compute_qp_objective: H = W^T W + (damping + sum of the tasks' mu) I, c = -e W, the weighted
+        Jacobians W and errors e stacked task by task (into arrays kept from call to call: the posture task's
+        rows of W are constant)."""
         native, mujoco = self.native, self.mujoco
         d, model, nv = self.cfg.data, self.cfg.model, self.nv
-        weighted_jacobians, weighted_errors, mu_total = [], [], 0.0
-        for task, site in self.frames:  # FrameTask._error_and_jacobian and Task._weighted_residual
+        W, e, jac, mu_total = self.W, self.e, self.jac, 0.0
+        for i, (task, site) in enumerate(self.frames):  # FrameTask._error_and_jacobian, Task._weighted_residual
+            rows = slice(6 * i, 6 * i + 6)
             xmat = d.site_xmat[site]
             frame = native.xmat_xpos_to_wxyz_xyz(xmat, d.site_xpos[site])
-            jac = np.empty((6, nv))
             mujoco.mj_jacSite(model, d, jac[:3], jac[3:], site)
-            jac = native.se3_rotation_adjoint_from_xmat(xmat) @ jac  # Configuration.get_frame_jacobian
+            local = native.se3_rotation_adjoint_from_xmat(xmat) @ jac  # Configuration.get_frame_jacobian
             target = task.transform_target_to_world.wxyz_xyz
             error = native.se3_rminus(target, frame)
-            jacobian = -native.se3_jlog(native.se3_inverse_multiply(target, frame)) @ jac
+            jacobian = -native.se3_jlog(native.se3_inverse_multiply(target, frame)) @ local
             weighted_error = task.cost * (-task.gain * error)
-            weighted_jacobians.append(task.cost[:, None] * jacobian)
-            weighted_errors.append(weighted_error)
+            np.multiply(task.cost[:, None], jacobian, out=W[rows])
+            e[rows] = weighted_error
             mu_total += task.lm_damping * float(weighted_error @ weighted_error)
         if self.posture is not None:  # PostureTask.compute_error: q minus its target
             task = self.posture
             error = np.empty(nv)
             mujoco.mj_differentiatePos(model, error, 1.0, task.target_q, d.qpos)
             weighted_error = task.cost * (-task.gain * error)
-            weighted_jacobians.append(self.posture_jacobian)
-            weighted_errors.append(weighted_error)
+            e[6 * len(self.frames):] = weighted_error
             mu_total += task.lm_damping * float(weighted_error @ weighted_error)
-        W = np.vstack(weighted_jacobians)
         H = W.T @ W
-        c = -(np.concatenate(weighted_errors) @ W)
+        c = -(e @ W)
         H.flat[:: nv + 1] += DAMPING + mu_total
         return H, c
 
