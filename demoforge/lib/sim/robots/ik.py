@@ -156,6 +156,9 @@ class ArmsIK:
         self._kinematics = mujoco.MjData(self.model)  # _site_poses' own data: the IK's configuration stays as it is
         self.cfg = mink.Configuration(self.model)
         self.sites = np.array([self.model.site(s).id for s in sites])
+        # the sites' rows of MuJoCo's arrays: a slice where they are in a row (a view, no gather each time)
+        self.site_rows = (slice(int(self.sites[0]), int(self.sites[-1]) + 1) if (np.diff(self.sites) == 1).all()
+                          else self.sites)
         self.site_names = list(sites)
         self.tasks = [mink.FrameTask(s, "site", position_cost=position_cost, orientation_cost=orientation_cost,
                                      lm_damping=lm_damping) for s in sites]
@@ -212,12 +215,13 @@ class ArmsIK:
     def _site_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pos (m, 2, 3), R (m, 2, 3, 3)) of the pinch sites for configurations q (m, nq): fk's, by MuJoCo's
         kinematics alone (what the sites' poses need) on a data of its own."""
-        d, kinematics = self._kinematics, self.mujoco.mj_kinematics
+        d, model, kinematics = self._kinematics, self.model, self.mujoco.mj_kinematics
+        qpos, xpos, xmat, sites = d.qpos, d.site_xpos, d.site_xmat, self.site_rows
         pos, R = np.empty((len(q), 2, 3)), np.empty((len(q), 2, 9))
         for i, qi in enumerate(q):
-            d.qpos[:] = qi
-            kinematics(self.model, d)
-            pos[i], R[i] = d.site_xpos[self.sites], d.site_xmat[self.sites]
+            qpos[:] = qi
+            kinematics(model, d)
+            pos[i], R[i] = xpos[sites], xmat[sites]
         return pos, R.reshape(-1, 2, 3, 3)
 
     def _settled(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, active: np.ndarray
@@ -234,9 +238,9 @@ class ArmsIK:
 
     def _errors(self, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self.cfg.data
-        diff = d.site_xpos[self.sites] - pos
+        diff = d.site_xpos[self.site_rows] - pos
         pe = np.sqrt(np.einsum("ai,ai->a", diff, diff))
-        re = _rotation_angle(d.site_xmat[self.sites].reshape(2, 3, 3), R)
+        re = _rotation_angle(d.site_xmat[self.site_rows].reshape(2, 3, 3), R)
         return pe, re
 
     def _iterate(self, pos, R, wxyz, max_iter: int, dt: float, active: np.ndarray,
