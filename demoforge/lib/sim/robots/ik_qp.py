@@ -82,7 +82,9 @@ class StepQP:
             return result.x if result.found else None
         H, c = self._objective()
         G, h = self._inequalities(dt)
-        x, _, exitflag, _ = self.daqp.solve(H, c, G, h, np.full(len(h), NO_LOWER), np.zeros(len(h), dtype=self.sense_dtype),
+        lower = np.empty(len(h))
+        lower.fill(NO_LOWER)  # np.full's values, without its Python layer
+        x, _, exitflag, _ = self.daqp.solve(H, c, G, h, lower, np.zeros(len(h), dtype=self.sense_dtype),
                                             primal_start=None)
         return x if exitflag > 0 else None
 
@@ -136,7 +138,7 @@ class StepQP:
             if G is not None or h is not None:  # Constraint.inactive
                 G_list.append(G)
                 h_list.append(h)
-        return np.vstack(G_list), np.hstack(h_list)
+        return np.concatenate(G_list), np.concatenate(h_list)  # np.vstack and np.hstack of these 2-D and 1-D arrays
 
     def _collision(self, lim, dt: float, far: list[bool]) -> tuple[np.ndarray, np.ndarray]:
         """mink's CollisionAvoidanceLimit.compute_qp_inequalities without its broadphase (as mink skips it for
@@ -144,7 +146,8 @@ class StepQP:
         normal velocity bounded. far: per pair, FarPairs proves it beyond it (mj_geomDistance would return
         the detection distance itself, which mink skips)."""
         mujoco, model, data = self.mujoco, self.cfg.model, self.cfg.data
-        upper_bound = np.full((lim.max_num_contacts,), np.inf)
+        upper_bound = np.empty(lim.max_num_contacts)
+        upper_bound.fill(np.inf)
         coefficient_matrix = np.zeros((lim.max_num_contacts, model.nv))
         fromto, normal, jac1, jac2 = lim._fromto, lim._normal, lim._jac1, lim._jac2
         distmax, min_dist = lim.collision_detection_distance, lim.minimum_distance_from_collisions

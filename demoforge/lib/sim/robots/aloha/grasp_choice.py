@@ -127,6 +127,7 @@ def _best_path(q, good, margin, turns, transit0, max_turn_step, may_turn, jumps)
     held_still[:, 1:] += BAD
     cost = transit0 + node[:, 0]
     back = np.zeros((S, C, B), int)  # the predecessor (k * B + b) of each state
+    turn_rows, branch_cols = np.arange(C)[:, None], np.arange(B)[None, :]
     # every sample's jumps at once (S - 1, C, K, B, B'): from each state at the sample before to each state, the
     # joints' largest move taken joint by joint (numpy's reduction over a short last axis costs ten times more)
     jump = None
@@ -138,7 +139,7 @@ def _best_path(q, good, margin, turns, transit0, max_turn_step, may_turn, jumps)
     for s in range(1, S):
         total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + jumped[s - 1]).reshape(C, K * B, B)
         arg = np.argmin(total, axis=1)  # (C, B')
-        cost = np.take_along_axis(total, arg[:, None], axis=1)[:, 0] + node[:, s]
+        cost = total[turn_rows, arg, branch_cols] + node[:, s]  # the minima (take_along_axis's values)
         back[s] = arg
     c, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
     cs, bs = np.empty(S, int), np.empty(S, int)
