@@ -421,7 +421,7 @@ class ArmsIK:
         cur = np.array(ref, float)
         iters, until = 0, n
         t0, t_end = min(lo[a] for a in arms), int(max(hi[a] for a in arms))
-        run, skip = RUN, t0
+        run, skip, took = RUN, t0, False
         for t in range(t0, t_end):
             if t < skip:  # taken by _settled_steps
                 continue
@@ -430,6 +430,7 @@ class ArmsIK:
                                                 (q, pe_all, re_all))
                 run = 2 * run if skip == min(t + run, t_end) else RUN
                 if skip > t:
+                    took = True
                     continue
             active = follows & (lo <= t) & (t < hi)
             if not active.any():
@@ -464,7 +465,8 @@ class ArmsIK:
             if until_failure and (active & ((pe > POSITION_TOL) | (re > ROTATION_TOL))).any():
                 until = t + 1
                 break
-        self.cfg.update(cur)  # where the loop leaves the configuration (candidates() starts from it)
+        if took:  # the configuration where the loop leaves it (candidates() starts from it): the last step's
+            self.cfg.update(cur)
         out = {"iterations": iters}
         for a in arms:
             dofs = self.arm_dofs[a]

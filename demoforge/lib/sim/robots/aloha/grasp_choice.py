@@ -178,10 +178,11 @@ def _gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         d = a[..., :, None, k] - b[..., None, :, k]
         d *= d
         sq = d if sq is None else np.add(sq, d, out=sq)
-    return np.sqrt(sq.reshape(sq.shape[:-2] + (-1,)).min(axis=-1))
+    return np.sqrt(sq.reshape(sq.shape[:-2] + (sq.shape[-2] * sq.shape[-1],)).min(axis=-1))
 
 
-def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray, avoid: tuple[np.ndarray, np.ndarray]) -> None:
+def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray,
+                avoid: tuple[np.ndarray, np.ndarray]) -> None:
     """good (C, S, B) cleared in place where the arm's segment points (C, S, B, P1, 3) or its hand's points
     (C, S, P2, 3) come closer than avoid[1] (S,) to the other arm's points avoid[0] (S, P, 3) (NaN where that arm
     is out of its window: nothing to keep apart from). The segments' distances are taken only for states still
