@@ -182,6 +182,30 @@ def _cartesian_legs(ik: ArmsIK, arm: int, q_full: np.ndarray, q_from: np.ndarray
     return np.concatenate([q, _legs(via, q_to, k - h)[1:]])
 
 
+def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarray, q_to: np.ndarray, k: int,
+                     entry: bool):
+    """The transits _with_transits weighs, in its order of preference: the straight one (into a window), over
+    each waypoint LIFTS higher in joint space, then with the straight line of the pinch point (the robot's closed
+    form); the straight one when there is no other. first_end (2, nq): the ready frame's joints and those at the
+    window's end of the transit. Generated one at a time: the first clear one ends the search, and a waypoint
+    (mink's IK from every seed) is solved only when an option needs it."""
+    if entry:
+        yield _legs(q_from, q_to, k)
+    vias = []
+    for lift in LIFTS:
+        via = _lifted(ik, a, first_end[1], lift)
+        if via is not None:
+            vias.append(via)
+            yield _legs(q_from, q_to, k, via)
+    if ik.analytic is not None:
+        for via in vias:
+            path = _cartesian_legs(ik, a, first_end[0], q_from, q_to, k, via, entry)
+            if path is not None:
+                yield path
+    if not entry and not vias:
+        yield _legs(q_from, q_to, k)
+
+
 def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.ndarray,
                    collides: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
     """(n + 1, nq) joints over the ready frame and the n demonstrated frames: each arm's window as the IK
@@ -213,15 +237,9 @@ def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.n
                 Q[rows[:, None], dofs] = path
                 return int(collides(Q[checked])[:, a].sum())
 
-            options = [_legs(q_from, q_to, len(rows) - 1)] if entry else []
-            vias = [v for v in (_lifted(ik, a, Q[end], lift) for lift in LIFTS) if v is not None]
-            options += [_legs(q_from, q_to, len(rows) - 1, via) for via in vias]
-            if ik.analytic is not None:
-                options += [p for via in vias if (p := _cartesian_legs(ik, a, Q[0], q_from, q_to, len(rows) - 1,
-                                                                         via, entry)) is not None]
-            options = options or [_legs(q_from, q_to, len(rows) - 1)]
-            best, least = options[0], None
-            for path in options:
+            best, least = None, None
+            # the rows as they are before touches() writes options into them (they are the waypoints' starts)
+            for path in _transit_options(ik, a, Q[[0, end]], q_from, q_to, len(rows) - 1, entry):
                 k = touches(path)
                 if least is None or k < least:
                     best, least = path, k

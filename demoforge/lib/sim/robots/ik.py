@@ -14,7 +14,8 @@ own pose, so the QP leaves it. Along the window the solution is warm-started: ea
 the previous step's joints moved on with their last velocity, so at 30 fps one iteration usually
 lands within 0.5 mm and 0.25 degrees of the target (no QP at all), and at most `iterations` are spent
 per step, while each brings the arm closer. Each iteration is mink's QP (mink.build_ik: the tasks'
-weighted residuals and the configuration limits) solved by DAQP through qpsolvers. mink's
+weighted residuals and the configuration limits) solved by DAQP as qpsolvers does (ik_qp.py: the same
+arithmetic without their per-call Python layers). mink's
 ConfigurationLimit keeps every joint inside its range. There is no speed limit here: the IK solves
 for the path, and lib/sim/robots/retiming.py then slows down whatever a joint cannot follow at the
 demonstrated speed.
@@ -44,6 +45,8 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from .ik_qp import StepQP
+
 POSITION_TOL = 0.01  # m
 ROTATION_TOL_DEG = 5.0
 CONVERGED_POSITION = 1e-3  # m: stop iterating a step below this ...
@@ -53,6 +56,10 @@ AT_LIMIT = 0.02  # rad from a range's end counts as at the limit (mink approache
 TRIES = 4  # candidates tried per arm and window
 COLLISION_DETECTION = 0.05  # m: geoms closer than this enter the QP's collision constraints
 ANALYTIC_NEAR = 1.5  # rad: a closed-form answer farther than this from the interpolated joints is another branch
+# a start this far inside the convergence thresholds needs no QP whichever way its errors are rounded (batched
+# errors may differ from _errors' in the last bits)
+SETTLED = 1.0 - 1e-9
+RUN = 4  # steps _track takes at once first, twice as many after each run that needs no QP
 
 
 @dataclass
@@ -143,12 +150,15 @@ class ArmsIK:
                  posture_cost: float = 0.0):
         import mink
         import mujoco
-        import qpsolvers
 
-        self.mink, self.qpsolvers = mink, qpsolvers
+        self.mink, self.mujoco = mink, mujoco
         self.model = mujoco.MjModel.from_xml_string(xml, assets)
+        self._kinematics = mujoco.MjData(self.model)  # _site_poses' own data: the IK's configuration stays as it is
         self.cfg = mink.Configuration(self.model)
         self.sites = np.array([self.model.site(s).id for s in sites])
+        # the sites' rows of MuJoCo's arrays: a slice where they are in a row (a view, no gather each time)
+        self.site_rows = (slice(int(self.sites[0]), int(self.sites[-1]) + 1) if (np.diff(self.sites) == 1).all()
+                          else self.sites)
         self.site_names = list(sites)
         self.tasks = [mink.FrameTask(s, "site", position_cost=position_cost, orientation_cost=orientation_cost,
                                      lm_damping=lm_damping) for s in sites]
@@ -162,6 +172,7 @@ class ArmsIK:
             posture = mink.PostureTask(self.model, cost=posture_cost)
             posture.set_target(np.asarray(rest, float))
             self.tasks = self.tasks + [posture]
+        self.qp = StepQP(self.cfg, self.tasks, self.limits)  # mink's QP per iteration, without its Python layers
         self.arm_dofs = [np.asarray(list(j), int) for j in arm_joints]
         self.speed = np.asarray(speed, float)
         self.rest = np.asarray(rest, float)
@@ -187,12 +198,9 @@ class ArmsIK:
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pos (m, 2, 3), R (m, 2, 3, 3)) of the pinch sites for joint configurations q (m, nq)."""
         q = np.atleast_2d(np.asarray(q, float))
-        pos, R = np.zeros((len(q), 2, 3)), np.zeros((len(q), 2, 3, 3))
-        d = self.cfg.data
-        for i, qi in enumerate(q):
-            self.cfg.update(qi)
-            pos[i] = d.site_xpos[self.sites]
-            R[i] = d.site_xmat[self.sites].reshape(2, 3, 3)
+        pos, R = self._site_poses(q)
+        if len(q):  # the IK's configuration left at the last one, as it always was (candidates() starts from it)
+            self.cfg.update(q[-1])
         return pos, R
 
     def _set_targets(self, pos: np.ndarray, wxyz: np.ndarray, active: np.ndarray) -> None:
@@ -204,11 +212,35 @@ class ArmsIK:
             else:
                 self.tasks[a].set_target(self.cfg.get_transform_frame_to_world(self.site_names[a], "site"))
 
+    def _site_poses(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (m, 2, 3), R (m, 2, 3, 3)) of the pinch sites for configurations q (m, nq): fk's, by MuJoCo's
+        kinematics alone (what the sites' poses need) on a data of its own."""
+        d, model, kinematics = self._kinematics, self.model, self.mujoco.mj_kinematics
+        qpos, xpos, xmat, sites = d.qpos, d.site_xpos, d.site_xmat, self.site_rows
+        pos, R = np.empty((len(q), 2, 3)), np.empty((len(q), 2, 9))
+        for i, qi in enumerate(q):
+            qpos[:] = qi
+            kinematics(model, d)
+            pos[i], R[i] = xpos[sites], xmat[sites]
+        return pos, R.reshape(-1, 2, 3, 3)
+
+    def _settled(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, active: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(settled (m,), pe (m, 2) m, re (m, 2) rad) of configurations q (m, nq) with targets pos, R (m, 2, ...):
+        the rows whose active arms are all converged (SETTLED), where _iterate would stop before its first QP,
+        and the errors it gives there (_errors' formulas over all rows at once; 0 for arms not active)."""
+        xpos, xmat = self._site_poses(q)
+        diff = xpos - pos
+        pe = np.where(active, np.sqrt(np.einsum("mai,mai->ma", diff, diff)), 0.0)
+        re = np.where(active, _rotation_angle(xmat, R), 0.0)
+        off = np.maximum(pe / CONVERGED_POSITION, re / CONVERGED_ROTATION)
+        return (off < SETTLED).all(axis=1), pe, re
+
     def _errors(self, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self.cfg.data
-        diff = d.site_xpos[self.sites] - pos
+        diff = d.site_xpos[self.site_rows] - pos
         pe = np.sqrt(np.einsum("ai,ai->a", diff, diff))
-        re = _rotation_angle(d.site_xmat[self.sites].reshape(2, 3, 3), R)
+        re = _rotation_angle(d.site_xmat[self.site_rows].reshape(2, 3, 3), R)
         return pe, re
 
     def _iterate(self, pos, R, wxyz, max_iter: int, dt: float, active: np.ndarray,
@@ -224,12 +256,11 @@ class ArmsIK:
         if (off > 1.0).any():
             self._set_targets(pos, wxyz, active)  # only when a QP is solved (the prediction often lands already)
         while k < max_iter and (off > 1.0).any():
-            result = self.qpsolvers.solve_problem(self.mink.build_ik(self.cfg, self.tasks, dt, 1e-12, self.limits),
-                                                  solver="daqp")
-            if not result.found:  # no step within the limits: the configuration stays
+            dq = self.qp.solve(dt)
+            if dq is None:  # no step within the limits: the configuration stays
                 break
             q_before = self.cfg.q.copy()
-            self.cfg.integrate_inplace(result.x / dt, dt)
+            self.cfg.integrate_inplace(dq / dt, dt)
             pe1, re1 = self._errors(pos, R)
             pe1, re1 = np.where(active, pe1, 0.0), np.where(active, re1, 0.0)
             k += 1
@@ -389,8 +420,18 @@ class ArmsIK:
         dt = 1.0 / fps
         cur = np.array(ref, float)
         iters, until = 0, n
-        t0 = min(lo[a] for a in arms)
-        for t in range(t0, int(max(hi[a] for a in arms))):
+        t0, t_end = min(lo[a] for a in arms), int(max(hi[a] for a in arms))
+        run, skip, took = RUN, t0, False
+        for t in range(t0, t_end):
+            if t < skip:  # taken by _settled_steps
+                continue
+            if guess is not None:
+                skip, cur = self._settled_steps(t, min(t + run, t_end), cur, guess, follows, lo, hi, (pos, Rt),
+                                                (q, pe_all, re_all))
+                run = 2 * run if skip == min(t + run, t_end) else RUN
+                if skip > t:
+                    took = True
+                    continue
             active = follows & (lo <= t) & (t < hi)
             if not active.any():
                 q[t] = cur
@@ -424,6 +465,8 @@ class ArmsIK:
             if until_failure and (active & ((pe > POSITION_TOL) | (re > ROTATION_TOL))).any():
                 until = t + 1
                 break
+        if took:  # the configuration where the loop leaves it (candidates() starts from it): the last step's
+            self.cfg.update(cur)
         out = {"iterations": iters}
         for a in arms:
             dofs = self.arm_dofs[a]
@@ -438,6 +481,35 @@ class ArmsIK:
             out[a] = {"q": qa, "pe": pe_a, "re": re_a, "range": rng, "bad": int(bad.sum()),
                       "first_bad": _first_bad(bad), "until": until}
         return out
+
+    def _settled_steps(self, t: int, stop: int, cur: np.ndarray, guess: np.ndarray, follows, lo, hi, targets,
+                       out) -> tuple[int, np.ndarray]:
+        """_track's steps t, t + 1, ... before `stop` that need no QP, taken at once: each starts from the joints
+        of the step before with every active arm's replaced by its guess (finite, past its window's first step),
+        and all its active arms are already converged there (_settled). Writes their joints and errors into
+        out = (q, pe_all, re_all) as _track's loop would; returns (the first step it leaves to the loop, the
+        joints after the last one it took)."""
+        steps = np.arange(t, stop)
+        active = follows & (lo <= steps[:, None]) & (steps[:, None] < hi)  # (m, 2)
+        takes = active.any(axis=1)
+        starts = np.empty((len(steps), len(cur)))
+        for a, dofs in enumerate(self.arm_dofs):
+            g = guess[steps][:, dofs]
+            takes &= ~active[:, a] | (np.isfinite(g).all(axis=1) & (steps != lo[a]))
+            # the arm's joints: its guess where active, else the last ones it had (cur before the first)
+            last = np.maximum.accumulate(np.where(active[:, a], np.arange(len(steps)), -1))
+            starts[:, dofs] = np.where((last >= 0)[:, None], g[np.maximum(last, 0)], cur[dofs])
+        m = len(steps) if takes.all() else int(np.argmin(takes))
+        if m == 0:
+            return t, cur
+        pos, R = targets
+        settled, pe, re = self._settled(starts[:m], pos[t:t + m], R[t:t + m], active[:m])
+        m = m if settled.all() else int(np.argmin(settled))
+        if m == 0:
+            return t, cur
+        q, pe_all, re_all = out
+        q[t:t + m], pe_all[t:t + m], re_all[t:t + m] = starts[:m], pe[:m], re[:m]
+        return t + m, starts[m - 1].copy()
 
     def refine(self, q: np.ndarray, pos: np.ndarray, R: np.ndarray, wxyz: np.ndarray, active: np.ndarray,
                fps: float = 30.0, analytic: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -457,7 +529,11 @@ class ArmsIK:
                 use = ((exact >= self.lower[dofs]) & (exact <= self.upper[dofs])).all(axis=1) & \
                     (np.abs(exact - near).max(axis=1) < ANALYTIC_NEAR)
                 out[rows[use][:, None], dofs] = exact[use]
-        for i in np.flatnonzero(active.any(axis=1)):
+        rows = np.flatnonzero(active.any(axis=1))
+        # rows already on their targets (the closed form's exact joints) keep them: no QP, no per-row Python
+        settled, pe, re = self._settled(out[rows], pos[rows], R[rows], active[rows])
+        pe_all[rows[settled]], re_all[rows[settled]] = pe[settled], np.degrees(re[settled])
+        for i in rows[~settled]:
             self.cfg.update(out[i])
             # without the closed form's start (near the wrist's singularity) the interpolated joints may be far off
             pe, re, _ = self._iterate(pos[i], R[i], wxyz[i], self.iterations if analytic else self.first_iterations, dt,

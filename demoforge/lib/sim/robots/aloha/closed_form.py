@@ -85,13 +85,8 @@ class ViperXBatchIK:
         clearance and the distance between the two forearms, without MuJoCo."""
         g = self.g
         q = np.asarray(q, float)
-        waist, shoulder, elbow, roll, pitch = (q[..., j] for j in range(5))
-        ux, uy = np.cos(base.yaw + waist), np.sin(base.yaw + waist)  # the arm's plane, horizontally
-        shoulder_pt = np.broadcast_to(np.array([base.x, base.y, base.z + g.shoulder_z]), ux.shape + (3,))
-        psi = shoulder + g.alpha  # the upper arm's angle from vertical, towards u
-        elbow_pt = shoulder_pt + g.l1 * _in_plane(ux, uy, np.sin(psi), np.cos(psi))
-        cs, ss = np.cos(shoulder + elbow), np.sin(shoulder + elbow)
-        wrist_pt = elbow_pt + g.l2 * _in_plane(ux, uy, cs, -ss)
+        roll, pitch = q[..., 3], q[..., 4]
+        ux, uy, shoulder_pt, elbow_pt, wrist_pt, cs, ss = self._arm(base, q)
         # the gripper link's x axis: Rz(phi) Ry(s) Rx(roll) Ry(pitch) x, its lateral part (along z x u) apart
         cp, sp = np.cos(pitch), np.sin(pitch)
         vx, vy, vz = cp, np.sin(roll) * sp, -np.cos(roll) * sp
@@ -99,6 +94,23 @@ class ViperXBatchIK:
         approach = _in_plane(ux, uy, ahead, up) + np.stack([-uy * vy, ux * vy, np.zeros_like(vy)], axis=-1)
         return {"shoulder": shoulder_pt.copy(), "elbow": elbow_pt, "wrist": wrist_pt,
                 "pinch": wrist_pt + g.wrist_to_pinch * approach}
+
+    def wrist(self, base: BasePose, q: np.ndarray) -> np.ndarray:
+        """points(base, q)["wrist"] alone (..., 3): the wrist centre, without the pinch point's trigonometry."""
+        return self._arm(base, np.asarray(q, float))[4]
+
+    def _arm(self, base: BasePose, q: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(ux, uy, shoulder, elbow, wrist centre, cos and sin of shoulder + elbow) of joints q (..., 6): the arm's
+        plane and its points up to the wrist, as points() and wrist() take them."""
+        g = self.g
+        waist, shoulder, elbow = q[..., 0], q[..., 1], q[..., 2]
+        ux, uy = np.cos(base.yaw + waist), np.sin(base.yaw + waist)  # the arm's plane, horizontally
+        shoulder_pt = np.broadcast_to(np.array([base.x, base.y, base.z + g.shoulder_z]), ux.shape + (3,))
+        psi = shoulder + g.alpha  # the upper arm's angle from vertical, towards u
+        elbow_pt = shoulder_pt + g.l1 * _in_plane(ux, uy, np.sin(psi), np.cos(psi))
+        cs, ss = np.cos(shoulder + elbow), np.sin(shoulder + elbow)
+        wrist_pt = elbow_pt + g.l2 * _in_plane(ux, uy, cs, -ss)
+        return ux, uy, shoulder_pt, elbow_pt, wrist_pt, cs, ss
 
     # ------------------------------------------------------------------ the solution, step by step
     def _joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -89,6 +89,9 @@ class _Window:
     symmetry: int
     may_turn: np.ndarray  # (S,) the turn may change from the previous sample (the object held at both)
     lowest: Callable[[np.ndarray], np.ndarray]
+    # per half-turn (flip, poses (C, S, 4, 4), closed form, followed (C, S, B) before the other arm is weighed):
+    # _states' answer, kept for the window's second choice around the other arm
+    states: list | None = None
 
 
 @dataclass
@@ -124,13 +127,19 @@ def _best_path(q, good, margin, turns, transit0, max_turn_step, may_turn, jumps)
     held_still[:, 1:] += BAD
     cost = transit0 + node[:, 0]
     back = np.zeros((S, C, B), int)  # the predecessor (k * B + b) of each state
+    turn_rows, branch_cols = np.arange(C)[:, None], np.arange(B)[None, :]
+    # every sample's jumps at once (S - 1, C, K, B, B'): from each state at the sample before to each state, the
+    # joints' largest move taken joint by joint (numpy's reduction over a short last axis costs ten times more)
+    jump = None
+    for j in range(q.shape[-1]):
+        qj = q[..., j].transpose(1, 0, 2)  # (S, C, B)
+        d = np.abs(qj[:-1, nbr][..., None] - qj[1:, :, None, None])
+        jump = d if jump is None else np.maximum(jump, d, out=jump)
+    jumped = BAD * (jump >= jumps[1:, None, None, None, None])
     for s in range(1, S):
-        prev = q[nbr, s - 1]  # (C, K, B, 6)
-        jump = np.abs(prev[:, :, :, None] - q[:, s][:, None, None]).max(axis=-1)  # (C, K, B, B')
-        total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + BAD * (jump >= jumps[s])
-                 ).reshape(C, K * B, B)
+        total = (cost[nbr][..., None] + (move if may_turn[s] else held_still) + jumped[s - 1]).reshape(C, K * B, B)
         arg = np.argmin(total, axis=1)  # (C, B')
-        cost = np.take_along_axis(total, arg[:, None], axis=1)[:, 0] + node[:, s]
+        cost = total[turn_rows, arg, branch_cols] + node[:, s]  # the minima (take_along_axis's values)
         back[s] = arg
     c, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
     cs, bs = np.empty(S, int), np.empty(S, int)
@@ -161,8 +170,46 @@ def _hand_points(P: np.ndarray, reach: float) -> np.ndarray:
 
 
 def _gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...)."""
-    return np.linalg.norm(a[..., :, None, :] - b[..., None, :, :], axis=-1).min(axis=(-2, -1))
+    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...). The squares
+    summed x, y, z in that order, as np.linalg.norm sums them, coordinate by coordinate (numpy's reduction over a
+    short last axis costs ten times more), and the root taken of the smallest (the root keeps the order)."""
+    sq = None
+    for k in range(3):
+        d = a[..., :, None, k] - b[..., None, :, k]
+        d *= d
+        sq = d if sq is None else np.add(sq, d, out=sq)
+    return np.sqrt(sq.reshape(sq.shape[:-2] + (sq.shape[-2] * sq.shape[-1],)).min(axis=-1))
+
+
+def _keep_apart(good: np.ndarray, segments: np.ndarray, hands: np.ndarray,
+                avoid: tuple[np.ndarray, np.ndarray]) -> None:
+    """good (C, S, B) cleared in place where the arm's segment points (C, S, B, P1, 3) or its hand's points
+    (C, S, P2, 3) come closer than avoid[1] (S,) to the other arm's points avoid[0] (S, P, 3) (NaN where that arm
+    is out of its window: nothing to keep apart from). The segments' distances are taken only for states still
+    followed at samples where the other arm is in its window (the others stay as they are): the same
+    distances, element by element, as over every state."""
+    pts, need = avoid
+    with np.errstate(invalid="ignore"):
+        good &= ~(_gap(hands, pts[None]) < need[None])[..., None]
+        c, s, b = np.nonzero(good & np.isfinite(pts).all(axis=(1, 2))[None, :, None])
+        good[c, s, b] = ~(_gap(segments[c, s, b], pts[s]) < need[s])
+
+
+def _states(solver: ViperXBatchIK, base: BasePose, w: _Window, turns: np.ndarray, flip: bool) -> tuple:
+    """(flip, P (C, S, 4, 4) the pinch poses of each turn at the samples, the closed form's solution of them,
+    followed (C, S, B): the states within reach and range, the wrist and the fingertips above the table)."""
+    if w.obj is not None and np.any(turns):
+        # every turn at once (the same products, matrix by matrix); the demonstrated grasp (turn 0) as it is
+        P = turn_grasp(w.hand[None], w.obj[None], turns[:, None], flip)  # (C, S, 4, 4)
+        P[turns == 0] = turn_grasp(w.hand, w.obj, 0.0, flip)
+    else:
+        P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])
+    sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
+    good = sol.closes & (sol.margin > MIN_MARGIN)
+    good &= solver.wrist(base, sol.q)[..., 2] > WRIST_ABOVE_TABLE
+    # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
+    good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
+    return flip, P, sol, good
 
 
 def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.ndarray, w: _Window,
@@ -171,20 +218,14 @@ def _paths(solver: ViperXBatchIK, base: BasePose, ready: np.ndarray, speed: np.n
     arm at the samples (NaN where it is not in its window), the gap (S,) to keep from them)."""
     turns = grasp_turns(w.symmetry) if w.obj is not None else np.zeros(1)
     max_step = np.radians(TURN_STEP_MAX_DEG) if w.obj is not None and w.symmetry == 0 else 0.0
+    if w.states is None:
+        w.states = [_states(solver, base, w, turns, flip) for flip in (False, True)]
     out = []
-    for flip in (False, True):
-        P = np.stack([turn_grasp(w.hand, w.obj, t, flip) for t in turns])  # (C, S, 4, 4)
-        sol = solver.solve(base, P[..., :3, 3], P[..., :3, :3])
+    for flip, P, sol, good in w.states:
         q = sol.q  # (C, S, B, 6)
-        good = sol.closes & (sol.margin > MIN_MARGIN)
-        good &= solver.points(base, q)["wrist"][..., 2] > WRIST_ABOVE_TABLE
-        # a grasp whose fingers would have to be raised off the demonstrated pose is not the same grasp
-        good &= (w.lowest(P) > -LIFT_TOLERANCE)[..., None]
         if avoid is not None:
-            with np.errstate(invalid="ignore"):
-                hand_near = _gap(_hand_points(P, solver.g.wrist_to_pinch), avoid[0][None]) < avoid[1][None]  # (C, S)
-                good &= ~(_gap(_segment_points(solver, base, q), avoid[0][None, :, None]) < avoid[1][None, :, None])
-                good &= ~hand_near[..., None]
+            good = good.copy()
+            _keep_apart(good, _segment_points(solver, base, q), _hand_points(P, solver.g.wrist_to_pinch), avoid)
         live = np.flatnonzero(good.any(axis=(0, 1)))  # branches followed somewhere (the others only cost BAD)
         live = live if len(live) else np.arange(good.shape[2])
         transit0 = (np.abs(q[:, 0] - ready) / speed).max(axis=-1)  # (C, B)
