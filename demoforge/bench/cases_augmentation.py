@@ -11,6 +11,7 @@ from demoforge.lib.scratch import folder_removed_at_exit
 from demoforge.lib.task_library import get_task
 from demoforge.lib.trajectories import augmentation as au, retrieval as rt
 from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+from demoforge.lib.trajectories.augmentation.servable import generate_servable
 from demoforge.schemas.core import write_table
 
 
@@ -76,7 +77,46 @@ def cases(quick: bool) -> list[BenchCase]:
                              "episodes", "Python loop over episodes, sorted", ret_setup(1_000_000, n_q), ret_check,
                              repeats=2, baseline_size=10_000))
     out.append(_episode_steps_write_case(quick))
+    out.append(_servable_case(quick))
     return out
+
+
+def _servable_case(quick: bool) -> BenchCase:
+    """A database drawn where the arms can serve it (servable.py; trash_in_bin: 57 % of the uniform draw
+    served): fast = each round's candidates screened together (screen_episodes on batches); baseline = the same
+    draw with every candidate screened alone, as a per-episode rejection loop would. The check: the same
+    placements and verdicts."""
+    from demoforge.lib.sim.robots import get_robot  # lazy: the arms' models load mujoco
+    from demoforge.lib.sim.robots.aloha.screening import screen_episodes
+
+    task = "trash_in_bin"
+
+    def setup(n: int):
+        arms = get_robot("aloha", "2f140")
+        arms.retargeting(task)  # the closed form and the IK model, built once outside the timing
+        t = get_task(task)
+        src = from_scripted_demo(t, t.scripted_demo(0))
+
+        def batched(batch, rows):
+            return screen_episodes(arms, task, batch.episode_actions(rows), batch.lengths[rows],
+                                   batch.keypoints[rows]).executable
+
+        def alone(batch, rows):
+            return np.array([batched(batch, rows[i:i + 1])[0] for i in range(len(rows))], bool)
+
+        def draw(serves):
+            out = generate_servable(src, serves, n=n - 1, n_mirrored=(n - 1) // 2, seed=0)
+            return out.served, out.batch.params
+
+        return (lambda: draw(batched)), (lambda: draw(alone))
+
+    def check(a, b):
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+
+    return BenchCase("augmentation", "servable_draw_trash_in_bin", 500 if quick else 2_000, "episodes",
+                     "the same draw, every candidate screened alone (a per-episode rejection loop), one core",
+                     setup, check, repeats=1, baseline_size=50 if quick else 100)
 
 
 def _episode_steps_write_case(quick: bool) -> BenchCase:
