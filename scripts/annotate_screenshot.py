@@ -26,7 +26,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
-    from tests.cdp import Browser
+    from tests.support.cdp import Browser
 
     session = AnnotationSession(args.take, args.warehouse)
     server = start_server(session, port=0)

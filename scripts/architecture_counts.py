@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.import_graph import cycles, find_modules, imported, room  # noqa: E402
+from tests.support.import_graph import cycles, find_modules, imported, room  # noqa: E402
 
 
 def _calls(tree: ast.AST, name: str) -> int:

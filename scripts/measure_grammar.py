@@ -13,7 +13,7 @@ import time
 from demoforge.lib.llm import Sampling
 from demoforge.lib.llm.local_backend import LocalBackend
 from demoforge.lib.llm.prompting import parse_actions
-from tests.test_llm_grammar import real_prompts
+from tests.support.llm import real_prompts
 
 
 def main() -> None:

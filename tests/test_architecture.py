@@ -7,9 +7,10 @@ import ast
 import functools
 from pathlib import Path
 
-from tests.import_graph import cycles, find_modules, import_nodes, imported, room
+from tests.support.import_graph import cycles, find_modules, import_nodes, imported, room
+from tests.support.paths import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 MODULES = find_modules(ROOT)
 
 

@@ -11,6 +11,7 @@ from demoforge.bench.registry import CASE_FACTORIES
 from demoforge.bench.run import run_benchmarks
 from demoforge.bench.timing import BenchCase, run_case
 from demoforge.schemas.catalog import query
+from tests.support.paths import REPO_ROOT
 
 
 class FakeClock:
@@ -112,7 +113,7 @@ def test_every_stage_has_its_cases_in_a_module_of_its_own_and_run_py_holds_none(
 
     from demoforge.bench.registry import CASE_MODULES
 
-    bench = Path(__file__).resolve().parents[1] / "demoforge" / "bench"
+    bench = REPO_ROOT / "demoforge" / "bench"
     for stage, module in CASE_MODULES.items():
         tree = ast.parse((bench / f"{module}.py").read_text())
         assert any(isinstance(n, ast.FunctionDef) and n.name == "cases" for n in tree.body), (stage, module)

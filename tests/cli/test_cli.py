@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.schemas.catalog import query
-from tests.conftest import require_mediapipe_model
+from tests.support.mediapipe_model import require_mediapipe_model
 
 
 def _run(*args: str):

@@ -6,7 +6,6 @@ import logging
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +14,9 @@ from typer.testing import CliRunner
 from demoforge.cli import app
 from demoforge.lib.errors import UserError, is_user_error
 from demoforge.lib.takes import TakeError
+from tests.support.paths import REPO_ROOT
 
-PROJECT = Path(__file__).resolve().parents[1]
+PROJECT = REPO_ROOT
 runner = CliRunner()
 
 

@@ -23,11 +23,12 @@ from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.schemas.catalog import CATALOG_FILE, query
-from tests.test_llm_backends import FakeOpenAIServer
+from tests.support.fake_openai import FakeOpenAIServer
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.lib.ingest.options import IngestOptions
+from tests.support.paths import REPO_ROOT
 
-PROJECT = Path(__file__).resolve().parents[1]
+PROJECT = REPO_ROOT
 N_FRAMES = 8
 runner = CliRunner()
 

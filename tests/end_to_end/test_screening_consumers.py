@@ -9,7 +9,7 @@ import pytest
 
 from demoforge.lib.exports.lerobot import read_lerobot_episode
 
-from tests.test_exports import TAKE, TASK, build_episode_warehouse
+from tests.support.episodes import TAKE, TASK, build_episode_warehouse
 
 LABEL = "aloha+2f140"
 

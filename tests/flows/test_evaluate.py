@@ -17,6 +17,7 @@ from pathlib import Path
 import psutil
 import pyarrow as pa
 import pytest
+from tests.support.paths import HOLD_POINTS
 
 VENV_BIN = Path(sys.executable).parent
 pytestmark = pytest.mark.slow
@@ -32,9 +33,6 @@ TABLES = ("takes", "frames", "hand_keypoints", "aligned_keypoints", "gripper_pos
           "ingest_metrics", "segments", "episodes", "episode_steps", "sim_results", "sim_stability",
           "variation_trials", "keypoint_metrics")
 VOLATILE = {"wall_s", "sim_wall_s", "generate_seconds", "replay_seconds"}  # wall-clock timings
-
-
-HOLD_POINTS = Path(__file__).resolve().parent / "hold_points"  # its sitecustomize parks a process (see there)
 
 
 def _env(tmp_path: Path, warehouse: Path, api: dict) -> dict:
@@ -150,7 +148,8 @@ def _check_report(reports: Path, have_photos: bool, have_mediapipe: bool) -> Non
 def test_evaluate_writes_the_report_resumes_after_sigint_and_sigkill_and_equals_an_uninterrupted_run(
         tmp_path, prefect_api_env):
     from demoforge.flows.evaluate import detector_problem
-    from tests.conftest import SHARED_DATA, require_mediapipe_model
+    from demoforge.lib import SHARED_DATA
+    from tests.support.mediapipe_model import require_mediapipe_model
 
     have_photos = (SHARED_DATA / "real_hands").is_dir()
     if have_photos:  # the main job runs the MediaPipe detector on the photos

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.test_exports import TASK, build_episode_warehouse
+from tests.support.episodes import TASK, build_episode_warehouse
 
 
 @pytest.fixture()

@@ -166,7 +166,7 @@ def test_mediapipe_on_a_one_hand_take_gives_one_hand(prefect_api, warehouse, one
     """Issue 38: MediaPipe calls the one right hand 'left' in bursts (frames 15-19 and 24-32 here). Before,
     the tracker made them a second trusted hand (on the first 60 frames: a 35-frame trajectory); now they
     are the right hand's."""
-    from tests.conftest import require_mediapipe_model
+    from tests.support.mediapipe_model import require_mediapipe_model
 
     require_mediapipe_model()
     gt = _gt(one_hand_take)

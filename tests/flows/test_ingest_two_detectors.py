@@ -13,7 +13,7 @@ from demoforge.schemas.core import (
     ALL_VARIANTS, Column, SchemaError, file_sha256, read_table, table, table_files, write_table,
 )
 from demoforge.tasks.common import Manifest, run_stage, stage_task
-from tests.conftest import require_mediapipe_model
+from tests.support.mediapipe_model import require_mediapipe_model
 
 table("_test_variant", 1, "per-detector rows of one partition (variant test)", [
     Column("take", pa.string(), "take"),

@@ -6,10 +6,11 @@ from typer.testing import CliRunner
 
 from demoforge.cli import app
 from demoforge.flows.keypoint_eval import evaluate_keypoints
-from tests.keypoint_tables import table1, table2
+from tests.support.keypoint_tables import table1, table2
 from demoforge.schemas.catalog import query
-from tests.arctic_fixture import build_arctic_tree
-from tests.conftest import SHARED_DATA, require_mediapipe_model
+from tests.support.arctic_fixture import build_arctic_tree
+from demoforge.lib import SHARED_DATA
+from tests.support.mediapipe_model import require_mediapipe_model
 
 
 def test_arctic_flow_writes_the_thesis_tables(prefect_api, warehouse, tmp_path):

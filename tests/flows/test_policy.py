@@ -10,22 +10,7 @@ import pyarrow as pa
 import pytest
 
 from demoforge.schemas.catalog import query
-from demoforge.schemas.core import write_table
-
-TAKE = "scripted_pouring_s0000"
-
-
-def _tiny_database(warehouse: Path, n: int = 48) -> None:
-    """A pouring database from the task library's scripted demonstration (no rendering needed)."""
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-    from demoforge.lib.task_library import get_task
-    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
-
-    spec = get_task("pouring")
-    batch = generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n, n_mirrored=n // 2, seed=1,
-                              workspace=spec.workspace)
-    write_table("episodes", episodes_columns("pouring", TAKE, 1, batch), warehouse)
-    write_table("episode_steps", episode_steps_columns("pouring", TAKE, batch), warehouse)
+from tests.support.episodes import SCRIPTED_TAKE as TAKE, scripted_database
 
 
 def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
@@ -37,7 +22,7 @@ def test_policy_flows_train_evaluate_and_report(prefect_api, warehouse):
     from demoforge.flows.policy import train_policy
     from demoforge.tasks.policy import load_policy_data
 
-    _tiny_database(warehouse)
+    scripted_database(warehouse)
     wh = str(warehouse)
     data, ep = load_policy_data(wh, "pouring", TAKE, 20)
     assert len(data) == int(np.sum(ep.column("valid").to_numpy(zero_copy_only=False)))
@@ -113,7 +98,7 @@ def test_policy_flows_explain_missing_inputs(prefect_api, warehouse):
         train_policy(str(warehouse), task="pouring", epochs=1)
     with pytest.raises(ValueError, match="unknown task"):
         train_policy(str(warehouse), task="juggling", epochs=1)
-    _tiny_database(warehouse, n=8)
+    scripted_database(warehouse, n=8)
     with pytest.raises(ValueError, match="train-policy"):
         evaluate_policy(str(warehouse), task="pouring", trials=1)
     with pytest.raises(ValueError, match="no episode database of take"):

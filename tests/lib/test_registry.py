@@ -9,7 +9,6 @@ import re
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -17,8 +16,9 @@ from typer.testing import CliRunner
 from demoforge.lib.errors import UnknownNameError, UnknownTaskError, UserError
 from demoforge.lib.registry import Registry
 from demoforge.lib.robot_spec import ROBOTS, RobotError, RobotSpec, robot_labels
+from tests.support.paths import REPO_ROOT
 
-PROJECT = Path(__file__).resolve().parents[1]
+PROJECT = REPO_ROOT
 runner = CliRunner()
 
 

@@ -8,8 +8,9 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from demoforge.lib.settings import RENAMED, VARIABLES, adopt_old_names, apply_library_defaults, read_settings
+from tests.support.paths import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 
 
 def test_read_settings_maps_each_variable_and_hides_the_key():

@@ -21,8 +21,9 @@ from demoforge.lib.annotate import (
 from demoforge.lib.takes import TakeError, open_take
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
 from demoforge.lib.ingest.options import IngestOptions
+from tests.support.paths import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 N_FRAMES = 40
 
 
@@ -520,7 +521,7 @@ def test_annotation_page_in_a_real_browser(prefect_api, raw_take, tmp_path):
     from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
     from demoforge.flows.ingest import ingest_take
     from demoforge.schemas.reads.per_hand import arrays
-    from tests.cdp import Browser, chromium_path
+    from tests.support.cdp import Browser, chromium_path
 
     assert chromium_path() is not None, "chromium is not installed: run scripts/setup.sh (apt-get install chromium)"
     wh = tmp_path / "wh"

@@ -17,7 +17,8 @@ from demoforge.schemas.catalog import (
 )
 from demoforge.schemas.core import write_table
 
-from tests.test_schemas import _rows  # registers the _test_poses table
+from tests.support.poses_table import pose_rows  # registers the _test_poses table
+from tests.support.paths import REPO_ROOT
 
 runner = CliRunner()
 
@@ -107,11 +108,11 @@ def test_every_readme_query_runs(warehouse):
     """Each `demoforge sql "..."` example in README.md and docs/ binds and runs through the confined connection."""
     import re
 
-    repo = Path(__file__).resolve().parents[1]
+    repo = REPO_ROOT
     manual = "\n".join(p.read_text() for p in [repo / "README.md", *sorted((repo / "docs").glob("*.md"))])
     examples = [e for e in re.findall(r'demoforge sql "([^"]+)"', manual) if "..." not in e]  # not placeholders
     assert len(examples) >= 10
-    write_table("_test_poses", _rows(2, "a"), warehouse)  # one table with files, so a view reads Parquet
+    write_table("_test_poses", pose_rows(2, "a"), warehouse)  # one table with files, so a view reads Parquet
     for example in examples:
         query(" ".join(example.split()), warehouse)
     assert query("SELECT count(*) AS n FROM _test_poses", warehouse).column("n")[0].as_py() == 2
@@ -125,18 +126,18 @@ def test_malformed_and_failing_queries_give_exit_2(warehouse):
 
 
 def test_views_follow_new_files_and_keep_fixed_array_types(warehouse):
-    write_table("_test_poses", _rows(3, "a"), warehouse)
+    write_table("_test_poses", pose_rows(3, "a"), warehouse)
     t = query("SELECT take, frame, joints FROM _test_poses ORDER BY frame")
     assert t.num_rows == 3
     assert str(query("SELECT typeof(joints) AS t FROM _test_poses LIMIT 1").column("t")[0]) == "DOUBLE[3][21]"
-    write_table("_test_poses", _rows(2, "b"), warehouse)  # a new partition: catalog goes stale, rebuilt
+    write_table("_test_poses", pose_rows(2, "b"), warehouse)  # a new partition: catalog goes stale, rebuilt
     assert not catalog_is_current(warehouse)
     n = query("SELECT count(*) AS n FROM _test_poses").column("n")[0].as_py()
     assert n == 5 and catalog_is_current(warehouse)
 
 
 def test_catalog_holds_views_only(warehouse):
-    write_table("_test_poses", _rows(), warehouse)
+    write_table("_test_poses", pose_rows(), warehouse)
     build_catalog(warehouse)
     con = duckdb.connect(str(warehouse / CATALOG_FILE), read_only=True)
     try:
@@ -148,7 +149,7 @@ def test_catalog_holds_views_only(warehouse):
 
 
 def test_output_formats(warehouse, tmp_path):
-    write_table("_test_poses", _rows(2, "a"), warehouse)
+    write_table("_test_poses", pose_rows(2, "a"), warehouse)
     r = sql("SELECT frame, joints FROM _test_poses ORDER BY frame", "--format", "json")
     rows = [json.loads(l) for l in r.stdout.splitlines()]
     assert [x["frame"] for x in rows] == [0, 1] and np.array(rows[0]["joints"]).shape == (21, 3)
@@ -166,7 +167,7 @@ def test_output_formats(warehouse, tmp_path):
 
 def test_warehouse_option_overrides_environment(warehouse, tmp_path):
     other = tmp_path / "other"
-    write_table("_test_poses", _rows(4, "z"), other)
+    write_table("_test_poses", pose_rows(4, "z"), other)
     r = runner.invoke(app, ["--warehouse", str(other), "sql", "SELECT count(*) AS n FROM _test_poses", "-f", "csv"])
     assert r.exit_code == 0 and r.stdout.splitlines()[1] == "4"
     assert query("SELECT count(*) AS n FROM _test_poses").column("n")[0].as_py() == 0  # env warehouse untouched
@@ -284,7 +285,7 @@ def test_sim_outcomes_keeps_one_row_per_episode_preferring_the_whole_database_ru
 
 def test_values_are_passed_as_parameters_not_spliced(warehouse):
     """A value with a quote is data: it cannot end the string and change the statement."""
-    write_table("_test_poses", _rows(3, "a"), warehouse)
+    write_table("_test_poses", pose_rows(3, "a"), warehouse)
     n = lambda take: query("SELECT count(*) AS n FROM _test_poses WHERE take = ?", warehouse, [take]).column("n")[0].as_py()
     assert n("a") == 3
     assert n("a' OR '1'='1") == 0
@@ -308,7 +309,7 @@ def _spliced_values(path: Path) -> list[str]:
 
 
 def test_no_query_splices_a_value_into_its_sql():
-    root = Path(__file__).resolve().parents[1]
+    root = REPO_ROOT
     files = [p for d in ("demoforge", "scripts") for p in sorted((root / d).rglob("*.py"))]
     assert len(files) > 50
     assert [b for f in files for b in _spliced_values(f)] == []

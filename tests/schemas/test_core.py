@@ -6,38 +6,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from demoforge.schemas.core import (
-    Column, SchemaError, TableSchema, dual_pose8, get_schema, keypoints3d, read_table, registry, table,
-    table_files, validate, write_table,
+    SchemaError, TableSchema, dual_pose8, get_schema, keypoints3d, read_table, registry, table_files, validate,
+    write_table,
 )
-
-POSES = table(
-    "_test_poses",
-    version=3,
-    doc="test table",
-    columns=[
-        Column("take", pa.string(), "take id"),
-        Column("frame", pa.int64(), "frame index"),
-        Column("joints", keypoints3d(21), "joints, m"),
-        Column("action", dual_pose8(), "2x8 poses"),
-        Column("score", pa.float64(), "optional score", nullable=True),
-    ],
-    partition_by=("take",),
-)
-
-
-def _rows(n=4, take="t1", seed=0):
-    rng = np.random.default_rng(seed)
-    return {
-        "take": [take] * n,
-        "frame": np.arange(n),
-        "joints": rng.normal(size=(n, 21, 3)),
-        "action": rng.normal(size=(n, 2, 8)),
-        "score": [0.5] * n,
-    }
+from tests.support.poses_table import pose_rows  # registers the _test_poses table
 
 
 def test_round_trip_keeps_values_and_fixed_shapes(tmp_path):
-    data = _rows()
+    data = pose_rows()
     written = write_table("_test_poses", data, tmp_path)
     assert len(written) == 1 and written[0].rows == 4
     assert written[0].path.endswith("_test_poses/take=t1/data.parquet")
@@ -51,9 +27,9 @@ def test_round_trip_keeps_values_and_fixed_shapes(tmp_path):
 
 
 def test_partitions_are_written_and_replaced_independently(tmp_path):
-    write_table("_test_poses", _rows(3, "a"), tmp_path)
-    write_table("_test_poses", _rows(5, "b"), tmp_path)
-    write_table("_test_poses", _rows(2, "a", seed=1), tmp_path)  # replaces partition a only
+    write_table("_test_poses", pose_rows(3, "a"), tmp_path)
+    write_table("_test_poses", pose_rows(5, "b"), tmp_path)
+    write_table("_test_poses", pose_rows(2, "a", seed=1), tmp_path)  # replaces partition a only
     assert read_table("_test_poses", tmp_path, take="a").num_rows == 2
     assert read_table("_test_poses", tmp_path, take="b").num_rows == 5
     assert read_table("_test_poses", tmp_path).num_rows == 7
@@ -70,9 +46,9 @@ def test_partitions_are_written_and_replaced_independently(tmp_path):
     ],
 )
 def test_wrong_type_or_shape_names_the_column_and_leaves_previous_file(tmp_path, column, bad, message):
-    (good,) = write_table("_test_poses", _rows(), tmp_path)
+    (good,) = write_table("_test_poses", pose_rows(), tmp_path)
     before = open(good.path, "rb").read()
-    data = _rows()
+    data = pose_rows()
     data[column] = bad
     with pytest.raises(SchemaError, match=message):
         write_table("_test_poses", data, tmp_path)
@@ -82,25 +58,25 @@ def test_wrong_type_or_shape_names_the_column_and_leaves_previous_file(tmp_path,
 
 
 def test_missing_extra_and_null_columns_are_refused(tmp_path):
-    data = _rows()
+    data = pose_rows()
     del data["score"]
     with pytest.raises(SchemaError, match=r"missing column\(s\) \['score'\]"):
         validate("_test_poses", data)
-    data = _rows()
+    data = pose_rows()
     data["extra"] = [1] * 4
     with pytest.raises(SchemaError, match="unexpected column"):
         validate("_test_poses", data)
-    data = _rows()
+    data = pose_rows()
     data["take"] = ["t", None, "t", "t"]
     with pytest.raises(SchemaError, match="'take'.*null"):
         validate("_test_poses", data)
-    data = _rows()
+    data = pose_rows()
     data["score"] = [None] * 4  # nullable column accepts nulls
     assert validate("_test_poses", data).column("score").null_count == 4
 
 
 def test_nan_is_a_value_but_a_missing_coordinate_is_refused():
-    data = _rows()
+    data = pose_rows()
     joints = [[[0.0, 0.0, 0.0]] * 21 for _ in range(4)]
     joints[2][5] = [0.0, None, 0.0]
     data["joints"] = joints
@@ -109,7 +85,7 @@ def test_nan_is_a_value_but_a_missing_coordinate_is_refused():
 
 
 def test_failed_write_mid_file_keeps_previous_version(tmp_path, monkeypatch):
-    (good,) = write_table("_test_poses", _rows(), tmp_path)
+    (good,) = write_table("_test_poses", pose_rows(), tmp_path)
     before = open(good.path, "rb").read()
 
     def boom(*a, **k):
@@ -117,13 +93,13 @@ def test_failed_write_mid_file_keeps_previous_version(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pq, "write_table", boom)
     with pytest.raises(OSError, match="disk full"):
-        write_table("_test_poses", _rows(seed=9), tmp_path)
+        write_table("_test_poses", pose_rows(seed=9), tmp_path)
     assert open(good.path, "rb").read() == before
     assert [p.name for p in (tmp_path / "_test_poses" / "take=t1").iterdir()] == ["data.parquet"]
 
 
 def test_reader_refuses_other_schema_version(tmp_path):
-    write_table("_test_poses", _rows(), tmp_path)
+    write_table("_test_poses", pose_rows(), tmp_path)
     schema = get_schema("_test_poses")
     (f,) = table_files("_test_poses", tmp_path)
     t = pq.read_table(f)
@@ -135,7 +111,7 @@ def test_reader_refuses_other_schema_version(tmp_path):
 
 def test_unsafe_partition_value_is_refused(tmp_path):
     with pytest.raises(SchemaError, match="partition column 'take'"):
-        write_table("_test_poses", _rows(take="../escape"), tmp_path)
+        write_table("_test_poses", pose_rows(take="../escape"), tmp_path)
 
 
 def test_reading_an_unwritten_table_gives_an_empty_typed_table(tmp_path):

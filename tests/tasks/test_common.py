@@ -9,6 +9,7 @@ from prefect import flow
 
 from demoforge.schemas.core import Column, read_table, table, write_table
 from demoforge.tasks.common import ContentHashPolicy, Manifest, content_fingerprint, run_stage, stage_task
+from tests.support.paths import REPO_ROOT
 
 table("_test_counts", 1, "word counts of a text file (cache test)", [
     Column("word", pa.string(), "a word"),
@@ -157,7 +158,7 @@ def test_the_whole_run_key_sees_every_source_file_of_the_package(tmp_path):
 
     from demoforge.runtime import run_cache
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO_ROOT
     want = {"demoforge": root / "demoforge", **{f"demoforge.{p}": root / "demoforge" / p
                                                 for p in ("lib", "tasks", "flows", "schemas")}}
     assert run_cache.code_dirs() == want

@@ -9,7 +9,7 @@ from demoforge.lib.llm import get_backend
 from demoforge.lib.llm.prompting import format_actions, format_keypoints
 from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, reconstruction_error, smooth_actions
 from demoforge.tasks.llm_eval import llm_predict
-from tests.test_prompting import hand_episode
+from tests.support.llm import hand_episode
 
 
 def _examples():

@@ -8,7 +8,7 @@ import pytest
 from demoforge.lib.evaluation.arctic import (
     MANO_TO_OPENPOSE, THESIS_TAKES, ArcticDataset, ArcticError, mano_to_openpose, object_of,
 )
-from tests.arctic_fixture import K_ego, build_arctic_tree, openpose_hand
+from tests.support.arctic_fixture import K_ego, build_arctic_tree, openpose_hand
 
 T = 30
 IOI = 2

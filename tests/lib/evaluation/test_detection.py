@@ -104,7 +104,7 @@ def oracle(monkeypatch):
 
 def test_end_to_end_on_a_rendered_take(tmp_path, oracle):
     from demoforge.lib.synth import take as TK
-    from tests.test_synth_render import STANDIN_XML, StandInDemo
+    from tests.support.standin import STANDIN_XML, StandInDemo
 
     Oracle, load = oracle
     out = tmp_path / "t"

@@ -12,7 +12,7 @@ from demoforge.lib.evaluation.keypoints import (
     per_object, plot_big_vs_small, plot_per_object_bars, plot_per_take_bars, project_per_frame,
     real_photo_rows, size_group,
 )
-from tests.keypoint_tables import appendix_b, table1, table2
+from tests.support.keypoint_tables import appendix_b, table1, table2
 
 K = np.array([[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 1.0]])
 
@@ -127,7 +127,7 @@ def test_per_frame_K_take_evaluates():
 
 def test_evaluate_arctic_take_on_fixture(tmp_path):
     from demoforge.lib.evaluation.arctic import ArcticDataset
-    from tests.arctic_fixture import build_arctic_tree
+    from tests.support.arctic_fixture import build_arctic_tree
 
     root = build_arctic_tree(tmp_path / "a")
     tk = ArcticDataset(root).load("s01", "box_grab_01")
@@ -263,7 +263,7 @@ def test_synthetic_take_rows(tmp_path):
 def test_evaluate_arctic_take_accepts_a_handtrack(tmp_path):
     from demoforge.lib.evaluation.arctic import ArcticDataset
     from demoforge.lib.perception.detectors import HandTrack
-    from tests.arctic_fixture import build_arctic_tree
+    from tests.support.arctic_fixture import build_arctic_tree
 
     tk = ArcticDataset(build_arctic_tree(tmp_path / "a")).load("s01", "box_grab_01")
     n = tk.n_frames

@@ -97,7 +97,7 @@ def test_report_plots_on_real_episodes(tmp_path):
     """The report's section from a warehouse with real augmented episodes and physics results."""
     from demoforge.report.episode_pictures import report_plots
     from demoforge.schemas.core import write_table
-    from tests.test_exports import TAKE, TASK, build_episode_warehouse
+    from tests.support.episodes import TAKE, TASK, build_episode_warehouse
 
     wh = tmp_path / "warehouse"
     wh.mkdir()

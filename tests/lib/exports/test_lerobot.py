@@ -14,33 +14,11 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from demoforge.lib.exports import ExportError, next_poses
-
-TASK = "pouring"
-TAKE = "synth_pouring_s0000"
+from tests.support.paths import REPO_ROOT
+from tests.support.episodes import TAKE, TASK, build_episode_warehouse
 
 
 # ------------------------------------------------------------------------------------------ fixtures
-
-def build_episode_warehouse(root: Path, n: int = 12, n_mirrored: int = 6, seed: int = 1, demo_seed: int = 0) -> dict:
-    """episodes + episode_steps of a real augmentation of the scripted pouring demo, in ``root``."""
-    from demoforge.lib.trajectories.augmentation import DemoSource, generate_episodes
-    from demoforge.lib.task_library import get_task
-    from demoforge.schemas.core import write_table
-    from demoforge.tasks.augment import episode_steps_columns, episodes_columns
-
-    spec = get_task(TASK)
-    demo = spec.scripted_demo(demo_seed)
-    src = DemoSource(task=TASK, trajectory=demo.gripper_actions(), keypoints=demo.keypoints()[0],
-                     keypoint_object=spec.keypoint_object, keypoints_local=spec.keypoints_local,
-                     segments=demo.segments, object_arm=spec.object_arm(False), workspace=spec.workspace)
-    batch = generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed, workspace=spec.workspace, workers=1)
-    write_table("episodes", episodes_columns(TASK, TAKE, seed, batch), root)
-    write_table("episode_steps", episode_steps_columns(TASK, TAKE, batch), root)
-    actions = {int(i): batch.actions[k, : batch.lengths[k]].astype(np.float32) for k, i in enumerate(batch.episode_id)}
-    return {"actions": actions, "valid": dict(zip(batch.episode_id.tolist(), batch.valid.tolist())),
-            "kind": dict(zip(batch.episode_id.tolist(), batch.kind.astype(str).tolist())),
-            "keypoints": dict(zip(batch.episode_id.tolist(), batch.keypoints)), "demo": demo}
-
 
 @pytest.fixture(scope="module")
 def episode_wh(tmp_path_factory):
@@ -535,7 +513,7 @@ def _register_take_camera(wh: Path, takes_dir: Path) -> dict:
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("check_exports_sample",
-                                                  Path(__file__).resolve().parents[1] / "scripts/check_exports_sample.py")
+                                                  REPO_ROOT / "scripts/check_exports_sample.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     from demoforge.schemas.core import write_table

@@ -1,6 +1,5 @@
 """Tests of demoforge.lib.ingest.alignment: robust depth read, depth alignment, swap repair, freeze and fill."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ from demoforge.lib.ingest.alignment import (
     read_depth_robust, repair_swaps,
 )
 from demoforge.lib.perception.hand_model import hand_joints
+from tests.support.paths import CHECKOUT_SHARED_DATA
 
-DEXCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbd" / "dexcap_frame_0"
+DEXCAP = CHECKOUT_SHARED_DATA / "rgbd" / "dexcap_frame_0"
 DEXCAP_K = np.array([[898.2010498046875, 0, 657.4981079101562], [0, 897.86669921875, 364.30950927734375], [0, 0, 1]])
 K = np.array([[570.0, 0, 319.5], [0, 570.0, 239.5], [0, 0, 1]])
 H, W = 480, 640

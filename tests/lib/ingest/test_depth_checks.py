@@ -1,13 +1,13 @@
 """Take-level depth checks (demoforge.lib.ingest.depth_checks): empty, wrong-unit and misaligned depth are named."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from demoforge.lib.ingest.depth_checks import DepthFrameStats, check_depth, frame_depth_stats
+from tests.support.paths import CHECKOUT_SHARED_DATA
 
-DEXCAP = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgbd" / "dexcap_frame_0"
+DEXCAP = CHECKOUT_SHARED_DATA / "rgbd" / "dexcap_frame_0"
 K_DEXCAP = np.array([[898.2010498046875, 0, 657.4981079101562], [0, 897.86669921875, 364.30950927734375], [0, 0, 1]])
 
 

@@ -1,6 +1,5 @@
 """Tests of demoforge.lib.ingest.object_keypoints: 2D annotation + depth -> world points."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,8 +7,9 @@ import pytest
 from demoforge.lib.ingest.alignment import project
 from demoforge.lib.geometry import make_transform, random_rotations, transform_inverse, transform_points
 from demoforge.lib.ingest.object_keypoints import backproject_keypoints, backproject_keypoints_detailed
+from tests.support.paths import CHECKOUT_SHARED_DATA
 
-DEXCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbd" / "dexcap_frame_0"
+DEXCAP = CHECKOUT_SHARED_DATA / "rgbd" / "dexcap_frame_0"
 DEXCAP_K = np.array([[898.2010498046875, 0, 657.4981079101562], [0, 897.86669921875, 364.30950927734375], [0, 0, 1]])
 
 

@@ -60,7 +60,7 @@ def test_unknown_format_is_refused_with_the_choices():
 
 def _compact_prompt(n_waypoints=4):
     from demoforge.lib.llm.prompting import build_prompt
-    from tests.test_llm_grammar import demo
+    from tests.support.llm import demo
 
     ex = demo(n=6)
     return ex, build_prompt([ex], ex[0] + 0.01, ex[1], n_waypoints=n_waypoints, number_format="compact")
@@ -68,7 +68,7 @@ def _compact_prompt(n_waypoints=4):
 
 def test_a_compact_prompt_writes_integers_and_says_so():
     from demoforge.lib.llm.prompting import SYSTEM_PROMPT, build_prompt
-    from tests.test_llm_grammar import demo
+    from tests.support.llm import demo
 
     ex, p = _compact_prompt()
     assert p.number_format == "compact" and p.precision == 0
@@ -101,7 +101,7 @@ def test_an_answer_copied_from_a_compact_example_is_read_back_in_metres():
 def test_the_grammar_of_a_compact_prompt_admits_its_integers_only():
     from demoforge.lib.llm.grammar import prompt_gbnf
     from demoforge.lib.llm.prompting import format_actions
-    from tests.test_llm_grammar import gbnf_regex
+    from tests.support.llm import gbnf_regex
 
     ex, p = _compact_prompt()
     g = gbnf_regex(prompt_gbnf(p, p.text))

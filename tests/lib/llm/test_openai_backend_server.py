@@ -26,7 +26,7 @@ from demoforge.lib.llm import LLMError, LLMRequestError, LLMTimeoutError, Sampli
 from demoforge.lib.llm.openai_backend import OpenAIBackend
 from demoforge.lib.llm.prompting import parse_actions
 from demoforge.tasks.llm_eval import llm_predict
-from tests.test_llm_grammar import demo, real_prompts
+from tests.support.llm import demo, real_prompts
 
 _HAVE_SERVER = all(importlib.util.find_spec(m) is not None
                    for m in ("llama_cpp", "uvicorn", "fastapi", "sse_starlette", "starlette_context",
@@ -150,10 +150,10 @@ def test_llm_eval_command_with_the_openai_backend_against_the_real_server(llama_
 
     from demoforge.cli import app
     from demoforge.schemas.catalog import query
-    from tests.test_policy_flow import TAKE, _tiny_database
+    from tests.support.episodes import SCRIPTED_TAKE as TAKE, scripted_database
 
     base, model = llama_server
-    _tiny_database(warehouse, n=12)              # a pouring database from the scripted demonstration
+    scripted_database(warehouse, n=12)              # a pouring database from the scripted demonstration
     r = CliRunner().invoke(app, ["llm-eval", "--task", "pouring", "--strategy", "single", "--trials", "1",
                                  "--backend", "openai", "--base-url", base, "--model", model, "--api-mode", "completions",
                                  "--free", "--number-format", "compact", "--waypoints", "2"],

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,34 +15,15 @@ from demoforge.lib.llm.prompting import (
     ANSWER_PREFIX, PARSE_STATUSES, PROMPT_VERSION, SYSTEM_PROMPT, Example, approx_token_count, build_prompt,
     count_tokens, format_actions, format_keypoints, format_number, order_by_similarity, parse_actions, resample_actions,
 )
+from tests.support.paths import GOLDEN as GOLDEN_DIR
+from tests.support.llm import hand_episode
 
-GOLDEN = Path(__file__).parent / "golden" / "prompt_3demos.txt"
+GOLDEN = GOLDEN_DIR / "prompt_3demos.txt"
 
 
 # ------------------------------------------------------------------------------------------------
 # fixtures: three small hand-made episodes
 # ------------------------------------------------------------------------------------------------
-
-def _quat_yaw(theta: float) -> list[float]:
-    return [0.0, 0.0, float(np.sin(theta / 2)), float(np.cos(theta / 2))]
-
-
-def hand_episode(shift: float, n: int = 9) -> Example:
-    """A pick-and-pour-like episode: left arm holds still, right arm approaches, closes at step 3,
-    lifts, opens at step 7; the left arm closes at step 2.  Keypoints: 11 points on two objects."""
-    kp = np.array([[0.30 + shift, 0.10, 0.02 * i] for i in range(5)]
-                  + [[-0.20 + shift, 0.25 + 0.01 * i, 0.05] for i in range(6)])
-    acts = np.zeros((n, 2, 8))
-    for t in range(n):
-        u = t / (n - 1)
-        acts[t, 0, :3] = [-0.25 + shift, 0.12, 0.15]
-        acts[t, 0, 3:7] = _quat_yaw(0.5)
-        acts[t, 0, 7] = 1.0 if t < 2 else 0.0
-        acts[t, 1, :3] = [0.20 + shift + 0.1 * u, 0.05 + 0.05 * u, 0.18 - 0.1 * u]
-        acts[t, 1, 3:7] = _quat_yaw(-0.3 + 0.6 * u)
-        acts[t, 1, 7] = 0.0 if 3 <= t < 7 else 1.0
-    return Example(kp, acts[0].copy(), acts)
-
 
 def three_examples() -> list[Example]:
     return [hand_episode(0.0), hand_episode(0.05), hand_episode(-0.04)]
@@ -420,7 +400,7 @@ def test_format_parse_round_trip(a, precision, continuation):
 
 def test_a_prompt_without_examples_is_refused():
     from demoforge.lib.llm.prompting import build_prompt
-    from tests.test_llm_grammar import demo
+    from tests.support.llm import demo
 
     ex = demo(n=4)
     with pytest.raises(ValueError, match="at least one example"):

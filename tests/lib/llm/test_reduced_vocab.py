@@ -14,7 +14,7 @@ import pytest
 
 from demoforge.lib.llm import Sampling
 from demoforge.lib.llm.prompting import build_prompt
-from tests.test_llm_grammar import demo, needs_llama
+from tests.support.llm import demo, needs_llama
 
 pytestmark = [pytest.mark.slow, needs_llama,
               pytest.mark.skipif(importlib.util.find_spec("gguf") is None,

@@ -11,7 +11,7 @@ from demoforge.lib.llm import Sampling
 from demoforge.lib.llm.grammar import actions_gbnf, longest_answer_chars
 from demoforge.lib.llm.prompting import build_prompt, parse_actions
 from demoforge.lib.llm.structured_decoding import ActionListLanguage
-from tests.test_llm_grammar import demo, gbnf_regex, needs_llama, real_prompts
+from tests.support.llm import demo, gbnf_regex, needs_llama, real_prompts
 
 
 @st.composite

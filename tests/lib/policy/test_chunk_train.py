@@ -12,7 +12,7 @@ from demoforge.lib.policy.chunk_train import ChunkTrainConfig, frame_times, targ
 from demoforge.lib.policy.chunking import TemporalEnsemble
 from demoforge.lib.policy.joint_demos import GRIPPER_COLUMNS, JointDemos, commanded_grippers, joint_demos
 
-from tests.test_exports import TASK, build_episode_warehouse
+from tests.support.episodes import TASK, build_episode_warehouse
 
 
 @pytest.fixture(scope="module")

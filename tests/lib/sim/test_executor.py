@@ -14,7 +14,6 @@ verdicts). Rewrite the file only for a deliberate change of the grippers' physic
 import json
 import os
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,10 +21,11 @@ import pytest
 import demoforge.lib  # noqa: F401
 from demoforge.lib.sim import SimOptions, execute, execute_many, validate_actions
 from demoforge.lib.task_library import get_task
+from tests.support.paths import GOLDEN as GOLDEN_DIR
 
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 SEEDS = (0, 1, 2, 3)
-GOLDEN = Path(__file__).parent / "golden" / "grippers_verdicts.json"
+GOLDEN = GOLDEN_DIR / "grippers_verdicts.json"
 _WRITE = os.environ.get("DEMOFORGE_WRITE_GOLDEN") == "1"  # set by `python tests/test_robot_sim.py --write-golden`
 
 

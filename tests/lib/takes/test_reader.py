@@ -360,7 +360,7 @@ def test_png16_depth_matches_metres(synth_take, tmp_path):
 
 
 def test_real_dexcap_depth_png(tmp_path):
-    from tests.conftest import SHARED_DATA
+    from demoforge.lib import SHARED_DATA
 
     src = SHARED_DATA / "rgbd" / "dexcap_frame_0"
     if not src.is_dir():

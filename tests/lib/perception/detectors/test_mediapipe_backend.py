@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 from demoforge.lib.perception.detectors.mediapipe_backend import SHOW_NATIVE_LOGS_ENV, NativeStderr
-from tests.conftest import require_mediapipe_model
+from tests.support.mediapipe_model import require_mediapipe_model
 
 NOISE = b"W0000 00:00:1795680019.873994    3978 inference_feedback_manager.cc:121] Feedback manager ...\n"
 

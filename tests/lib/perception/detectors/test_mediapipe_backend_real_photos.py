@@ -15,7 +15,8 @@ Bounds asserted below sit a little under these numbers. Run with -s to print the
 import numpy as np
 import pytest
 
-from tests.conftest import SHARED_DATA, require_mediapipe_model
+from demoforge.lib import SHARED_DATA
+from tests.support.mediapipe_model import require_mediapipe_model
 
 REAL = SHARED_DATA / "real_hands"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present: the real hand photos come "

@@ -13,7 +13,8 @@ from demoforge.lib.perception.hamer.camera import box_from_keypoints
 from demoforge.lib.perception.hamer.checkpoint import save_random_checkpoint
 from demoforge.lib.perception.hamer.model import HamerConfig
 from demoforge.lib.perception.hamer.synthetic import synthetic_mano, write_synthetic_mano
-from tests.conftest import SHARED_DATA, require_mediapipe_model
+from demoforge.lib import SHARED_DATA
+from tests.support.mediapipe_model import require_mediapipe_model
 
 TINY = HamerConfig.tiny()
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
