@@ -299,6 +299,18 @@ def warehouse(tmp_path, monkeypatch):
     return root
 
 
+@pytest.fixture(scope="module")
+def episode_wh(tmp_path_factory):
+    """An episode database of the scripted pouring demonstration (tests/support/episodes.py), once per test
+    module: (warehouse, what was written)."""
+    from tests.support.episodes import build_episode_warehouse
+
+    root = tmp_path_factory.mktemp("wh_exports") / "warehouse"
+    root.mkdir()
+    info = build_episode_warehouse(root)
+    return root, info
+
+
 @contextlib.contextmanager
 def _run_wide_folder(tmp_path_factory, name: str):
     """A folder shared by every pytest-xdist worker of this run (in the run's base temporary folder;
