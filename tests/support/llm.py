@@ -88,3 +88,17 @@ def hand_episode(shift: float, n: int = 9) -> Example:
         acts[t, 1, 7] = 0.0 if 3 <= t < 7 else 1.0
     return Example(kp, acts[0].copy(), acts)
 
+
+def random_episode(rng, n, changes_left=(), changes_right=()):
+    a = np.zeros((n, 2, 8))
+    a[:, :, :3] = np.cumsum(rng.normal(scale=0.01, size=(n, 2, 3)), axis=0)
+    q = rng.normal(size=(n, 2, 4))
+    a[:, :, 3:7] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    for arm, ch in ((0, changes_left), (1, changes_right)):
+        g = 1.0
+        for t in range(n):
+            if t in ch:
+                g = 1.0 - g
+            a[t, arm, 7] = g
+    return a
+
