@@ -1,5 +1,7 @@
-"""Annotating a recorded take: demoforge.lib.annotate, the page in a real headless Chromium, ingest and augment
-of takes without annotations, custom tasks, and one-line user errors of the CLI."""
+"""Annotating a recorded take: the annotation server (demoforge.runtime.annotate) and its page in a real headless
+Chromium, whether a take is annotated, ingest and augment of takes without annotations, custom tasks, and
+one-line user errors of the CLI. (What the page writes: tests/lib/annotate/test_model.py; custom tasks:
+tests/lib/takes/test_task_definition.py.)"""
 
 from __future__ import annotations
 
@@ -15,8 +17,7 @@ import numpy as np
 import pytest
 
 from demoforge.lib.annotate import (
-    annotation_status, build_annotations, custom_task, library_task, load_task_file, mask_to_ranges,
-    not_annotated_message, parse_task_section, point_info, suggest_closed_ranges, write_annotations,
+    annotation_status, build_annotations, library_task, not_annotated_message, suggest_closed_ranges, write_annotations,
 )
 from demoforge.lib.takes import TakeError, open_take
 from demoforge.lib.trajectories.augmentation.options import AugmentOptions
@@ -66,98 +67,6 @@ def _one_line_error(r: subprocess.CompletedProcess, *needles: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ lib
-
-def _names(prefix: str, n: int) -> list[str]:
-    return [f"{prefix}{i}" for i in range(n)]
-
-
-def test_custom_task_groups_keypoints_by_object_and_validates_names():
-    t = custom_task(["cup:rim", "bowl:rim_l", "cup:base", "bowl:rim_r", *(f"bowl:{k}" for k in _names("b", 7))],
-                    name="stack")
-    assert t.object_names == ("cup", "bowl")
-    assert t.keypoint_names[:4] == ("rim", "base", "rim_l", "rim_r") and t.keypoint_object == (0, 0) + (1,) * 9
-    assert custom_task(",".join(_names("k", 11))).object_names == ("object_a",)
-    with pytest.raises(TakeError, match="needs 11 object keypoints, got 3"):
-        custom_task("a,b,c")
-    with pytest.raises(TakeError, match="unique"):
-        custom_task(_names("k", 10) + ["k0"])
-    with pytest.raises(TakeError, match="at most 2 objects"):
-        custom_task(["x:a", "y:b", *(f"z:{k}" for k in _names("c", 9))])
-    with pytest.raises(TakeError, match="letters, digits"):
-        custom_task(_names("k", 10) + ["a b"])
-    with pytest.raises(TakeError, match="--keypoints"):
-        custom_task(" , ")
-
-
-def test_task_section_round_trips_and_library_keypoints_are_fixed(tmp_path):
-    lib_t = library_task("pouring")
-    assert lib_t.n_keypoints == 11 and lib_t.library
-    assert parse_task_section(lib_t.to_json()) == lib_t
-    bad = lib_t.to_json()
-    bad["objects"][0]["keypoints"] = ["x"] + bad["objects"][0]["keypoints"][1:]
-    with pytest.raises(TakeError, match="library task"):
-        parse_task_section(bad)
-    f = tmp_path / "task.json"
-    f.write_text(json.dumps({"name": "stack", "objects": [{"name": "cup", "arm": "right", "keypoints": _names("c", 5)},
-                                                          {"name": "bowl", "arm": "up", "keypoints": _names("b", 6)}]}))
-    with pytest.raises(TakeError, match="'left' or 'right'"):
-        load_task_file(f)
-    f.write_text("{nope")
-    with pytest.raises(TakeError, match="not valid JSON"):
-        load_task_file(f)
-    with pytest.raises(TakeError, match="unknown task"):
-        library_task("juggling")
-
-
-def test_build_annotations_validates_and_writes_atomically(tmp_path):
-    t = custom_task(["cup:rim", "cup:base", *(f"bowl:{k}" for k in _names("b", 9))])
-    obj = build_annotations(t, {"rim": [10, 20], "base": [11.5, 30]}, frame=3, closed_ranges={"left": [[5, 9], [0, 2]]}, n_frames=12)
-    assert obj["object_keypoints_2d"] == {"frame": 3, "names": ["rim", "base"], "uv": [[10.0, 20.0], [11.5, 30.0]]}
-    assert obj["gripper_closed_ranges"] == {"left": [[0, 2], [5, 9]], "right": []}
-    with pytest.raises(TakeError, match="overlapping"):
-        build_annotations(t, {}, 0, {"right": [[0, 5], [4, 8]]}, n_frames=12)
-    with pytest.raises(TakeError, match="take has 12 frames"):
-        build_annotations(t, {}, 0, {"right": [[0, 20]]}, n_frames=12)
-    with pytest.raises(TakeError, match="not keypoints of task"):
-        build_annotations(t, {"lid": [1, 1]}, 0, {}, n_frames=12)
-    p = write_annotations(tmp_path / "annotations.json", obj)
-    assert json.loads(p.read_text()) == obj and [f.name for f in tmp_path.iterdir()] == ["annotations.json"]
-
-
-def test_mask_to_ranges_and_suggestion_follow_the_automatic_method():
-    from demoforge.lib.ingest.gripper_open_close import gripper_state
-
-    assert mask_to_ranges(np.array([1, 1, 0, 0, 1, 0, 1], bool)) == [[0, 2], [4, 5], [6, 7]]
-    assert mask_to_ranges(np.zeros(4, bool)) == []
-    rng = np.random.default_rng(0)
-    d = np.full((120, 2), 0.09) + rng.normal(0, 0.002, (120, 2))
-    d[30:70, 0] = 0.02
-    d[50:100, 1] = 0.025
-    sug = suggest_closed_ranges(d)
-    g = gripper_state(d, "auto")
-    for h, side in enumerate(("left", "right")):
-        mask = np.zeros(120, bool)
-        for a, b in sug[side]:
-            mask[a:b] = True
-        assert np.array_equal(mask, g[:, h] < 0.5)
-    assert len(sug["left"]) == 1 and abs(sug["left"][0][0] - 30) <= 3 and abs(sug["left"][0][1] - 70) <= 3
-    assert suggest_closed_ranges(np.full((5, 2), np.nan)) == {"left": [], "right": []}
-
-
-def test_point_info_back_projects_and_warns_on_invalid_depth():
-    K = np.array([[500.0, 0, 32], [0, 500.0, 24], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, 3] = [1.0, 2.0, 3.0]
-    depth = np.full((48, 64), 2.0, np.float32)
-    depth[:, :20] = 0.0                     # a hole on the left
-    depth[30, 40] = 0.0                     # one missing pixel, neighbours valid
-    info = point_info(np.array([[32.0, 24.0], [5.0, 5.0], [40.0, 30.0], [100.0, 5.0]]), depth, K, T)
-    assert info[0]["valid"] and info[0]["warning"] == ""
-    assert np.allclose(info[0]["camera"], [0.0, 0.0, 2.0]) and np.allclose(info[0]["world"], [1.0, 2.0, 5.0])
-    assert not info[1]["valid"] and "invalid depth" in info[1]["warning"] and info[1]["world"] is None
-    assert info[2]["valid"] and not info[2]["pixel_depth_valid"] and "neighbours" in info[2]["warning"]
-    assert not info[3]["valid"] and "outside the image" in info[3]["warning"]
-
 
 def test_annotation_status_needs_every_keypoint_of_the_task(raw_take):
     take = open_take(raw_take)
