@@ -1,5 +1,6 @@
-"""demoforge.envs: every task with each robot as a Gymnasium environment whose observations and actions are
-the joint-space export's features, and whose physics and verdict are the robot check's.
+"""The Gymnasium environment (demoforge.envs.robot_env): every task with each robot, whose observations and actions
+are the joint-space export's features, and whose physics and verdict are the robot check's. (Registration:
+test_envs.py; the scenes it resets to: test_scenes.py.)
 
 The episodes are real: each task's scripted demonstration (seed 1), its first scripted fault and its
 mirrored variant, written into a warehouse with the tables' contracts and exported to LeRobot in joint
@@ -8,8 +9,6 @@ space (`export_lerobot(..., robot="aloha", gripper="2f140", unchecked=True)`).""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import warnings
 
 import gymnasium
@@ -72,35 +71,7 @@ def _episode(exported, task: str, e: int):
     return ep, sel.keypoints[e], sel.poses[start:start + sel.lengths[e]].astype(np.float64)
 
 
-# ------------------------------------------------------------------------------------------ registration
-
-def test_every_task_and_robot_is_registered_by_a_module_that_needs_only_gymnasium():
-    assert demoforge.envs.TASKS == TASK_NAMES
-    ids = {f"demoforge/{t}-{r}-v0" for t in TASK_NAMES for r in ("aloha", "aloha2f140", "grippers")}
-    assert ids == set(demoforge.envs.ENV_IDS) and ids <= set(gymnasium.registry)
-    assert demoforge.envs.env_id("pouring", "aloha2f140") == "demoforge/pouring-aloha2f140-v0"
-    with pytest.raises(ValueError, match="aloha2f140"):
-        demoforge.envs.env_id("pouring", "aloha+2f140")
-    probe = ("import sys, gymnasium, demoforge.envs; "
-             "print(sorted(m for m in sys.modules if m.startswith(('mujoco', 'demoforge.lib.sim', 'scipy'))))")
-    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120)
-    assert loaded.stdout.strip() == "[]", loaded.stdout
-
-
-def test_the_ids_map_to_the_robot_checks_robot_and_hand():
-    from demoforge.lib.exports import POSE16_NAMES
-    from demoforge.lib.sim.robots.aloha import JOINT_NAMES
-
-    labels = {}
-    for key in ("aloha", "aloha2f140", "grippers"):
-        env = gymnasium.make(demoforge.envs.env_id("trash_in_bin", key)).unwrapped
-        labels[key] = env.robot.label
-        names = env.features["observation.state"]["names"]
-        assert names == (list(JOINT_NAMES) if key != "grippers" else list(POSE16_NAMES))
-        assert env.action_space.shape == (len(names),) and env.action_space.dtype == np.float32
-        env.close()
-    assert labels == {"aloha": "aloha", "aloha2f140": "aloha+2f140", "grippers": "grippers"}
-
+# ------------------------------------------------------------------------------------------ the checker
 
 @pytest.mark.parametrize("key", ["aloha", "aloha2f140", "grippers"])
 def test_gymnasium_env_checker_passes(key):
@@ -254,38 +225,7 @@ def test_the_close_commands_are_the_executors():
     assert (close_commands(actions[..., 7], lead) != (actions[..., 7] < 0.5)).sum() == 2 * lead
 
 
-# ------------------------------------------------------------------------------------------ scenes
-
-def test_reset_draws_seeded_scenes_under_the_thesis_and_the_novel_protocols():
-    from demoforge.lib.task_library import get_task
-    from demoforge.lib.trajectories.augmentation import from_scripted_demo
-    from demoforge.lib.trajectories.query_scenes import augmentation_queries
-
-    task = get_task("trash_in_bin")
-    env = gymnasium.make(demoforge.envs.env_id(task.name, "aloha2f140")).unwrapped
-    scenes = {}
-    for protocol in ("novel", "thesis"):
-        a, info = env.reset(seed=5, options={"protocol": protocol})
-        b, _ = env.reset(seed=5, options={"protocol": protocol})
-        c, _ = env.reset(seed=6, options={"protocol": protocol})
-        assert info["protocol"] == protocol
-        np.testing.assert_array_equal(a["observation.environment_state"], b["observation.environment_state"])
-        assert np.abs(a["observation.environment_state"] - c["observation.environment_state"]).max() > 1e-3
-        scenes[protocol] = a["observation.environment_state"]
-    # novel: the task library's placement sampler; thesis: the augmentation sampler's held-out stream
-    novel = task.keypoints_world(task.sample_placement(np.random.default_rng(5)).object_poses)
-    np.testing.assert_allclose(scenes["novel"], novel.reshape(-1), atol=1e-7)
-    source = from_scripted_demo(task, task.scripted_demo(0))
-    thesis = augmentation_queries(source, 1, int(np.random.default_rng(5).integers(2**31 - 1)))
-    np.testing.assert_allclose(scenes["thesis"], thesis.keypoints[0].reshape(-1), atol=1e-7)
-    mirrored = {env.reset(seed=s, options={"protocol": "thesis"})[1]["mirrored"] for s in range(8)}
-    assert mirrored == {False, True}  # half the thesis's database is mirrored
-    with pytest.raises(ValueError, match="unknown protocol"):
-        env.reset(options={"protocol": "other"})
-    with pytest.raises(ValueError, match="unknown reset options"):
-        env.reset(options={"seed": 1})
-    env.close()
-
+# ------------------------------------------------------------------------------------------ early success
 
 def test_success_ends_the_episode_early_when_checked_every_k_steps(exported):
     """check_success_every: the predicate on the state of every k-th step; when it holds, the settle phase and
