@@ -48,3 +48,16 @@ def scripted_database(warehouse: Path, n: int = 48) -> None:
     write_table("episodes", episodes_columns("pouring", SCRIPTED_TAKE, 1, batch), warehouse)
     write_table("episode_steps", episode_steps_columns("pouring", SCRIPTED_TAKE, batch), warehouse)
 
+
+def scripted_policy_data(n: int = 40, n_mirrored: int = 20, seed: int = 1, n_wp: int = 8) -> "PolicyData":
+    """The policy's data from a real augmentation of the scripted pouring demonstration (waypoints resampled)."""
+    from demoforge.lib.policy.data import PolicyData, resample_batch
+    from demoforge.lib.task_library import get_task
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+
+    spec = get_task("pouring")
+    batch = generate_episodes(from_scripted_demo(spec, spec.scripted_demo(0)), n=n, n_mirrored=n_mirrored,
+                              seed=seed, materialize=True)
+    return PolicyData(batch.episode_id, batch.kind, batch.params, batch.keypoints, batch.initial,
+                      resample_batch(batch.actions, batch.lengths, n_wp))
+

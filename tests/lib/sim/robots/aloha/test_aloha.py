@@ -14,7 +14,7 @@ from demoforge.lib.sim.robots import RobotError, available_robots, get_robot, gr
 from demoforge.lib.sim.robots.aloha import AlohaRobot
 from demoforge.lib.sim.robots.aloha.model import REST, BasePose
 from demoforge.lib.sim.robots.arm_motion import quintic
-from demoforge.lib.sim.robots.retiming import at, max_speed_ratio, velocity_limited
+from demoforge.lib.sim.robots.retiming import at, max_speed_ratio
 from demoforge.lib.task_library import get_task
 
 # fixed bases, so these tests do not move when the per-task placement (aloha/placement.py) is retuned
@@ -277,19 +277,6 @@ def test_the_arms_are_rendered_executing_an_episode(tmp_path):
         assert ok and frames[name].shape == (72, 96, 3) and r.n_frames == (21 if name == "arms" else 20), r.n_frames
     differ = np.abs(frames["arms"].astype(int) - frames["grippers"].astype(int)).max(axis=2) > 40
     assert differ.mean() > 0.01, differ.mean()
-
-
-def test_velocity_limited_retiming_slows_only_the_steps_too_fast():
-    """One step of 1 rad at 30 fps for a 3 rad/s joint takes 1/3 s: 10 frames instead of 1; a step within
-    the limit keeps its frame; the samples are on the waypoints' straight line, within the limit."""
-    q = np.array([[0.0, 0.0], [1.0, 0.05], [1.05, 0.1]])
-    r = velocity_limited(q, 30.0, np.array([3.0, 3.0]))
-    assert r.slowed.tolist() == [True, False]
-    assert len(r.s) == 12 and r.time_scale == pytest.approx(11 / 2)
-    samples = at(q, r.s)
-    assert max_speed_ratio(samples, 30.0, np.array([3.0, 3.0])) <= 1.0 + 1e-9
-    assert np.allclose(samples[-1], q[-1]) and np.allclose(samples[0], q[0])
-    assert velocity_limited(q[:, :1] * 0.01, 30.0, np.array([3.0])).s.tolist() == [0.0, 1.0, 2.0]
 
 
 def test_a_too_fast_trajectory_is_retimed_on_its_path():
