@@ -1,4 +1,5 @@
-"""`make bench` machinery: cases are checked against their baseline and land in `benchmarks`."""
+"""`make bench` machinery (demoforge.bench.timing): cases are checked against their baseline and land in
+`benchmarks`; their scratch files go when the process ends. (The flow: test_run.py; the registry: test_registry.py.)"""
 
 import os
 import subprocess
@@ -8,10 +9,8 @@ import numpy as np
 import pytest
 
 from demoforge.bench.registry import CASE_FACTORIES
-from demoforge.bench.run import run_benchmarks
 from demoforge.bench.timing import BenchCase, run_case
 from demoforge.schemas.catalog import query
-from tests.support.paths import REPO_ROOT
 
 
 class FakeClock:
@@ -79,14 +78,6 @@ def test_scaled_baseline_on_fewer_items(clock):
     assert sizes == [100_000, 10_000, 10_000] and checked == [(sum(range(10_000)), sum(range(10_000)))]
 
 
-def test_bench_flow_refuses_an_unknown_stage(prefect_api, warehouse):
-    """(The warehouse stage's rows, written and queried through `demoforge bench`, are
-    tests/test_cli_smoke.py::test_tables_catalog_sql_and_bench's.)"""
-    with pytest.raises(ValueError, match="unknown benchmark stage"):
-        run_benchmarks(str(warehouse), stages=["nope"], quick=True)
-    assert not (warehouse / "benchmarks").exists()
-
-
 def test_the_cases_scratch_files_are_removed_when_the_process_ends(tmp_path):
     scratch = tmp_path / "tmpdir"
     scratch.mkdir()
@@ -98,25 +89,3 @@ def test_the_cases_scratch_files_are_removed_when_the_process_ends(tmp_path):
     assert r.returncode == 0, r.stderr
     assert int(r.stdout.split()[-1]) >= 2  # the fast path's and the baseline's tables were written there
     assert list(scratch.iterdir()) == []
-
-
-def test_the_help_names_every_registered_stage():
-    from demoforge.cli.benchmarks import STAGES
-
-    assert sorted(STAGES) == sorted(CASE_FACTORIES)
-    assert "llm" in CASE_FACTORIES
-
-
-def test_every_stage_has_its_cases_in_a_module_of_its_own_and_run_py_holds_none():
-    import ast
-    from pathlib import Path
-
-    from demoforge.bench.registry import CASE_MODULES
-
-    bench = REPO_ROOT / "demoforge" / "bench"
-    for stage, module in CASE_MODULES.items():
-        tree = ast.parse((bench / f"{module}.py").read_text())
-        assert any(isinstance(n, ast.FunctionDef) and n.name == "cases" for n in tree.body), (stage, module)
-    calls = [n for n in ast.walk(ast.parse((bench / "run.py").read_text()))
-             if isinstance(n, ast.Call) and getattr(n.func, "id", None) == "BenchCase"]
-    assert calls == []
