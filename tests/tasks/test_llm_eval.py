@@ -1,15 +1,16 @@
-"""llm_predict without Prefect: examples ordered most similar last, keyframe answers decoded with the
-keyframe decoder, uniform answers upsampled."""
+"""llm_predict (demoforge.tasks.llm_eval) without Prefect: examples ordered most similar last, keyframe answers
+decoded with the keyframe decoder, uniform answers upsampled, structured answers asked of the local backend by
+default."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.llm import get_backend
+from demoforge.lib.llm import FakeBackend, get_backend
 from demoforge.lib.llm.prompting import format_actions, format_keypoints
 from demoforge.lib.trajectories.keyframes import DEFAULT_KEYFRAMES, keyframe_actions, reconstruction_error, smooth_actions
 from demoforge.tasks.llm_eval import llm_predict
-from tests.support.llm import hand_episode
+from tests.support.llm import demo, hand_episode
 
 
 def _examples():
@@ -55,3 +56,18 @@ def test_uniform_answers_still_upsampled():
     assert fields["parse_status"] == "ok" and fields["parse_detail"] == "" and actions.shape == (40, 2, 8)
     bad, fields = llm_predict(get_backend("fake", responses=["no"]), exs, q.keypoints, q.initial, n_steps=40)
     assert bad is None and fields["parse_status"] == "no_array"
+
+
+def test_llm_predict_asks_for_structured_answers_by_default_only_from_the_local_backend():
+    from demoforge.tasks.llm_eval import llm_predict
+
+    class LocalLike(FakeBackend):
+        name = "local"
+
+    ex = demo(n=4)
+    for cls, structured, expected in ((LocalLike, None, True), (FakeBackend, None, False),
+                                      (LocalLike, False, False), (FakeBackend, True, True)):
+        got = []
+        b = cls(lambda p, s: got.append(s.structured) or "")
+        llm_predict(b, [ex], ex[0] + 0.01, ex[1], n_steps=20, n_waypoints=2, structured=structured)
+        assert got == [expected], (cls.__name__, structured)

@@ -1,5 +1,6 @@
 """Structured output (lib/llm/grammar.py): the GBNF grammar, the JSON schema, the cache key, and the
-embedded model's constrained answers (always (n, 2, 8))."""
+embedded model's constrained answers (always (n, 2, 8)). (The commands' flags for it: tests/cli/test_evaluation.py
+and test_pipeline.py; llm_predict's default: tests/tasks/test_llm_eval.py.)"""
 
 from __future__ import annotations
 
@@ -131,68 +132,3 @@ def test_structured_greedy_answers_of_the_embedded_model_always_parse():
         assert res.status == "ok" and res.actions.shape == (n, 2, 8), (res.status, res.detail, c.text)
         assert c.finish_reason == "stop", c.text  # the grammar closed the list; nothing ran into max_tokens
         assert res.detail == ""
-
-
-# ------------------------------------------------------------------------------------------------
-# the CLI flags reach the flows
-# ------------------------------------------------------------------------------------------------
-
-@pytest.mark.parametrize("command, module", [("llm-eval", "demoforge.cli.evaluation"), ("table3", "demoforge.cli.table3")])
-def test_structured_and_base_url_flags_reach_the_flow(command, module, monkeypatch, tmp_path):
-    from typer.testing import CliRunner
-
-    from demoforge.cli import app
-
-    seen = []
-
-    def fake_run_flow(flow, warehouse, **kwargs):
-        seen.append(kwargs)
-        raise ValueError("stop here")
-
-    monkeypatch.setattr(f"{module}.run_flow", fake_run_flow)
-    base = ["--warehouse", str(tmp_path), command, "--task", "pouring"]
-    openai = ["--backend", "openai", "--base-url", "http://127.0.0.1:9/v1", "--model", "m", "--api-mode", "completions"]
-    runs = [(base + openai + ["--free"], {}), (base + openai, {"DEMOFORGE_LLM_STRUCTURED": "1"}),
-            (base + ["--backend", "local"], {"DEMOFORGE_LLM_STRUCTURED": None})]
-    for args, env in runs:
-        r = CliRunner().invoke(app, args, env=env)
-        assert r.exit_code != 0 and "stop here" in r.output, r.output
-    assert [k["structured"] for k in seen] == [False, True, None]  # None: the default (on for local)
-    assert seen[0]["backend_options"] == {"mode": "completions", "model": "m", "base_url": "http://127.0.0.1:9/v1"}
-    assert seen[2]["backend_options"] == {}
-
-
-def test_llm_predict_asks_for_structured_answers_by_default_only_from_the_local_backend():
-    from demoforge.tasks.llm_eval import llm_predict
-
-    class LocalLike(FakeBackend):
-        name = "local"
-
-    ex = demo(n=4)
-    for cls, structured, expected in ((LocalLike, None, True), (FakeBackend, None, False),
-                                      (LocalLike, False, False), (FakeBackend, True, True)):
-        got = []
-        b = cls(lambda p, s: got.append(s.structured) or "")
-        llm_predict(b, [ex], ex[0] + 0.01, ex[1], n_steps=20, n_waypoints=2, structured=structured)
-        assert got == [expected], (cls.__name__, structured)
-
-
-def test_evaluate_passes_structured_and_number_format_to_its_flow(monkeypatch, tmp_path):
-    from typer.testing import CliRunner
-
-    from demoforge.cli import app
-
-    seen = []
-
-    def fake_run_flow(flow, warehouse, reports_dir, config):
-        seen.append(config)
-        raise ValueError("stop here")
-
-    monkeypatch.setattr("demoforge.cli.pipeline.run_flow", fake_run_flow)
-    base = ["--warehouse", str(tmp_path), "evaluate", "--fresh", "--detector", "simulated"]
-    for args, env in [(["--free", "--number-format", "compact"], {}), ([], {"DEMOFORGE_LLM_NUMBER_FORMAT": "thesis"})]:
-        r = CliRunner().invoke(app, base + args, env=env)
-        assert r.exit_code != 0 and "stop here" in r.output, r.output
-    assert [(c.llm_structured, c.llm_number_format) for c in seen] == [(False, "compact"), (None, "thesis")]
-    r = CliRunner().invoke(app, base + ["--number-format", "hex"])
-    assert r.exit_code == 2 and "--number-format must be one of" in r.output and "Traceback" not in r.output
