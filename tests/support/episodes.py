@@ -61,3 +61,18 @@ def scripted_policy_data(n: int = 40, n_mirrored: int = 20, seed: int = 1, n_wp:
     return PolicyData(batch.episode_id, batch.kind, batch.params, batch.keypoints, batch.initial,
                       resample_batch(batch.actions, batch.lengths, n_wp))
 
+
+_SOURCES: dict = {}
+
+
+def scripted_source(name: str, seed: int = 0, mirror: bool = False) -> "DemoSource":
+    """The task library's scripted demonstration of ``name`` as the augmentation's DemoSource (cached)."""
+    from demoforge.lib.task_library import get_task
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo
+
+    key = (name, seed, mirror)
+    if key not in _SOURCES:
+        t = get_task(name)
+        _SOURCES[key] = from_scripted_demo(t, t.scripted_demo(seed, mirror))
+    return _SOURCES[key]
+
