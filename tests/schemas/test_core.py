@@ -1,14 +1,15 @@
-"""Table contracts: validation names the column, writes are atomic, reads check the version."""
+"""Table contracts (demoforge.schemas.core, whose names come from its modules: contracts, column_types,
+validation, warehouse, files, migrations): validation names the column, writes are atomic, reads check the version."""
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from demoforge.schemas.core import (
-    SchemaError, TableSchema, dual_pose8, get_schema, keypoints3d, read_table, registry, table_files, validate,
-    write_table,
-)
+from demoforge.schemas.column_types import dual_pose8, keypoints3d
+from demoforge.schemas.contracts import SchemaError, TableSchema, get_schema, registry
+from demoforge.schemas.validation import validate
+from demoforge.schemas.warehouse import read_table, table_files, write_table
 from tests.support.poses_table import pose_rows  # registers the _test_poses table
 
 

@@ -16,8 +16,9 @@ from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner
 
 from demoforge.cli import app
-from demoforge.lib.calibration import BoardSpec, calibrate, frame_on_plane, pose_errors, rays_on_plane
-from demoforge.lib.calibration.board import find_corners
+from demoforge.lib.calibration.board import BoardSpec, find_corners
+from demoforge.lib.calibration.calibrate import calibrate
+from demoforge.lib.calibration.plane import frame_on_plane, pose_errors, rays_on_plane
 from demoforge.lib.takes import open_take
 from demoforge.lib.takes.sources import sidecar_dir
 
