@@ -1,4 +1,4 @@
-"""The layers of docs/architecture.md, checked on the source (tests/import_graph.py reads it): no import
+"""The layers of docs/architecture.md, checked on the source (tests/support/import_graph.py reads it): no import
 loop between modules or rooms (imports inside functions count), no private name taken from another room,
 no import back up a layer, Prefect stages only in tasks/, no module over 600 lines nor function over 120,
 every demoforge import resolvable by static tools; and where the tests live: every module has its mirrored test

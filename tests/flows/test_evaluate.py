@@ -25,7 +25,7 @@ pytestmark = pytest.mark.slow
 # every stage of the main job on one task, each at the smallest size that still runs it (the stability
 # check and the Table 4 analogue at their defaults were 54 of the 58 robot executions of each full run)
 # (robots: the floating grippers and the arms with the 2F-140; the arms with ALOHA's own fingers take the
-# same code path, and tests/test_robot_arms.py executes them)
+# same code path, and tests/lib/sim/robots/aloha/test_aloha.py executes them)
 ARGS = ["evaluate", "--task", "trash_in_bin", "--mirror", "no", "--episodes", "60", "--sim-episodes", "4",
         "--stability-episodes", "2", "--stability-repeats", "2", "--variation-trials", "1", "--trials", "0",
         "--robot", "grippers", "--robot", "aloha+2f140"]
@@ -44,7 +44,7 @@ def _env(tmp_path: Path, warehouse: Path, api: dict) -> dict:
 
 
 def _start(env: dict, cwd: Path, log: Path, hold: str, fifo: Path) -> subprocess.Popen:
-    """Start `demoforge evaluate` parked at the hold point `hold` (tests/hold_points), which it announces
+    """Start `demoforge evaluate` parked at the hold point `hold` (tests/support/hold_points), which it announces
     on the FIFO `fifo`."""
     os.mkfifo(fifo)
     env = {**env, "DEMOFORGE_TEST_HOLD": hold, "DEMOFORGE_TEST_HOLD_FIFO": str(fifo),

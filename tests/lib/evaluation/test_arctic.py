@@ -1,4 +1,4 @@
-"""demoforge.lib.evaluation.arctic on a tiny fake ARCTIC tree (tests/arctic_fixture.py), no real ARCTIC data."""
+"""demoforge.lib.evaluation.arctic on a tiny fake ARCTIC tree (tests/support/arctic_fixture.py), no real ARCTIC data."""
 
 import json
 

@@ -1,14 +1,14 @@
 """Robot execution with physical parallel-jaw grippers (lib/sim).
 
 The `grippers` robot's verdicts are pinned: every episode these tests execute is compared with
-tests/golden/grippers_verdicts.json (failure, detail, predicate, physics steps), recorded with the code
+tests/support/golden/grippers_verdicts.json (failure, detail, predicate, physics steps), recorded with the code
 before the robots had an interface of their own (lib/sim/robots), so a refactor of the simulator that
 changes any outcome fails here. The failure class, the predicate's verdict and the frame count must be
 equal; the numbers in the details within 1 cm (or 5 %), the physics steps within 10 %: MuJoCo's floating
 point differs between processors (the file was recorded on an Intel Xeon; an AMD EPYC ends the settle phase
 of pouring's seed-0 demonstration 336 steps later and places empty_vase's flowers 3 mm apart, with the same
 verdicts). Rewrite the file only for a deliberate change of the grippers' physics:
-`python tests/test_robot_sim.py --write-golden`.
+`python -m tests.lib.sim.test_executor --write-golden`.
 """
 
 import json
@@ -26,7 +26,8 @@ from tests.support.paths import GOLDEN as GOLDEN_DIR
 TASKS = ("pouring", "trash_in_bin", "paper_in_case", "mix_bowl", "open_container", "empty_vase")
 SEEDS = (0, 1, 2, 3)
 GOLDEN = GOLDEN_DIR / "grippers_verdicts.json"
-_WRITE = os.environ.get("DEMOFORGE_WRITE_GOLDEN") == "1"  # set by `python tests/test_robot_sim.py --write-golden`
+# set by `python -m tests.lib.sim.test_executor --write-golden`
+_WRITE = os.environ.get("DEMOFORGE_WRITE_GOLDEN") == "1"
 
 
 def _verdict(r) -> dict:
@@ -260,10 +261,10 @@ def test_physics_options_are_checked():
         get_scene("open_container", physics=PhysicsOptions(integrator="leapfrog"))
 
 
-if __name__ == "__main__":  # python tests/test_robot_sim.py --write-golden: record the verdicts of today's code
+if __name__ == "__main__":  # python -m tests.lib.sim.test_executor --write-golden: record the verdicts of today's code
     import sys
 
     if sys.argv[1:] != ["--write-golden"]:
-        sys.exit("usage: python tests/test_robot_sim.py --write-golden")
+        sys.exit("usage: python -m tests.lib.sim.test_executor --write-golden")
     os.environ["DEMOFORGE_WRITE_GOLDEN"] = "1"
     sys.exit(pytest.main([__file__, "-q", "-p", "no:cacheprovider", "-p", "no:xdist"]))

@@ -1,7 +1,7 @@
 """The scripted replay (lib/sim/replay.py): the demonstrator's hands through the simulator's frame loop.
 
 Its verdicts are pinned here as the task library's own replay gave them before it ran through the loop
-(seed 0 of each task; the same object poses to the bit); tests/test_task_library.py checks that every
+(seed 0 of each task; the same object poses to the bit); tests/lib/task_library/test_task_library.py checks that every
 scripted take succeeds and that every fault fails for its reason."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Hold points for tests/test_resume.py, loaded by Python at start-up in the `demoforge` processes that
+"""Hold points for tests/flows/test_evaluate.py, loaded by Python at start-up in the `demoforge` processes that
 test starts (it puts this folder first on their PYTHONPATH). Without $DEMOFORGE_TEST_HOLD it does nothing.
 
 $DEMOFORGE_TEST_HOLD names where the process parks itself, so the test interrupts it at exactly that
