@@ -77,16 +77,17 @@ def pytest_terminal_summary(terminalreporter):
 # Scheduling under `make test` (pytest-xdist, `--dist loadfile`: whole files per worker). xdist alone
 # hands out the files with the most tests first, so the one-test flows/test_evaluate.py (the longest file)
 # used to start last and run alone for minutes at the end. The suite orders the files itself, longest
-# first (measured, docs/results/issue-24-tests.md), so the long ones overlap and short files fill in
-# at the end; the files that run the embedded LLM (llama.cpp, one thread per core) form one unit, so
-# no two of them run at the same time on the 2 cores (each ran 3-7 x slower when they did).
+# first (measured: docs/results/issue-24-tests.md, again when the tests were mirrored), so the long ones
+# overlap and short files fill in at the end; the files that run the embedded LLM (llama.cpp, one thread
+# per core) form one unit, so no two of them run at the same time on the 2 cores (each ran 3-7 x slower
+# when they did).
 # Files are named by their path under tests/ (several folders hold a test_<module>.py of the same name).
 LONGEST_FIRST = (
-    "flows/test_evaluate.py", "end_to_end/test_bad_inputs.py", "flows/test_augment.py", "runtime/test_annotate.py",
-    "runtime/test_runners_dask.py", "flows/test_table3.py", "schemas/test_catalog.py", "lib/sim/test_stability.py",
-    "lib/task_library/test_task_library.py", "flows/test_ingest_hand_tracking.py", "flows/test_ingest_two_detectors.py",
-    "lib/exports/test_lerobot.py", "cli/test_cli.py", "test_packaging.py", "flows/test_deployments.py",
-    "flows/test_variations.py",
+    "flows/test_evaluate.py", "end_to_end/test_bad_inputs.py", "envs/test_robot_env.py", "runtime/test_runners_dask.py",
+    "flows/test_closed_loop.py", "lib/task_library/test_task_library.py", "flows/test_ingest_hand_tracking.py",
+    "cli/test_cli.py", "flows/test_augment.py", "runtime/test_annotate.py", "flows/test_sim.py",
+    "flows/test_deployments.py", "schemas/test_catalog.py", "lib/takes/sources/test_sources.py", "test_packaging.py",
+    "flows/test_table3.py",
 )
 EMBEDDED_LLM = ("lib/llm/test_local_backend.py", "lib/llm/test_grammar.py", "lib/llm/test_number_format.py",
                 "lib/llm/test_openai_backend_server.py", "lib/llm/test_structured_decoding.py",
