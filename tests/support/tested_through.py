@@ -136,10 +136,9 @@ TESTED_THROUGH: dict[str, Entry] = {
     ),
     # flows
     "demoforge.flows": exempt("the package's docstring only"),
-    "demoforge.flows.detection_eval": reached(
-        "tests/lib/evaluation/test_detection.py",
-        "`evaluate-detection`: only its refusal without takes runs (tests/lib/evaluation/test_detection.py); "
-        "the flow itself is run by `make evaluate`",
+    "demoforge.flows.detection_eval": untested(
+        "`demoforge evaluate-detection`'s flow: no test runs it (tests/lib/evaluation/test_detection.py tests "
+        "the evaluation it runs per take, and the command's refusals)",
     ),
     "demoforge.flows.ingest_folder": through(
         "tests/lib/ingest/test_options.py",
@@ -147,8 +146,9 @@ TESTED_THROUGH: dict[str, Entry] = {
         "(tests/lib/takes/sources/test_sources.py, tests/runtime/test_annotate.py)",
     ),
     "demoforge.flows.screening": reached(
-        "tests/lib/sim/robots/aloha/test_screening.py",
-        "the screening flow: run by `demoforge screen` in the screening tests",
+        "tests/flows/test_evaluate.py",
+        "the screening flow: `demoforge evaluate` screens its database for the arms (test_evaluate.py); "
+        "`screen`'s refusals: the screening tests",
     ),
     "demoforge.flows.view": through(
         "tests/lib/exports/test_rerun_view.py",
@@ -436,8 +436,9 @@ TESTED_THROUGH: dict[str, Entry] = {
         "camera.json and annotations.json parsing: the reader's bad-input tests go through it",
     ),
     "demoforge.lib.takes.pose": reached(
-        "tests/runtime/test_annotate.py",
-        "a recording's camera pose file: written by the annotate page's calibration",
+        "tests/lib/calibration/test_calibrate.py",
+        "a recording's camera pose file: written when the annotate page calibrates a recording "
+        "(test_calibrate.py)",
     ),
     "demoforge.lib.takes.thesis_json": reached(
         "tests/lib/takes/test_reader.py",
@@ -644,8 +645,7 @@ TESTED_THROUGH: dict[str, Entry] = {
         "the closed-loop stages: run by the data-scaling flow's test",
     ),
     "demoforge.tasks.detection_eval": untested(
-        "the detection evaluation's stage: run by `make evaluate`; no test runs the flow "
-        "(tests/lib/evaluation/test_detection.py tests the function it calls)",
+        "the detection evaluation's stage: no test runs it (only `demoforge evaluate-detection` does)",
     ),
     "demoforge.tasks.export": through(
         "tests/lib/exports/test_lerobot.py",
