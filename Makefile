@@ -21,6 +21,7 @@ $(STAMP): pyproject.toml setup.py requirements/lock.txt requirements/torch.txt r
 	bash scripts/setup.sh
 	@touch $@
 
+# PYTEST_ARGS: e.g. tests/lib/sim to run the tests of demoforge/lib/sim only (tests/ mirrors demoforge/)
 test: setup  ## run the test suite
 	$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --durations=25 $(PYTEST_ARGS)
 

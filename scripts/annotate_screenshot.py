@@ -2,7 +2,7 @@
 
     python scripts/annotate_screenshot.py TAKE [--warehouse WH] [--out docs/annotate.png]
 
-Serves TAKE as `demoforge annotate` does, opens it in headless Chromium (tests/cdp.py), selects the
+Serves TAKE as `demoforge annotate` does, opens it in headless Chromium (tests/support/cdp.py), selects the
 first keypoint and saves a PNG. Give a take that was ingested into WH so the timeline has curves.
 """
 
@@ -26,7 +26,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from demoforge.runtime.annotate import AnnotationSession, server_url, start_server
-    from tests.cdp import Browser
+    from tests.support.cdp import Browser
 
     session = AnnotationSession(args.take, args.warehouse)
     server = start_server(session, port=0)

@@ -3,7 +3,12 @@ worktree), for before/after comparisons: modules, import edges at module level a
 module and room loops, private names imported across files and rooms, functions over 120 lines; and what
 issue 44 asks about: import statements inside functions (of demoforge's own modules / all), the
 `import demoforge.lib  # noqa` lines, package-init loops, name registries, MuJoCo stepping loops (engines),
-`open_take` call sites in the stages and flows, lib modules without a test file named after them.
+`open_take` call sites in the stages and flows, lib modules without a test file named after them; and issue 44's
+item 7, where the tests live (tests/support/mirror.py, tests/support/tested_through.py): modules with their
+mirrored test file, modules covered only through the table (a test file that imports them by name), reached
+by a test without one of their own, exempt, and with no test; for the whole package and for lib/. A checkout
+without the table (before the tests were mirrored) counts its mirrored files and, in place of the table's
+kinds; both count the modules without a mirrored file that some test file imports by name.
 
     .venv/bin/python scripts/architecture_counts.py [--root CHECKOUT]
 """
@@ -17,7 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.import_graph import cycles, find_modules, imported, room  # noqa: E402
+from tests.support.import_graph import cycles, find_modules, imported, room  # noqa: E402
+from tests.support.mirror import direct_imports, mirrored_test  # noqa: E402
 
 
 def _calls(tree: ast.AST, name: str) -> int:
@@ -86,6 +92,51 @@ def issue44_counts(root: Path, modules: dict[str, Path], edges: dict[str, set[st
             "lib modules without a tests/test_<module>.py": len(untested)}
 
 
+def _table(root: Path) -> dict | None:
+    """The checkout's tests/support/tested_through.py table (read from its file), or None where it has none."""
+    import importlib.util
+
+    path = root / "tests" / "support" / "tested_through.py"
+    if not path.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location(f"_tested_through_{abs(hash(str(root)))}", path)
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    return table.TESTED_THROUGH
+
+
+def test_layout_counts(root: Path, modules: dict[str, Path]) -> dict:
+    """Where each module's tests are: its mirrored file, the table's entry (its kind), or nowhere."""
+    table = _table(root)
+    tests = sorted((root / "tests").rglob("test_*.py"))
+    imported_by_name = set().union(*(direct_imports(t, modules) for t in tests)) if tests else set()
+    kinds: dict[str, str] = {}
+    for m, path in modules.items():
+        e = (table or {}).get(m)
+        if (root / mirrored_test(m, path)).is_file():
+            kinds[m] = "mirrored"
+        elif e is not None:
+            kinds[m] = ("through" if e.test else "reached" if e.reached_by else "exempt" if e.exempt else "untested")
+        else:
+            kinds[m] = "neither"
+    out = {}
+    for scope, names in (("package", list(modules)), ("lib", [m for m in modules if m.startswith("demoforge.lib.")])):
+        n = {k: sum(1 for m in names if kinds[m] == k) for k in
+             ("mirrored", "through", "reached", "exempt", "untested", "neither")}
+        unmirrored = [m for m in names if kinds[m] != "mirrored"]
+        out[f"{scope} modules with their mirrored test file (of {len(names)})"] = n["mirrored"]
+        out[f"{scope} modules without one that a test file imports by name"] = sum(
+            1 for m in unmirrored if m in imported_by_name)
+        out[f"{scope} modules without one that no test file imports by name"] = sum(
+            1 for m in unmirrored if m not in imported_by_name)
+        if table is not None:
+            out[f"{scope} modules covered only through the table (a test imports them by name)"] = n["through"]
+            out[f"{scope} modules reached by a test, none of their own"] = n["reached"]
+            out[f"{scope} modules exempt (nothing of their own to test)"] = n["exempt"]
+            out[f"{scope} modules with no test"] = [m for m in names if kinds[m] in ("untested", "neither")]
+    return out
+
+
 def counts(root: Path) -> dict:
     modules = find_modules(root)
     edges: dict[str, set[str]] = {}
@@ -113,7 +164,7 @@ def counts(root: Path) -> dict:
             "module loops": cycles(edges), "room loops": cycles(room_edges),
             "private names imported across files": len(private_files),
             "private names imported across rooms": private_rooms, "functions over 120 lines": long_functions,
-            **issue44_counts(root, modules, edges)}
+            **issue44_counts(root, modules, edges), **test_layout_counts(root, modules)}
 
 
 def main() -> None:

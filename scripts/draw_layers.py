@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.import_graph import find_modules, imported, room  # noqa: E402
+from tests.support.import_graph import find_modules, imported, room  # noqa: E402
 
 SHELL = ("demoforge.cli", "demoforge.runtime", "demoforge.bench")
 LAYER_ROWS = [("command line", ["demoforge.cli"]), ("application shell", ["demoforge.runtime", "demoforge.bench"]),

@@ -1,5 +1,5 @@
 """Free vs structured (GBNF-constrained) greedy answers of the embedded Gemma 3 270M on 3 small real
-prompts (tests/test_llm_grammar.py's real_prompts: 1 example each, 2-3 waypoints): parse status,
+prompts (tests/support/llm.py's real_prompts: 1 example each, 2-3 waypoints): parse status,
 seconds, completion tokens.  Run from the project root:
 
     python -m scripts.measure_grammar [--max-tokens 400]   # -m: the project root on sys.path (tests/, demoforge)
@@ -13,7 +13,7 @@ import time
 from demoforge.lib.llm import Sampling
 from demoforge.lib.llm.local_backend import LocalBackend
 from demoforge.lib.llm.prompting import parse_actions
-from tests.test_llm_grammar import real_prompts
+from tests.support.llm import real_prompts
 
 
 def main() -> None:

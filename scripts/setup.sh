@@ -17,7 +17,7 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
 
-# The annotation page's test drives a real headless browser (tests/cdp.py: Chrome DevTools protocol).
+# The annotation page's test drives a real headless browser (tests/support/cdp.py: Chrome DevTools protocol).
 if ! command -v chromium >/dev/null 2>&1; then
     say "installing chromium (the browser test of \`demoforge annotate\`)"
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi

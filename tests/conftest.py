@@ -18,6 +18,7 @@ import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402
 
 import demoforge.lib  # noqa: F401,E402  (MUJOCO_GL before mujoco)
+from tests.support.paths import TESTS  # noqa: E402
 
 SHARED_DATA = demoforge.lib.SHARED_DATA
 
@@ -74,24 +75,34 @@ def pytest_terminal_summary(terminalreporter):
 
 
 # Scheduling under `make test` (pytest-xdist, `--dist loadfile`: whole files per worker). xdist alone
-# hands out the files with the most tests first, so the one-test test_resume.py (the longest file)
+# hands out the files with the most tests first, so the one-test flows/test_evaluate.py (the longest file)
 # used to start last and run alone for minutes at the end. The suite orders the files itself, longest
-# first (measured, docs/results/issue-24-tests.md), so the long ones overlap and short files fill in
-# at the end; the files that run the embedded LLM (llama.cpp, one thread per core) form one unit, so
-# no two of them run at the same time on the 2 cores (each ran 3-7 x slower when they did).
+# first (measured: docs/results/issue-24-tests.md, again when the tests were mirrored), so the long ones
+# overlap and short files fill in at the end; the files that run the embedded LLM (llama.cpp, one thread
+# per core) form one unit, so no two of them run at the same time on the 2 cores (each ran 3-7 x slower
+# when they did).
+# Files are named by their path under tests/ (several folders hold a test_<module>.py of the same name).
 LONGEST_FIRST = (
-    "test_resume.py", "test_bad_inputs.py", "test_ingest_augment_flow.py", "test_annotate.py",
-    "test_dask_runner.py", "test_table3.py", "test_catalog.py", "test_sim_stability.py",
-    "test_task_library.py", "test_hand_tracking_flow.py", "test_real_detector_flow.py", "test_exports.py",
-    "test_cli_smoke.py", "test_packaging.py", "test_deployments.py", "test_variations.py",
+    "flows/test_evaluate.py", "end_to_end/test_bad_inputs.py", "envs/test_robot_env.py", "runtime/test_runners_dask.py",
+    "flows/test_closed_loop.py", "lib/task_library/test_task_library.py", "flows/test_ingest_hand_tracking.py",
+    "cli/test_cli.py", "flows/test_augment.py", "runtime/test_annotate.py", "flows/test_sim.py",
+    "flows/test_deployments.py", "schemas/test_catalog.py", "lib/takes/sources/test_sources.py", "test_packaging.py",
+    "flows/test_table3.py",
 )
-EMBEDDED_LLM = ("test_llm_backends.py", "test_llm_grammar.py", "test_number_format.py", "test_llm_server.py",
-                "test_structured_decoding.py", "test_reduced_vocab.py")
+EMBEDDED_LLM = ("lib/llm/test_local_backend.py", "lib/llm/test_grammar.py", "lib/llm/test_number_format.py",
+                "lib/llm/test_openai_backend_server.py", "lib/llm/test_structured_decoding.py",
+                "lib/llm/test_reduced_vocab.py")
 EMBEDDED_LLM_UNIT = "embedded-llm"
 
 
+def _under_tests(path) -> str:
+    """A test file's path under tests/ (as LONGEST_FIRST and EMBEDDED_LLM name it), or its name if elsewhere."""
+    path = Path(path).resolve()
+    return path.relative_to(TESTS).as_posix() if path.is_relative_to(TESTS) else path.name
+
+
 def _file_rank(name: str) -> int:
-    if name in EMBEDDED_LLM:  # one unit, placed as one long file (after test_resume.py)
+    if name in EMBEDDED_LLM:  # one unit, placed as one long file (after flows/test_evaluate.py)
         return 1
     if name in LONGEST_FIRST:
         return 2 * LONGEST_FIRST.index(name)
@@ -100,7 +111,7 @@ def _file_rank(name: str) -> int:
 
 def pytest_collection_modifyitems(config, items):
     """Files in the order above (a stable sort: the tests of a file stay together and in order)."""
-    items.sort(key=lambda item: _file_rank(item.path.name))
+    items.sort(key=lambda item: _file_rank(_under_tests(item.path)))
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -114,7 +125,7 @@ def pytest_xdist_make_scheduler(config, log):
     class SuiteScheduling(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
             scope = super()._split_scope(nodeid)
-            return EMBEDDED_LLM_UNIT if scope.rsplit("/", 1)[-1] in EMBEDDED_LLM else scope
+            return EMBEDDED_LLM_UNIT if _under_tests(config.rootpath / scope) in EMBEDDED_LLM else scope
 
     config.option.loadscopereorder = False  # the collection's order, set above
     return SuiteScheduling(config, log)
@@ -129,7 +140,7 @@ def _embedded_llm_on_one_core(request):
     core, the model runs one thread (the same greedy answers), the llama.cpp server these files start
     too; the other worker keeps the other core. Module scope: before the files' module fixtures."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if request.module.__file__ is None or Path(request.module.__file__).name not in EMBEDDED_LLM \
+    if request.module.__file__ is None or _under_tests(request.module.__file__) not in EMBEDDED_LLM \
             or workers < 2 or not hasattr(os, "sched_setaffinity"):
         yield
         return
@@ -140,20 +151,6 @@ def _embedded_llm_on_one_core(request):
         yield
     finally:
         os.sched_setaffinity(0, cpus)
-
-
-def require_mediapipe_model():
-    """Skip, saying how to provide it, when the MediaPipe package or its hand-landmarker model file is
-    absent; once both are there, every error of the detector is the test's to report."""
-    pytest.importorskip("mediapipe", reason="mediapipe is not installed: pip install --no-deps -r "
-                        "requirements/mediapipe.txt (make setup does)")
-    from demoforge.lib.perception.detectors.mediapipe_backend import MODEL_ENV, default_model_path
-
-    path = default_model_path()
-    if not path.is_file():
-        pytest.skip(f"MediaPipe hand model {path} absent: build it with `.venv/bin/python "
-                    f"scripts/fetch_mediapipe_model.py` (make setup does) or point ${MODEL_ENV} at a .task file")
-    return path
 
 
 # Under pytest-xdist the controller starts one Prefect server for all workers, while they start up
@@ -301,6 +298,18 @@ def warehouse(tmp_path, monkeypatch):
     root.mkdir()
     monkeypatch.setenv("DEMOFORGE_WAREHOUSE", str(root))
     return root
+
+
+@pytest.fixture(scope="module")
+def episode_wh(tmp_path_factory):
+    """An episode database of the scripted pouring demonstration (tests/support/episodes.py), once per test
+    module: (warehouse, what was written)."""
+    from tests.support.episodes import build_episode_warehouse
+
+    root = tmp_path_factory.mktemp("wh_exports") / "warehouse"
+    root.mkdir()
+    info = build_episode_warehouse(root)
+    return root, info
 
 
 @contextlib.contextmanager

@@ -1,15 +1,18 @@
-"""The layers of docs/architecture.md, checked on the source (tests/import_graph.py reads it): no import
+"""The layers of docs/architecture.md, checked on the source (tests/support/import_graph.py reads it): no import
 loop between modules or rooms (imports inside functions count), no private name taken from another room,
 no import back up a layer, Prefect stages only in tasks/, no module over 600 lines nor function over 120,
-every demoforge import resolvable by static tools."""
+every demoforge import resolvable by static tools; and where the tests live: every module has its mirrored test
+file (tests/<path>/test_<module>.py) or an entry in tests/support/tested_through.py that the table's rules hold for."""
 
 import ast
 import functools
 from pathlib import Path
 
-from tests.import_graph import cycles, find_modules, import_nodes, imported, room
+from tests.support.import_graph import cycles, find_modules, import_nodes, imported, room
+from tests.support.mirror import mirrored_test
+from tests.support.paths import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 MODULES = find_modules(ROOT)
 
 
@@ -146,3 +149,94 @@ def test_every_demoforge_import_resolves_statically_in_the_checkout():
     finder = FindModuleCache(SearchPaths((str(ROOT),), (), (), ()), None, Options())
     unresolved = sorted(m for m in names if isinstance(finder.find_module(m), ModuleNotFoundReason))
     assert len(names) > 100 and unresolved == []
+
+
+# ------------------------------------------------------------------------------------------ where the tests live
+# docs/architecture.md, "Tests": a module's tests are in tests/<path>/test_<module>.py (tests/support/mirror.py), or
+# it has an entry in tests/support/tested_through.py saying which test covers it, or why none does.
+
+# test files of the suite or the checkout as a whole (no module of their own), and the folders of shared code
+SUITE_FILES = {
+    "tests/test_architecture.py": "these rules, on the source",
+    "tests/test_packaging.py": "the wheel, installed outside the checkout",
+    "tests/test_fail_on_skip.py": "the suite's own hooks (tests/conftest.py)",
+}
+NOT_MIRRORED = ("tests/support/", "tests/end_to_end/")  # shared helpers; whole pipelines across several commands
+
+
+def _test_files() -> list[str]:
+    return sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("test_*.py"))
+
+
+def test_every_module_has_its_mirrored_test_file_or_an_entry_in_the_tested_through_table():
+    from tests.support.mirror import layout
+    from tests.support.tested_through import TESTED_THROUGH
+
+    mirrored = layout(ROOT)
+    neither = [f"{m} (tests/support/mirror.py: {mirrored_test(m, p)})" for m, p in MODULES.items()
+               if m not in mirrored and m not in TESTED_THROUGH]
+    assert neither == [], "give each a test file or an entry in tests/support/tested_through.py"
+    both = sorted(set(mirrored) & set(TESTED_THROUGH))
+    assert both == [], f"these have their own test file now: remove their entries from the table: {both}"
+    assert sorted(set(TESTED_THROUGH) - set(MODULES)) == []  # no entry for a module that is gone
+
+
+@functools.cache
+def _named(name: str) -> frozenset[str]:
+    """Modules a module loads by name: string constants "demoforge.x.y" or "demoforge.x.y:attr" (lazy registry
+    entries, demoforge.lib.registry)."""
+    consts = (n.value for n in ast.walk(ast.parse(MODULES[name].read_text()))
+              if isinstance(n, ast.Constant) and isinstance(n.value, str))
+    return frozenset(c.split(":")[0] for c in consts if c.split(":")[0] in MODULES)
+
+
+def _reaches(start: set[str], module: str) -> bool:
+    """Whether ``module`` is among the package's modules that ``start`` import (or load by name), directly or not."""
+    seen, todo = set(start), list(start)
+    while todo:
+        for t in _imports(m := todo.pop(), MODULES[m]) | _named(m):
+            if t not in seen:
+                seen.add(t)
+                todo.append(t)
+    return module in seen
+
+
+def test_the_tested_through_table_names_test_files_that_import_what_they_cover():
+    from tests.support.mirror import direct_imports
+    from tests.support.tested_through import TESTED_THROUGH
+
+    wrong = []
+    for m, e in TESTED_THROUGH.items():
+        if not e.why.strip():
+            wrong.append(f"{m}: no reason")
+        if e.test is not None:
+            if not (ROOT / e.test).is_file():
+                wrong.append(f"{m}: {e.test} does not exist")
+            elif m not in direct_imports(ROOT / e.test, MODULES):
+                wrong.append(f"{m}: {e.test} does not import it by name")
+        elif e.reached_by is not None:
+            if not (ROOT / e.reached_by).is_file():
+                wrong.append(f"{m}: {e.reached_by} does not exist")
+            elif not _reaches(direct_imports(ROOT / e.reached_by, MODULES), m):
+                wrong.append(f"{m}: nothing {e.reached_by} imports imports it")
+        elif e.exempt and any(isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
+                              for n in ast.parse(MODULES[m].read_text()).body):
+            wrong.append(f"{m}: exempt, but it defines functions or classes of its own")
+    assert wrong == []
+
+
+def test_every_test_file_is_named_after_a_module_of_the_folder_it_mirrors():
+    """tests/a/b/test_c.py or test_c_<topic>.py tests demoforge.a.b.c (a module of demoforge/a/b/, or the package
+    demoforge/a/b itself when c is b); the suite's own files and the shared and end-to-end folders excepted."""
+    stray = []
+    for f in _test_files():
+        if f in SUITE_FILES or f.startswith(NOT_MIRRORED):
+            continue
+        folder = f.split("/")[1:-1]
+        package = ".".join(["demoforge", *folder])
+        stem = f.rsplit("/", 1)[-1][len("test_"):-len(".py")]
+        names = {m.rsplit(".", 1)[-1] for m in MODULES if m.rpartition(".")[0] == package}
+        names |= {folder[-1] if folder else "demoforge"} if package in MODULES else set()
+        if not any(stem == n or stem.startswith(n + "_") for n in names):
+            stray.append(f)
+    assert stray == [], "name a test file after the module it tests (tests/support/mirror.py)"

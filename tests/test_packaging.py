@@ -8,8 +8,9 @@ import subprocess
 import sys
 import sysconfig
 from pathlib import Path
+from tests.support.paths import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 
 PROBE = """
 import importlib.resources, importlib.util, json, demoforge, demoforge.lib

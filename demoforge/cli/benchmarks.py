@@ -10,7 +10,7 @@ from demoforge.runtime.runners import run_flow
 
 app = typer.Typer()
 
-# the registered stages (demoforge.bench.registry.CASE_MODULES; tests/test_bench.py keeps the two equal)
+# the registered stages (demoforge.bench.registry.CASE_MODULES; tests/bench/test_registry.py keeps the two equal)
 STAGES = ("warehouse", "geometry", "synth", "takes", "ingest", "augmentation", "retrieval", "sim", "arms", "detection", "hamer",
           "exports", "policy", "llm")
 STAGE_HELP = f"Only these stages (repeatable): {', '.join(STAGES)}. The llm stage takes minutes."

@@ -13,7 +13,7 @@ lets a grasp carry only one of that arm's objects; online, a grasp carries the o
 point (by the episode's first keypoints, as the export measures it) that the other arm does not carry,
 and when both arms close at the same frame the nearer (arm, object) pair is matched first (in
 empty_vase the flowers' base sits inside the vase: both pinch points are nearest the vase, the holding
-arm's by far). The two agree on every episode of tests/test_envs.py (the six tasks' demonstrations,
+arm's by far). The two agree on every episode of tests/envs/test_robot_env.py (the six tasks' demonstrations,
 plain and mirrored); they can differ where an arm closes first on the object the other arm will hold
 longer. The arithmetic is the export's, so the values agree to float32 precision.
 """

@@ -64,7 +64,7 @@ def load_policy_data(warehouse: str, task: str, take: str, n_waypoints: int = 20
     steps = read_table("episode_steps", warehouse, columns=["episode_id", "step", "action"], task=task, take=take)
     eid = np.asarray(steps.column("episode_id").to_numpy())
     # select and order in numpy: pyarrow 26.0.1 filters sliced nested fixed-size lists wrongly (zero-filled
-    # actions here; see tests/test_schemas.py)
+    # actions here; see tests/schemas/test_core.py)
     keep = np.isin(eid, ids)
     order = np.lexsort((np.asarray(steps.column("step").to_numpy())[keep], eid[keep]))
     flat = steps.column("action").combine_chunks().flatten().flatten().to_numpy().reshape(-1, 2, 8)[keep][order]

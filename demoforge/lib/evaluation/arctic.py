@@ -3,7 +3,7 @@ to the project's 21-joint order, for the thesis's keypoint evaluation (section 4
 
 ARCTIC's licence forbids redistributing its data: a user downloads it and points ``--arctic-root``
 (``ArcticDataset(root)``) at the download. Nothing of ARCTIC is bundled here; tests use a tiny
-fake tree in the same layout (tests/arctic_fixture.py).
+fake tree in the same layout (tests/support/arctic_fixture.py).
 
 Layout read (ARCTIC's documentation; see "what could not be confirmed" below)::
 

@@ -10,7 +10,7 @@ closed (g < 0.5, the executor's threshold) the object moves rigidly with the gri
 it had when the gripper closed; after the gripper opens it stays where it was released (no fall
 under gravity, no pushing by the other object: the kinematic scene of the task library's scripted
 demonstrations). On the six scripted demonstrations, plain and mirrored, this reproduces the task
-library's own per-frame object keypoints exactly (tests/test_exports.py).
+library's own per-frame object keypoints exactly (tests/lib/exports/test_object_state.py).
 
 Vectorised over all episodes at once: the grasps (runs of a closed gripper) are handled by their
 rank within the episode (first grasp of every episode, then the second ...), so the loop runs as

@@ -15,7 +15,7 @@
 * :func:`actions_json_schema` — the same constraint as a JSON schema (``{"actions": n x 2 x 8}``) for
   OpenAI-style ``response_format={"type": "json_schema", ...}``.  Such a JSON answer needs no reader
   of its own: :func:`demoforge.lib.llm.prompting.parse_actions` already takes the first (n, 2, 8)
-  array inside ``{"actions": ...}`` (tests/test_llm_grammar.py checks it).
+  array inside ``{"actions": ...}`` (tests/lib/llm/test_grammar.py checks it).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ newline, and only a few hundred tokens are made of them alone.
   token llama.cpp's grammar sampler picks greedily (it, too, keeps a token only if its whole text is
   accepted, and otherwise takes the argmax, lowest id first on ties); once the list is closed it stops,
   where llama.cpp would admit only end-of-generation. The answers are therefore the grammar path's,
-  token for token (tests/test_structured_decoding.py compares them on real prompts).
+  token for token (tests/lib/llm/test_structured_decoding.py compares them on real prompts).
 
 Only greedy decoding (temperature 0) takes this path; sampling at a temperature keeps the GBNF sampler.
 """

@@ -9,8 +9,8 @@ demonstration holds it) follow the demonstration's pinch frames as (n, 2, 8) act
 frame loop (loop.py) as every robot's execution (executor.py): pre-roll, action frames of
 `ctrl_per_frame` control steps, settle phase. The verdict is the task's predicate on the final state and
 the history of the demonstration's frames and the settled state, as the task library's replay always
-judged it (lib/task_library's scripted takes are checked by it: tests/test_task_library.py, the synthetic
-takes' `replay_success`).
+judged it (lib/task_library's scripted takes are checked by it: tests/lib/task_library/test_task_library.py,
+the synthetic takes' `replay_success`).
 
 Kept from the task library's replay so that its verdicts and object poses do not change (an executor
 episode differs in each): the scene is compiled with the demonstration's placement and its MJCF's own

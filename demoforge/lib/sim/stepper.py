@@ -20,7 +20,7 @@ the whole episode (the quaternions kept hemisphere-continuous across steps; the 
 a frame before the last taken, as the executor takes it, from the next segment's start, so reset()'s
 max_frames says which frame is the last). Driven with the frames ``execute`` plans for an episode (for the arms their joints and the close
 commands of :func:`close_commands`), it gives the same physics, bit for bit, and the same SimResult
-(tests/test_envs.py).
+(tests/envs/test_robot_env.py).
 
 What a rollout that cannot see ahead does differently (documented, and only these):
 

@@ -20,8 +20,8 @@ Output per detected hand (:class:`HandCandidate`):
 * ``confidence``: the handedness score (MediaPipe's hand presence score is applied as a threshold
   inside the landmarker, ``min_hand_presence_confidence``, and not returned by the Tasks API).
 * ``handedness``: MediaPipe's label mapped to the person's hand. Measured on the labelled real
-  photos (tests/test_mediapipe_real_photos.py; COCO-WholeBody and CMU Panoptic, ordinary
-  non-mirrored photos): the Tasks API's "Left"/"Right" category names of the 0.10.21 models name
+  photos (tests/lib/perception/detectors/test_mediapipe_backend_real_photos.py; COCO-WholeBody and CMU
+  Panoptic, ordinary non-mirrored photos): the Tasks API's "Left"/"Right" category names of the 0.10.21 models name
   the person's hand correctly for non-mirrored images, so ``mirrored=False`` (default) keeps them;
   pass ``mirrored=True`` for selfie-mirrored video. The raw label is kept in ``extra``.
 

@@ -14,7 +14,7 @@ Branches (axis -2 of q, see BRANCHES): seeds.py's four, in its order (the waist 
 turned half a turn with the arm leaning over backwards, each with the elbow angle's two signs), then the
 same four with the other wrist branch (roll + pi, -pitch, roll2 + pi: the same gripper pose, as
 ik.wrist_branch). Every link offset of the model lies in the arm's plane, and the upper arm's forward
-offset is the tilt alpha, so the answer is exact up to rounding (tests/test_aloha_closed_form.py measures
+offset is the tilt alpha, so the answer is exact up to rounding (tests/lib/sim/robots/aloha/test_closed_form.py measures
 it against MuJoCo's forward kinematics).
 """
 
