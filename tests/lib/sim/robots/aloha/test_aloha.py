@@ -2,7 +2,6 @@
 actuators, the arm verdicts (unreachable, joint_limit, link_collision, wider_than_stroke)."""
 
 import functools
-import math
 
 import numpy as np
 import pytest
@@ -11,31 +10,11 @@ from hypothesis import assume, given, settings, strategies as st
 import demoforge.lib  # noqa: F401
 from demoforge.lib.sim import SimOptions, execute, planned_execution
 from demoforge.lib.sim.robots import RobotError, available_robots, get_robot, gripper_choices
-from demoforge.lib.sim.robots.aloha import AlohaRobot
-from demoforge.lib.sim.robots.aloha.model import REST, BasePose
+from demoforge.lib.sim.robots.aloha.model import REST
 from demoforge.lib.sim.robots.arm_motion import quintic
 from demoforge.lib.sim.robots.retiming import at, max_speed_ratio
 from demoforge.lib.task_library import get_task
-
-# fixed bases, so these tests do not move when the per-task placement (aloha/placement.py) is retuned
-BASE = BasePose(-0.35, -0.05, 0.0, math.pi / 2)
-ARMS = AlohaRobot(hand="aloha", bases=(BASE, BASE.mirrored()))
-ARMS_2F140 = AlohaRobot(hand="2f140", bases=(BASE, BASE.mirrored()))
-
-
-def _fk(robot, q: np.ndarray) -> np.ndarray:
-    """(n, 2, 8) pinch poses [x y z qx qy qz qw g=1] of joint configurations q (n, 12), from the IK's model."""
-    from scipy.spatial.transform import Rotation
-
-    ik = robot.ik("pouring")
-    out = np.ones((len(q), 2, 8))
-    for t, qt in enumerate(q):
-        ik.cfg.update(qt)
-        d = ik.cfg.data
-        out[t, :, :3] = d.site_xpos[ik.sites]
-        out[t, :, 3:7] = Rotation.from_matrix(d.site_xmat[ik.sites].reshape(2, 3, 3)).as_quat()
-    return out
-
+from tests.support.aloha import ARMS, ARMS_2F140, fk as _fk
 
 def _angle_deg(a_xyzw, b_xyzw):
     from scipy.spatial.transform import Rotation
@@ -149,41 +128,6 @@ def test_fk_of_the_ik_answer_is_the_pose(u, v, c, sign, robot):
         assert np.linalg.norm(back[:, a, :3] - target[:, a, :3], axis=1).max() < 1e-3, a
         assert max(_angle_deg(back[t, a, 3:7], target[t, a, 3:7]) for t in range(PATH_STEPS)) < 0.5, a
     assert sol.position_error.max() < 1e-3 and sol.rotation_error.max() < 0.5 and not sol.failed_steps().any()
-
-
-@pytest.mark.parametrize("robot", [ARMS, ARMS_2F140])
-def test_the_ik_step_is_minks_bit_for_bit(robot):
-    """ik_qp.StepQP (the IK's QP without mink's and qpsolvers' per-call layers) gives the step mink.build_ik and
-    qpsolvers' DAQP give, to the last bit, at configurations all over the ranges (the collision limits active
-    and not), each arm followed or held, both time steps the IK uses; the geom pairs it leaves out as far
-    (ik_qp.FarPairs) are ones MuJoCo finds nothing within the detection distance of."""
-    import mink
-    import mujoco
-    import qpsolvers
-    from scipy.spatial.transform import Rotation
-
-    ik = robot.ik("pouring")
-    assert ik.qp.lean
-    rng = np.random.default_rng(0)
-    kept = 0
-    for k in range(60):
-        q = np.clip(ik.rest + rng.normal(scale=0.8, size=12), ik.lower, ik.upper)
-        target = _fk(robot, np.clip(q + rng.normal(scale=0.1, size=12), ik.lower, ik.upper)[None])[0]
-        wxyz = Rotation.from_quat(target[:, 3:7]).as_quat(scalar_first=True)
-        ik.cfg.update(q)
-        ik._set_targets(target[:, :3], wxyz, np.array([True, k % 3 > 0]))
-        dt = 1.0 if k % 2 else 1 / 30
-        want = qpsolvers.solve_problem(mink.build_ik(ik.cfg, ik.tasks, dt, 1e-12, ik.limits), solver="daqp")
-        got = ik.qp.solve(dt)
-        assert want.found and got is not None and np.array_equal(got, want.x), k
-        # the pairs it leaves out as far: MuJoCo finds nothing within their detection distance
-        far = ik.qp.far(ik.cfg.data)
-        for lim in ik.qp.pairwise:
-            for (g1, g2), out in zip(lim.geom_id_pairs, far[ik.qp.far.of(lim)]):
-                dist = mujoco.mj_geomDistance(ik.model, ik.cfg.data, g1, g2, lim.collision_detection_distance, None)
-                assert not out or dist == lim.collision_detection_distance, (k, g1, g2, dist)
-        kept += len(far) - sum(far)
-    assert 0 < kept < 60 * len(far)  # some pairs left out, some not
 
 
 def test_a_pose_a_metre_outside_the_workspace_is_unreachable():
