@@ -54,8 +54,8 @@ import numpy as np
 from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
 from .grasp_choice import ARM_GAP
 from .retargeting import GRASP_REACH
-from .screening_arm import (REASONS, ArmScreen, ArmsContext, closer_bound, hand_points, min_distance, screen_arm,
-                            search_again, segments)
+from .screening_arm import REASONS, ArmScreen, ArmsContext, screen_arm, search_again
+from .screening_points import Obstacle, closer_bound, hand_points, min_distance, segments
 from .screening_windows import held_batch, object_poses_batch, rotations, smooth_batch, windows_batch
 
 #: bump when the same episodes would be screened otherwise
@@ -305,13 +305,13 @@ def _again(ctx: ArmsContext, arms: list, cands: list, rows: np.ndarray, traj: np
         r1, r2 = arms[first], arms[second]
         tr1 = _track(r1, rows, slot[rows, first])
         steps = r2.steps[rows]
-        avoid = (_points_at(ctx, ctx.bases[first], tr1, steps), _needed_gap(ctx, traj[rows], steps))
+        avoid = Obstacle(_points_at(ctx, ctx.bases[first], tr1, steps), _needed_gap(ctx, traj[rows], steps))
         for sel, c in cands[second]:
             inside = np.flatnonzero(np.isin(rows, sel))
             if c is None or not len(inside):
                 continue
             again = search_again(ctx, c, r2, np.searchsorted(sel, rows[inside]), rows[inside],
-                                 (avoid[0][inside], avoid[1][inside]))
+                                 avoid.take(inside))
             k = np.argmax(again.wit_score, axis=1)
             here = _track(again, np.arange(len(inside)), k)
             there = {key: v[inside] for key, v in tr1.items()}

@@ -27,6 +27,7 @@ from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_S
                            MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
                            WRIST_ABOVE_TABLE)
 from .screening_paths import best_paths
+from .screening_points import Obstacle, hand_points
 from .screening_windows import object_at_steps
 
 REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
@@ -216,9 +217,9 @@ class ArmCandidates:
     may_turn: np.ndarray
     dead: np.ndarray
     jumps: np.ndarray
-    avoid: tuple | None = None
+    avoid: Obstacle | None = None
 
-    def take(self, rows: np.ndarray, avoid: tuple | None = None) -> "ArmCandidates":
+    def take(self, rows: np.ndarray, avoid: Obstacle | None = None) -> "ArmCandidates":
         """These episodes' candidates, kept clear of `avoid`."""
         return replace(self, turner=self.turner.take(rows), valid=self.valid[rows], ok=self.ok[rows],
                        may_turn=self.may_turn[rows], dead=self.dead[rows], jumps=self.jumps[rows], avoid=avoid)
@@ -293,14 +294,13 @@ def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, pos
     state could be followed otherwise (in range, the pose checks passed). The hand and the wrist -> pinch
     segment are the pose's (search_again checks them); the elbow -> wrist segment is the arm branch's (the two
     wrist branches share the elbow; the half-turn moves no point)."""
-    pts, gap = arm.avoid[0][rows], arm.avoid[1][rows]  # (n, S, P, 3), (n, S)
     n, C, S, B = in_range.shape
     live = cells[..., None] & arm.valid[rows][:, None, :, None] & (in_range[..., :4] | in_range[..., 4:])
-    e, c, s, k = np.nonzero(live & np.isfinite(gap)[:, None, :, None])
+    e, c, s, k = np.nonzero(live & arm.avoid.finite[rows][:, None, :, None])
     p = ctx.solver.points(arm.base, q[e, c, s, k])
     u = np.linspace(0.0, 1.0, 5)[:, None]
     seg = p["elbow"][:, None] + u * (p["wrist"] - p["elbow"])[:, None]  # (m, 5, 3)
-    near = closer_than(seg, pts[e, s], gap[e, s])
+    near = arm.avoid.near(seg, rows[e], s)
     clear = np.ones((n, C, S, 4), bool)
     clear[e[near], c[near], s[near], k[near]] = False
     return np.concatenate([clear, clear], axis=-1)
@@ -369,10 +369,10 @@ def search_arm(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen) -> None:
 
 
 def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_rows: np.ndarray, res_rows: np.ndarray,
-                 avoid: tuple) -> ArmScreen:
+                 avoid: Obstacle) -> ArmScreen:
     """The arm's search again over some episodes (cand_rows of cands, res_rows of res), every state kept clear
-    of the other arm (avoid: its segment points (n, S, P, 3) at this arm's samples, NaN where it is not in its
-    window, and the gap (n, S)): grasp_choice's second choice of an arm around the other."""
+    of the other arm (avoid: its points at this arm's samples and the gap, screening_points.Obstacle):
+    grasp_choice's second choice of an arm around the other."""
     again = ArmScreen(len(res_rows))
     again.active, again.steps, again.valid = res.active[res_rows], res.steps[res_rows], res.valid[res_rows]
     again.feasible[:], again.fail_step[:] = ~again.active, -1
@@ -380,8 +380,8 @@ def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_ro
     # the hand's and the wrist -> pinch segment's points depend on the pose only: a pose too near the other arm
     # fails with every branch (looked at where the pose passes the checks and the other arm is in its window)
     pos, R = sub.turner.turned(np.broadcast_to(sub.turns, (len(cand_rows), len(sub.turns))))
-    e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & np.isfinite(avoid[1])[:, None, :])
-    near = closer_than(_pose_points(ctx, pos[e, c, s], R[e, c, s]), avoid[0][e, s], avoid[1][e, s])
+    e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & avoid.finite[:, None, :])
+    near = avoid.near(_pose_points(ctx, pos[e, c, s], R[e, c, s]), e, s)
     sub.ok = sub.ok.copy()
     sub.ok[e[near], c[near], s[near]] = False
     sub.dead = _reach(sub.ok, sub.may_turn, *sub.nb[:2])
@@ -464,71 +464,5 @@ def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np
     return code, np.where(stuck, s, np.minimum(at, S - 1))
 
 
-def segments(ctx: ArmsContext, base, q: np.ndarray, k: int = 5) -> np.ndarray:
-    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
-    (grasp_choice._segment_points)."""
-    p = ctx.solver.points(base, q)
-    u = np.linspace(0.0, 1.0, k)[:, None]
-    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
-    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
-
-
-def hand_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """(..., 6, 3) grasp_choice._hand_points of pinch poses (pos (..., 3), R (..., 3, 3)): the pinch point, the
-    fingertips HAND_SPREAD to each side along the closing axis, the wrist centre behind along the approach
-    axis and the palm's two sides half-way (a half-turn maps the set onto itself)."""
-    x, z = R[..., :, 0], R[..., :, 2]
-    palm = pos - 0.5 * ctx.w2p * z
-    return np.stack([pos, pos + HAND_SPREAD * x, pos - HAND_SPREAD * x, pos - ctx.w2p * z,
-                     palm + 0.5 * HAND_SPREAD * x, palm - 0.5 * HAND_SPREAD * x], axis=-2)
-
-
-def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...; NaN where a
-    point is NaN), each coordinate's differences on contiguous planes, in float32 (0.1 um at a metre: far
-    below the centimetres the gaps are kept by)."""
-    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
-    A = np.ascontiguousarray(np.moveaxis(np.broadcast_to(a, lead + a.shape[-2:]), -1, 0), np.float32)
-    B = np.ascontiguousarray(np.moveaxis(np.broadcast_to(b, lead + b.shape[-2:]), -1, 0), np.float32)
-    d = (A[0][..., :, None] - B[0][..., None, :]) ** 2
-    for k in (1, 2):
-        d += (A[k][..., :, None] - B[k][..., None, :]) ** 2
-    return np.sqrt(d.reshape(lead + (-1,)).min(axis=-1))
-
-
-def _norm(v: np.ndarray) -> np.ndarray:
-    """|v| over the last axis (3), without a reduction over it."""
-    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
-
-
-def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about the first point."""
-    c = a[..., 0, :]
-    r = _norm(a[..., 1, :] - c)
-    for k in range(2, a.shape[-2]):
-        np.maximum(r, _norm(a[..., k, :] - c), out=r)
-    return c, r
-
-
-def closer_bound(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(...) a lower bound of the distance between point sets a (..., P, 3) and b (..., Q, 3): their spheres'."""
-    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
-    return _norm(ca - cb) - ra - rb
-
-
-def closer_than(a: np.ndarray, b: np.ndarray, gap: np.ndarray) -> np.ndarray:
-    """(...) bool: point sets a (..., P, 3) and b (..., Q, 3) come closer than gap (...) (False where a point or
-    the gap is NaN). Their bounding spheres first: the points' distances only where those come that close."""
-    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2], np.shape(gap))
-    a, b = np.broadcast_to(a, lead + a.shape[-2:]), np.broadcast_to(b, lead + b.shape[-2:])
-    gap = np.broadcast_to(gap, lead)
-    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
-    out = np.zeros(lead, bool)
-    with np.errstate(invalid="ignore"):
-        maybe = _norm(ca - cb) - ra - rb < gap
-        if maybe.any():
-            out[maybe] = min_distance(a[maybe], b[maybe]) < gap[maybe]
-    return out
-
-__all__ = ["ArmCandidates", "ArmScreen", "ArmsContext", "REASONS", "closer_bound", "closer_than", "hand_points", "min_distance", "sample_steps", "screen_arm",
-           "search_again", "search_arm", "segments"]
+__all__ = ["ArmCandidates", "ArmScreen", "ArmsContext", "REASONS", "sample_steps", "screen_arm", "search_again",
+           "search_arm"]

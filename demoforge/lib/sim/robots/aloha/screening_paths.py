@@ -27,21 +27,6 @@ def _states(nb: np.ndarray, nb_mask: np.ndarray, nb_cost: np.ndarray, K: int) ->
     return pred, move, np.broadcast_to(j > 0, pred.shape)
 
 
-def _flat_states(x: np.ndarray, ks: np.ndarray) -> np.ndarray:
-    """(..., S, N) of (..., C, S, B): the states (_states) of the arm branches ks, per sample."""
-    *lead, C, S, B = x.shape
-    y = np.moveaxis(x.reshape(*lead, C, S, 2, 4)[..., ks], -3, -4)  # (..., S, C, 2, K)
-    return y.reshape(*lead, S, -1)
-
-
-def _max_abs_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """max over the last axis of |a - b| by element-wise maxima (a reduction over a short axis is slow)."""
-    out = np.abs(a[..., 0] - b[..., 0])
-    for j in range(1, a.shape[-1]):
-        np.maximum(out, np.abs(a[..., j] - b[..., j]), out=out)
-    return out
-
-
 def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost):
     """grasp_choice._best_path over a batch of episodes and both half-turns at once: q (E, C, S, B, 6) the joints,
     q5f (E, C, S, B) the last joint half-turned, good / margin (E, 2, C, S, B) per half-turn, start (E, 2, C, B)
@@ -65,40 +50,58 @@ def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask,
 
 
 def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
-    """best_paths for episodes sharing the arm branches ks that are followed somewhere."""
+    """best_paths for episodes sharing the arm branches ks that are followed somewhere. Laid out sample first and
+    predecessor before state ((P, N) planes: numpy's reductions over a short last axis, and gathers with
+    several index arrays, cost ten times the element-wise work), the costs in float32 (7 digits of a path's
+    few hundred at most: the BAD threshold and the margins' order keep) added in grasp_choice's order."""
     E, F, C, S, B = good.shape
     K = len(ks)
-    Q04 = np.moveaxis(_flat_states(np.moveaxis(q[..., :5], -1, 0), ks), 0, -1).astype(np.float32)  # (E, S, N, 5)
-    Q5 = np.stack([_flat_states(q[..., 5], ks), _flat_states(q5f, ks)], axis=1).astype(np.float32)  # (E, 2, S, N)
-    # costs in float32 (7 digits of a path's few hundred at most: the BAD threshold and the margins' order keep)
-    node = _flat_states(BAD * ~good + (MARGIN_CAP - np.minimum(margin, MARGIN_CAP)), ks).astype(np.float32)
-    st = start.reshape(E, F, C, 2, 4)[..., ks].reshape(E, F, -1).astype(np.float32)
     pred, move, turning = _states(*moves, K)
-    move = move.astype(np.float32)
-    thresholds = jumps.astype(np.float32)
-    N = pred.shape[0]
-    cost = st + node[:, :, 0]
-    back = np.zeros((E, F, S, N), np.int8)
+    N, P = pred.shape
+    predT = pred.T.ravel()  # predecessor-major: (P, N) planes
+    qk = q.reshape(E, C, S, 2, 4, 6)[..., ks, :]
+    Q = np.ascontiguousarray(qk.transpose(2, 5, 0, 1, 3, 4), dtype=np.float32).reshape(S, 6, E, N)
+    Q5f = np.ascontiguousarray(q5f.reshape(E, C, S, 2, 4)[..., ks].transpose(2, 0, 1, 3, 4),
+                               dtype=np.float32).reshape(S, E, N)
+    g = good.reshape(E, F, C, S, 2, 4)[..., ks]
+    mg = margin.reshape(E, F, C, S, 2, 4)[..., ks]
+    node = np.ascontiguousarray((BAD * ~g + (MARGIN_CAP - np.minimum(mg, MARGIN_CAP))).transpose(3, 1, 0, 2, 4, 5),
+                                dtype=np.float32).reshape(S, F, E, N)
+    st = np.ascontiguousarray(start.reshape(E, F, C, 2, 4)[..., ks].transpose(1, 0, 2, 3, 4), dtype=np.float32)
+    cost = st.reshape(F, E, N) + node[0]
+    moveT = move.T.astype(np.float32)  # (P, N)
+    turnT = turning.T
+    thr = jumps.astype(np.float32)
+    bad = np.float32(BAD)
+    first_of = (P - np.arange(P)).astype(np.uint8)[:, None]  # P - p: the largest marks the first minimum (argmin's)
+    back = np.zeros((S, F, E, N), np.int8)
     for s in range(1, S):
-        jump = np.maximum(_max_abs_diff(Q04[:, s - 1][:, pred], Q04[:, s][:, :, None])[:, None],
-                          np.abs(Q5[:, :, s - 1][:, :, pred] - Q5[:, :, s][..., None]))  # (E, 2, N, P)
-        step = move + np.float32(BAD) * (turning & ~may_turn[:, s, None, None])  # (E, N, P)
-        total = cost[:, :, pred] + step[:, None] + np.float32(BAD) * (jump >= thresholds[:, s, None, None, None])
-        arg = np.argmin(total, axis=3)
-        new = np.take_along_axis(total, arg[..., None], axis=3)[..., 0] + node[:, :, s]
-        keep = ~valid[:, s, None, None]
-        cost = np.where(keep, cost, new)
-        back[:, :, s] = np.where(keep, 0, arg)
-    n = cost.argmin(axis=2)  # (E, 2)
+        prev = np.take(Q[s - 1, :5], predT, axis=2).reshape(5, E, P, N)
+        cur = Q[s, :5, :, None]
+        jump = np.abs(prev[0] - cur[0])
+        for j in range(1, 5):
+            np.maximum(jump, np.abs(prev[j] - cur[j]), out=jump)
+        q5s = (Q[s - 1, 5], Q5f[s - 1])
+        j5 = np.abs(np.take(np.stack(q5s), predT, axis=2).reshape(F, E, P, N) - np.stack((Q[s, 5], Q5f[s]))[:, :, None])
+        np.maximum(j5, jump, out=j5)
+        step = moveT + bad * (turnT & ~may_turn[:, s, None, None])  # (E, P, N)
+        total = np.take(cost, predT, axis=2).reshape(F, E, P, N) + step
+        total += bad * (j5 >= thr[:, s, None, None])
+        best = total.min(axis=2)
+        arg = P - ((total == best[:, :, None]) * first_of).max(axis=2)
+        keep = ~valid[:, s, None]
+        cost = np.where(keep, cost, best + node[s])
+        back[s] = np.where(keep, 0, arg)
+    n = cost.argmin(axis=2)  # (F, E)
     best = np.take_along_axis(cost, n[..., None], axis=2)[..., 0]
-    ns = np.empty((E, F, S), int)
-    e, f = np.arange(E)[:, None], np.arange(F)[None]
+    ns = np.empty((F, E, S), int)
+    f, e = np.arange(F)[:, None], np.arange(E)[None]
     for s in range(S - 1, -1, -1):
         ns[:, :, s] = n
         if s:
-            n = pred[n, back[e, f, s, n]]
+            n = pred[n, back[s, f, e, n]]
     c, w, k = np.unravel_index(ns, (C, 2, K))
-    return c, 4 * w + ks[k], best.astype(float)
+    return np.swapaxes(c, 0, 1), np.swapaxes(4 * w + ks[k], 0, 1), best.T.astype(float)
 
 
 __all__ = ["best_paths"]
