@@ -79,6 +79,14 @@ class ViperXBatchIK:
         return BatchSolution(q.reshape(*lead, B, 6), np.repeat(closes[:, None], B, axis=1).reshape(*lead, B),
                              (margin >= 0.0).reshape(*lead, B), margin.reshape(*lead, B))
 
+    def joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """solve's q (n, 8, 6) alone for n (at most about CHUNK) poses pos (n, 3), R (n, 3, 3): the same angles,
+        without the margins (a screening that takes its own per joint)."""
+        off = self._joints(base, np.asarray(pos, float), np.asarray(R, float))[0] - self.mid
+        off -= TAU * np.rint(off * (1.0 / TAU))  # _wrap's shift
+        off += self.mid
+        return off
+
     def points(self, base: BasePose, q: np.ndarray) -> dict[str, np.ndarray]:
         """World positions (..., 3) of the shoulder (the shoulder joint), the elbow, the wrist centre (the
         wrist-angle joint) and the pinch point for joints q (..., 6): what a screening needs for the table's

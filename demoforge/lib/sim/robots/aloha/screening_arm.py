@@ -32,6 +32,7 @@ from .screening_windows import object_at_steps
 
 REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
 _TAU = 2.0 * np.pi
+SOLVE_CHUNK = 4096  # poses per pass of the closed form (closed_form.CHUNK: its temporaries stay in the cache)
 PASS = 64  # episodes per pass of the search over every turn at once (their joints: a few MB per episode)
 
 
@@ -152,18 +153,29 @@ def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[n
 
 
 def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(q (..., 8, 6), margin (..., 8), the last joint of the half-turned grasp (..., 8), its margin) of pinch
-    poses pos (..., 3), R (..., 3, 3). The gripper's half-turn about its approach axis is the last joint's
-    angle plus pi, nothing else (its range is a full turn: every other joint's margin stays)."""
+    """(q (n, 8, 6), margin (n, 8), the last joint of the half-turned grasp (n, 8), its margin) of pinch poses
+    pos (n, 3), R (n, 3, 3). The gripper's half-turn about its approach axis is the last joint's angle plus pi,
+    nothing else (its range is a full turn: every other joint's margin stays). A joint's margin is
+    half - |q - mid| of its range, taken chunk by chunk (in the cache) and joint by joint (the arm's three
+    joints are the two wrist branches' own: once)."""
     sv = ctx.solver
-    q = sv.solve(base, pos, R).q
-    m = sv.half - np.abs(q - sv.mid)  # per joint
-    off = q[..., 5] + np.pi - sv.mid[5]
-    off -= _TAU * np.rint(off / _TAU)
-    m04 = m[..., 0]
-    for j in range(1, 5):
-        m04 = np.minimum(m04, m[..., j])
-    return q, np.minimum(m04, m[..., 5]), off + sv.mid[5], np.minimum(m04, sv.half[5] - np.abs(off))
+    n = len(pos)
+    q, m, q5f, mf = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    for i in range(0, n, SOLVE_CHUNK):
+        part = slice(i, i + SOLVE_CHUNK)
+        qc = q[part] = sv.joints(base, pos[part], R[part])
+        arm = sv.half[0] - np.abs(qc[:, :4, 0] - sv.mid[0])
+        for j in (1, 2):
+            np.minimum(arm, sv.half[j] - np.abs(qc[:, :4, j] - sv.mid[j]), out=arm)
+        m04 = np.concatenate([arm, arm], axis=1)
+        for j in (3, 4):
+            np.minimum(m04, sv.half[j] - np.abs(qc[:, :, j] - sv.mid[j]), out=m04)
+        m[part] = np.minimum(m04, sv.half[5] - np.abs(qc[:, :, 5] - sv.mid[5]))
+        off = qc[:, :, 5] + np.pi - sv.mid[5]
+        off -= _TAU * np.rint(off / _TAU)
+        q5f[part] = off + sv.mid[5]
+        mf[part] = np.minimum(m04, sv.half[5] - np.abs(off))
+    return q, m, q5f, mf
 
 
 def _solve_cells(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -381,7 +393,15 @@ def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_ro
     # fails with every branch (looked at where the pose passes the checks and the other arm is in its window)
     pos, R = sub.turner.turned(np.broadcast_to(sub.turns, (len(cand_rows), len(sub.turns))))
     e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & avoid.finite[:, None, :])
-    near = avoid.near(_pose_points(ctx, pos[e, c, s], R[e, c, s]), e, s)
+    C, S = sub.ok.shape[1:]
+    cell = (e * C + c) * S + s
+    pts = _pose_points(ctx, np.take(pos.reshape(-1, 3), cell, axis=0), np.take(R.reshape(-1, 3, 3), cell, axis=0))
+    if sub.turner.O is None:
+        near = avoid.near(pts, e, s)
+    else:  # the held object's turns: the pairs of points that may come near under any turn first
+        O = sub.turner.O
+        near = avoid.near_turned(pts, e, c, s, _pose_points(ctx, pos[:, 0], R[:, 0]), O[..., :3, 3], O[..., :3, 2],
+                                 sub.turns)
     sub.ok = sub.ok.copy()
     sub.ok[e[near], c[near], s[near]] = False
     sub.dead = _reach(sub.ok, sub.may_turn, *sub.nb[:2])
