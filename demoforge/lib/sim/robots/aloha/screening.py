@@ -60,7 +60,7 @@ from .screening_windows import held_batch, object_poses_batch, rotations, smooth
 
 #: bump when the same episodes would be screened otherwise
 SCREEN_VERSION = "2"  # 2: the held object named by hull distance (segmentation.held_objects)
-CHUNK = 256  # episodes per pass: a pass's arrays stay within a few tens of MB
+CHUNK = 128  # episodes per pass: a pass's arrays stay within a few tens of MB
 
 
 @dataclass
