@@ -23,6 +23,9 @@ from demoforge.lib.trajectories.segmentation import (HULL_WEIGHT, NEAREST_KEYPOI
                                                      grasped_object_scores)
 
 
+WINDOW_BATCH = 64  # episodes per pass of windows_batch (1.5x faster than 256 at once: memory, not arithmetic)
+
+
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """[start, end) of the True runs of a (T,) bool array."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]])))
@@ -230,8 +233,12 @@ def skill_masks(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.nd
 
 def windows_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray, held: np.ndarray,
                   approach: float = APPROACH) -> np.ndarray:
-    """(E, 2, 2) arm_motion.follow_windows of each episode of a group (held (T, 2): the group's)."""
+    """(E, 2, 2) arm_motion.follow_windows of each episode of a group (held (T, 2): the group's), WINDOW_BATCH
+    episodes at a time (their keypoints over time, (E, T, 3, K), stay in the cache)."""
     E, T = traj.shape[:2]
+    if E > WINDOW_BATCH:
+        return np.concatenate([windows_batch(traj[i:i + WINDOW_BATCH], keypoints0[i:i + WINDOW_BATCH], keypoint_object,
+                                             held, approach) for i in range(0, E, WINDOW_BATCH)])
     skill = skill_masks(traj, keypoints0, keypoint_object, held)
     out = np.full((E, 2, 2), T, int)
     for arm in range(2):
