@@ -180,11 +180,15 @@ def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.n
 
 def _solve_cells(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, ...]:
     """_solve of the poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) where cells (n, C, S); elsewhere every branch out of
-    range (margins -inf), its joints 0."""
+    range (margins -inf), its joints 0. (By flat indices: numpy's gather and scatter by a mask run at a few ns an
+    element.)"""
     q = np.zeros(cells.shape + (8, 6))
     m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
-    if cells.any():
-        q[cells], m[cells], q5f[cells], mf[cells] = _solve(ctx, base, pos[cells], R[cells])
+    cell = np.flatnonzero(cells)
+    if len(cell):
+        sol = _solve(ctx, base, np.take(pos.reshape(-1, 3), cell, axis=0), np.take(R.reshape(-1, 3, 3), cell, axis=0))
+        for out, v in zip((q, m, q5f, mf), sol):
+            out.reshape((-1,) + v.shape[1:])[cell] = v
     return q, m, q5f, mf
 
 
@@ -258,7 +262,9 @@ def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarra
     q0f[..., 5] = q5f[:, :, 0]
     transit = np.stack([_transit(ctx, arm.a, q[:, :, 0]), _transit(ctx, arm.a, q0f)], axis=1)  # (n, 2, C, B)
     start = TRANSIT_WEIGHT * transit + TURN_WEIGHT * np.abs(theta)[:, None, :, None]
-    cs, bs, cost = best_paths(q, q5f, good, M, start, valid, arm.may_turn[rows], arm.jumps[rows], *arm.nb)
+    # the search around the other arm (arm.avoid) keeps the witnesses only: no infeasible path's details
+    cs, bs, cost = best_paths(q, q5f, good, M, start, valid, arm.may_turn[rows], arm.jumps[rows], *arm.nb,
+                              infeasible=arm.avoid is None)
     for slot in range(2):
         c, b = cs[:, slot], bs[:, slot]
         followed = good[at, slot, c, idx, b]
@@ -432,8 +438,8 @@ def _fixed_turns(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, first_onl
         fixed = replace(arm, nb=(np.arange(theta.shape[1])[:, None], np.ones((theta.shape[1], 1), bool),
                                  np.zeros((theta.shape[1], 1))))
         on = cells[k] & arm.valid[rows[k]][:, None, :]
-        got = _judge(ctx, fixed, res, rows[k], cells[k], (pos[k], R[k]), _solve_cells(ctx, arm.base, pos[k], R[k], on),
-                     theta[k])
+        got = _judge(ctx, fixed, res, rows[k], cells[k], (pos[k], R[k]),
+                     _solve_cells(ctx, arm.base, pos[k], R[k], on), theta[k])
         res.feasible[rows[k][got]] = True
 
 

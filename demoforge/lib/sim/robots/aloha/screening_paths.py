@@ -27,7 +27,7 @@ def _states(nb: np.ndarray, nb_mask: np.ndarray, nb_cost: np.ndarray, K: int) ->
     return pred, move, np.broadcast_to(j > 0, pred.shape)
 
 
-def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost):
+def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost, infeasible: bool = True):
     """grasp_choice._best_path over a batch of episodes and both half-turns at once: q (E, C, S, B, 6) the joints,
     q5f (E, C, S, B) the last joint half-turned, good / margin (E, 2, C, S, B) per half-turn, start (E, 2, C, B)
     the first state's cost, valid (E, S) the samples that count (the others skipped), may_turn (E, S) where the
@@ -36,17 +36,58 @@ def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask,
     between branches only within an arm branch (the two wrist branches of each; an arm branch changes only
     through a singular configuration, which no followed path passes), each episode's arm branches never
     followed left out (the episodes grouped by those). Returns (c (E, 2, S), b (E, 2, S), cost (E, 2)); a
-    cost under BAD: every sample followed, no joint jumping, the turn changing only where it may."""
+    cost under BAD: every sample followed, no joint jumping, the turn changing only where it may.
+
+    A path costing less than BAD keeps to one arm branch through followed states: the arm branches without
+    such a path even when joints may jump (_reachable, on booleans) are left out first, which changes no
+    such path nor its cost (the branches' states never meet). Where a half-turn has none, the paths are those
+    of every branch followed somewhere, as grasp_choice's, or (infeasible False: the caller needs the paths
+    that meet the rules only) left at cost inf."""
     E, F, C, S, B = good.shape
     live = good.reshape(E, F, C, S, 2, 4).any(axis=(1, 2, 3, 4))  # (E, 4) arm branches followed somewhere
     live[~live.any(axis=1)] = True
-    cs, bs, cost = np.zeros((E, F, S), int), np.zeros((E, F, S), int), np.zeros((E, F))
-    keys, inverse = np.unique(live, axis=0, return_inverse=True)
-    for k, key in enumerate(keys):
-        r = np.flatnonzero(inverse.ravel() == k)
-        cs[r], bs[r], cost[r] = _paths_of(q[r], q5f[r], good[r], margin[r], start[r], valid[r], may_turn[r],
-                                          jumps[r], (nb, nb_mask, nb_cost), np.flatnonzero(key))
+    reach = live.copy()
+    multi = np.flatnonzero(live.sum(axis=1) > 1)  # (one branch: the paths are its own anyway)
+    if len(multi):
+        reach[multi] = _reachable(good[multi], valid[multi], may_turn[multi], nb, nb_mask)
+    cs, bs, cost = np.zeros((E, F, S), int), np.zeros((E, F, S), int), np.full((E, F), np.inf)
+    _grouped(reach, reach.any(axis=1), (cs, bs, cost), q, q5f, good, margin, start, valid, may_turn, jumps,
+             (nb, nb_mask, nb_cost))
+    if infeasible:  # (where no branch was left out, those are the paths already)
+        again = ~(cost < BAD).all(axis=1) & (reach != live).any(axis=1)
+        _grouped(live, again, (cs, bs, cost), q, q5f, good, margin, start, valid, may_turn, jumps, (nb, nb_mask, nb_cost))
     return cs, bs, cost
+
+
+def _grouped(branches, rows, out, q, q5f, good, margin, start, valid, may_turn, jumps, moves) -> None:
+    """_paths_of for the episodes rows (E,) bool, grouped by their arm branches (E, 4) bool, into out."""
+    sel = np.flatnonzero(rows)
+    if not len(sel):
+        return
+    keys, inverse = np.unique(branches[sel], axis=0, return_inverse=True)
+    for k, key in enumerate(keys):
+        r = sel[inverse.ravel() == k]
+        res = _paths_of(q[r], q5f[r], good[r], margin[r], start[r], valid[r], may_turn[r], jumps[r], moves,
+                        np.flatnonzero(key))
+        for o, v in zip(out, res):
+            o[r] = v
+
+
+def _reachable(good, valid, may_turn, nb, nb_mask) -> np.ndarray:
+    """(E, 4) the arm branches with a path of followed states over the samples in either half-turn (moves as
+    best_paths', a joint free to jump); element-wise ORs (numpy's any over a short axis costs ten times)."""
+    E, F, C, S, B = good.shape
+    g = good.reshape(E, F, C, S, 2, 4)
+    r = g[:, :, :, 0]  # (E, F, C, 2, 4)
+    for s in range(1, S):
+        turn = r[:, :, :, 0] | r[:, :, :, 1]  # (E, F, C, 4) either wrist branch
+        moved = turn.copy()  # nb[:, 0] is the turn itself
+        for j in range(1, nb.shape[1]):
+            moved |= turn[:, :, nb[:, j]] & nb_mask[:, j, None]
+        came = np.where(may_turn[:, s, None, None, None], moved, turn)[:, :, :, None]
+        r = np.where(valid[:, s, None, None, None, None], g[:, :, :, s] & came, r)
+    r = r[:, :, :, 0] | r[:, :, :, 1]
+    return r.reshape(E, -1, 4).any(axis=1)
 
 
 def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
