@@ -401,12 +401,15 @@ def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_ro
     e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & avoid.finite[:, None, :])
     C, S = sub.ok.shape[1:]
     cell = (e * C + c) * S + s
-    pts = _pose_points(ctx, np.take(pos.reshape(-1, 3), cell, axis=0), np.take(R.reshape(-1, 3, 3), cell, axis=0))
+
+    def points(k):  # the cells' hand and wrist -> pinch points
+        return _pose_points(ctx, np.take(pos.reshape(-1, 3), cell[k], axis=0), np.take(R.reshape(-1, 3, 3), cell[k], axis=0))
+
     if sub.turner.O is None:
-        near = avoid.near(pts, e, s)
-    else:  # the held object's turns: the pairs of points that may come near under any turn first
+        near = avoid.near(points(np.arange(len(cell))), e, s)
+    else:  # the held object's turns: in closed form about its axis
         O = sub.turner.O
-        near = avoid.near_turned(pts, e, c, s, _pose_points(ctx, pos[:, 0], R[:, 0]), O[..., :3, 3], O[..., :3, 2],
+        near = avoid.near_turned(points, e, c, s, _pose_points(ctx, pos[:, 0], R[:, 0]), O[..., :3, 3], O[..., :3, 2],
                                  sub.turns)
     sub.ok = sub.ok.copy()
     sub.ok[e[near], c[near], s[near]] = False

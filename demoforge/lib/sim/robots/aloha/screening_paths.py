@@ -67,6 +67,7 @@ def _grouped(branches, rows, out, q, q5f, good, margin, start, valid, may_turn, 
     keys, inverse = np.unique(branches[sel], axis=0, return_inverse=True)
     for k, key in enumerate(keys):
         r = sel[inverse.ravel() == k]
+        r = slice(None) if len(r) == len(rows) else r  # every episode: no copies
         res = _paths_of(q[r], q5f[r], good[r], margin[r], start[r], valid[r], may_turn[r], jumps[r], moves,
                         np.flatnonzero(key))
         for o, v in zip(out, res):
@@ -100,10 +101,13 @@ def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
     pred, move, turning = _states(*moves, K)
     N, P = pred.shape
     predT = pred.T.ravel()  # predecessor-major: (P, N) planes
-    qk = q.reshape(E, C, S, 2, 4, 6)[..., ks, :]
-    Q = np.ascontiguousarray(qk.transpose(2, 5, 0, 1, 3, 4), dtype=np.float32).reshape(S, 6, E, N)
-    Q5f = np.ascontiguousarray(q5f.reshape(E, C, S, 2, 4)[..., ks].transpose(2, 0, 1, 3, 4),
-                               dtype=np.float32).reshape(S, E, N)
+    # the joints (S, 7, E, N): the arm's five, then the last per half-turn; one strided copy per arm branch
+    Q = np.empty((S, 7, E, C, 2, K), np.float32)
+    q6, q5f6 = q.reshape(E, C, S, 2, 4, 6), q5f.reshape(E, C, S, 2, 4)
+    for i, k in enumerate(ks):
+        Q[:, :6, ..., i] = q6[..., k, :].transpose(2, 4, 0, 1, 3)
+        Q[:, 6, ..., i] = q5f6[..., k].transpose(2, 0, 1, 3)
+    Q = Q.reshape(S, 7, E, N)
     g = good.reshape(E, F, C, S, 2, 4)[..., ks]
     mg = margin.reshape(E, F, C, S, 2, 4)[..., ks]
     node = np.ascontiguousarray((BAD * ~g + (MARGIN_CAP - np.minimum(mg, MARGIN_CAP))).transpose(3, 1, 0, 2, 4, 5),
@@ -116,14 +120,22 @@ def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
     bad = np.float32(BAD)
     first_of = (P - np.arange(P)).astype(np.uint8)[:, None]  # P - p: the largest marks the first minimum (argmin's)
     back = np.zeros((S, F, E, N), np.int8)
+    # the arm's three joints are the two wrist branches' own: their moves per (neighbour, turn, arm branch) only
+    m = P // 2
+    c_, k_ = np.divmod(np.arange(C * K), K)
+    arm_from = ((2 * moves[0][c_] * K + k_[:, None]).T).ravel()  # (m, C K): the neighbour's wrist branch 0
+    arm_to = 2 * c_ * K + k_
     for s in range(1, S):
-        prev = np.take(Q[s - 1, :5], predT, axis=2).reshape(5, E, P, N)
-        cur = Q[s, :5, :, None]
-        jump = np.abs(prev[0] - cur[0])
-        for j in range(1, 5):
-            np.maximum(jump, np.abs(prev[j] - cur[j]), out=jump)
-        q5s = (Q[s - 1, 5], Q5f[s - 1])
-        j5 = np.abs(np.take(np.stack(q5s), predT, axis=2).reshape(F, E, P, N) - np.stack((Q[s, 5], Q5f[s]))[:, :, None])
+        prev = np.take(Q[s - 1, :3], arm_from, axis=2).reshape(3, E, m, C * K)
+        cur = np.take(Q[s, :3], arm_to, axis=2)[:, :, None]
+        arm = np.abs(prev[0] - cur[0])
+        for j in (1, 2):
+            np.maximum(arm, np.abs(prev[j] - cur[j]), out=arm)
+        prev = np.take(Q[s - 1, 3:5], predT, axis=2).reshape(2, E, P, N)
+        cur = Q[s, 3:5, :, None]
+        jump = np.maximum(np.abs(prev[0] - cur[0]), np.abs(prev[1] - cur[1]))
+        np.maximum(jump.reshape(E, m, 2, C, 2, K), arm.reshape(E, m, 1, C, 1, K), out=jump.reshape(E, m, 2, C, 2, K))
+        j5 = np.abs(np.take(Q[s - 1, 5:], predT, axis=2).reshape(F, E, P, N) - Q[s, 5:, :, None])
         np.maximum(j5, jump, out=j5)
         step = moveT + bad * (turnT & ~may_turn[:, s, None, None])  # (E, P, N)
         total = np.take(cost, predT, axis=2).reshape(F, E, P, N) + step

@@ -23,7 +23,6 @@ from .grasp_choice import HAND_SPREAD
 GROUPS = (slice(0, 5), slice(5, 10), slice(10, 16))
 # m a sphere's test is looser than the exact one: far above the float32 distances' rounding (~1e-7 m)
 SLACK = 1e-5
-TAU = 2.0 * np.pi
 
 
 def segments(ctx, base, q: np.ndarray, k: int = 5) -> np.ndarray:
@@ -125,14 +124,14 @@ class Obstacle:
                     out[live[maybe]] = d < gap[maybe]
         return out
 
-    def near_turned(self, a: np.ndarray, e: np.ndarray, c: np.ndarray, s: np.ndarray, a0: np.ndarray, ctr: np.ndarray,
+    def near_turned(self, points, e: np.ndarray, c: np.ndarray, s: np.ndarray, a0: np.ndarray, ctr: np.ndarray,
                     u: np.ndarray, turns: np.ndarray) -> np.ndarray:
-        """near() for point sets a (m, P, 3) at the turns turns[c] (m,) of the sets a0 (n, S, P, 3) (turn 0)
-        about the axes u (n, S, 3) through ctr (n, S, 3) (a held object's). A turn keeps each point's height
-        along the axis and distance from it and adds to its angle about it, so each pair of points comes
-        nearer than a distance d on an arc of turns, in closed form: a set is near where a pair's arc for
-        gap - SLACK holds its turn, clear where no pair's arc for gap + SLACK does, and taken point by point
-        (min_distance) in the rare band between."""
+        """near() for the point sets at the turns turns[c] (m,) of the sets a0 (n, S, P, 3) (turn turns[0]) about
+        the axes u (n, S, 3) through ctr (n, S, 3) (a held object's); points(k) gives the sets (len(k), P, 3) of
+        the cells k. A turn keeps each point's height along the axis and distance from it and adds to its angle
+        about it, so two points come nearer than d where the cosine of their angle apart passes a bound, in
+        closed form: a set is near where a pair passes it for gap - SLACK, clear where none passes it for
+        gap + SLACK, and taken point by point (min_distance) in the rare band between."""
         out = np.zeros(len(e), bool)
         live = np.flatnonzero(self.finite[e, s])
         if not len(live):
@@ -141,43 +140,47 @@ class Obstacle:
         Q = self.points.shape[-2]
         es, inv = np.unique(e[live] * S + s[live], return_inverse=True)
         axis, centre = u.reshape(-1, 3)[es], ctr.reshape(-1, 3)[es]
-        (ha, ra, fa), (hb, rb, fb) = (_cylindrical(x.reshape(n * S, -1, 3)[es], centre, axis) for x in (a0, self.points))
+        (ha, ra, xa, ya), (hb, rb, xb, yb) = (_cylindrical(x.reshape(n * S, -1, 3)[es], centre, axis)
+                                              for x in (a0, self.points))
         gap = self.gap.reshape(-1)[es][:, None, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             base = (ha[:, :, None] - hb[:, None]) ** 2 + ra[:, :, None] ** 2 + rb[:, None] ** 2  # (k, P, Q)
             twice = 2.0 * ra[:, :, None] * rb[:, None]
-            outer = (base - (gap + SLACK) ** 2) / twice  # cos of the arc's half-width: nearer than gap + SLACK
+            outer = (base - (gap + SLACK) ** 2) / twice  # the cosine bound: nearer than gap + SLACK
             pair = np.flatnonzero(outer < 1.0)  # the pairs that ever come that near
             k, pq = np.divmod(pair, P * Q)
             i, j = np.divmod(pq, Q)
             inner = (base.reshape(-1)[pair] - (gap[k, 0, 0] - SLACK) ** 2) / twice.reshape(-1)[pair]
-            wide_in, wide_out = np.arccos(np.clip(inner, -1.0, 1.0)), np.arccos(np.clip(outer.reshape(-1)[pair], -1.0, 1.0))
-        # each pair's turns: its arc about the turn that brings the two points' angles together
-        off = (turns - turns[0])[None, :] - (fb[k, j] - fa[k, i])[:, None]  # (pairs, C); a0 is at turns[0]
-        off = np.abs(off - TAU * np.rint(off / TAU))
+        # cos(turn - the turn that brings the two points' angles together), by the angles' cosines and sines
+        t = turns - turns[0]
+        ca, sa = xa[k, i] * xb[k, j] + ya[k, i] * yb[k, j], xa[k, i] * yb[k, j] - ya[k, i] * xb[k, j]
+        cos = ca[:, None] * np.cos(t) + sa[:, None] * np.sin(t)  # (pairs, C)
         first = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if len(k) else np.zeros(0, int)
         near_at, band_at = np.zeros((len(es), len(turns)), bool), np.zeros((len(es), len(turns)), bool)
         if len(k):
-            near_at[k[first]] = np.logical_or.reduceat(off < wide_in[:, None], first, axis=0)
-            band_at[k[first]] = np.logical_or.reduceat(off <= wide_out[:, None], first, axis=0)
+            near_at[k[first]] = np.logical_or.reduceat(cos > inner[:, None], first, axis=0)
+            band_at[k[first]] = np.logical_or.reduceat(cos >= outer.reshape(-1)[pair][:, None], first, axis=0)
         cl = c[live]
         out[live] = near_at[inv, cl]
         band = live[band_at[inv, cl] & ~near_at[inv, cl]]
         if len(band):
-            out[band] = min_distance(a[band], self.points[e[band], s[band]]) < self.gap[e[band], s[band]]
+            out[band] = min_distance(points(band), self.points[e[band], s[band]]) < self.gap[e[band], s[band]]
         return out
 
 
-def _cylindrical(x: np.ndarray, ctr: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(height along the axis, distance from it, angle about it) (k, P) of points x (k, P, 3) about unit axes u
-    (k, 3) through ctr (k, 3) (the angle from a direction across the axis, the same for every point of a row)."""
+def _cylindrical(x: np.ndarray, ctr: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(height along the axis, distance from it, cosine and sine of the angle about it) (k, P) of points x
+    (k, P, 3) about unit axes u (k, 3) through ctr (k, 3) (from a direction across the axis, the same for every
+    point of a row; a point on the axis: angle 0)."""
     across = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     across /= norm3(across)[:, None]
     other = np.cross(u, across)
     v = x - ctr[:, None]
     h = np.einsum("kpi,ki->kp", v, u)
     px, py = np.einsum("kpi,ki->kp", v, across), np.einsum("kpi,ki->kp", v, other)
-    return h, np.hypot(px, py), np.arctan2(py, px)
+    r = np.hypot(px, py)
+    safe = np.where(r > 0.0, r, 1.0)
+    return h, r, np.where(r > 0.0, px / safe, 1.0), py / safe
 
 
 __all__ = ["GROUPS", "Obstacle", "closer_bound", "hand_points", "min_distance", "norm3", "segments"]
