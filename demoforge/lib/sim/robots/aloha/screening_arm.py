@@ -136,6 +136,30 @@ class _Turner:
         return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
 
 
+class _Poses:
+    """The pinch poses of the episodes rows (n,) of a _Turner turned by theta (n, C'), made cell by cell where
+    wanted (_Turner.turned's arithmetic: the joints and the hand's points are wanted at some of the cells)."""
+
+    def __init__(self, turner: _Turner, rows: np.ndarray, theta: np.ndarray):
+        self.turner, self.rows, self.theta = turner, rows, theta
+
+    def sub(self, k) -> "_Poses":
+        return _Poses(self.turner, self.rows[k], self.theta[k])
+
+    def at(self, e: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (k, 3), R (k, 3, 3)) of the cells: episode e (of rows), turn c (of theta's columns), sample s."""
+        t = self.turner
+        flat = self.rows[e] * t.P.shape[1] + s
+        if t.O is None:
+            P = np.take(t.P.reshape(-1, 4, 4), flat, axis=0)
+            return P[:, :3, 3].copy(), P[:, :3, :3].copy()
+        th = self.theta[e, c]
+        cos, sin = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+        par, perp, cross = (np.take(x.reshape(-1, 4, 3), flat, axis=0) for x in (t.par, t.perp, t.cross))
+        v = par + cos * perp + sin * cross
+        return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
+
+
 def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(closes, wrist, fingers) (E, C, S) of pinch poses: the wrist centre within the shoulder-elbow
     triangle's reach (closed_form.py: branch-independent), above WRIST_ABOVE_TABLE, and the fingertips'
@@ -178,15 +202,14 @@ def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.n
     return q, m, q5f, mf
 
 
-def _solve_cells(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, ...]:
-    """_solve of the poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) where cells (n, C, S); elsewhere every branch out of
-    range (margins -inf), its joints 0. (By flat indices: numpy's gather and scatter by a mask run at a few ns an
-    element.)"""
+def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
+    """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
+    its joints 0. (By flat indices: numpy's scatter by a mask runs at a few ns an element.)"""
     q = np.zeros(cells.shape + (8, 6))
     m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
     cell = np.flatnonzero(cells)
     if len(cell):
-        sol = _solve(ctx, base, np.take(pos.reshape(-1, 3), cell, axis=0), np.take(R.reshape(-1, 3, 3), cell, axis=0))
+        sol = _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)))
         for out, v in zip((q, m, q5f, mf), sol):
             out.reshape((-1,) + v.shape[1:])[cell] = v
     return q, m, q5f, mf
@@ -243,7 +266,7 @@ class ArmCandidates:
 
 def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarray, cells, poses, sol,
            theta) -> np.ndarray:
-    """Judge candidates of the episodes `rows`: poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) turned by theta
+    """Judge candidates of the episodes `rows`: poses (_Poses (n, C, S)) turned by theta
     (n, C) whose pose checks are cells (n, C, S) (C = 1: one fixed turn; else all turns, a turning path), and
     their joints sol (_solve: q (n, C, S, 8, 6) with margins m, the half-turned grasp's last joint q5f and
     margins mf (n, C, S, 8)). Stores the feasible ones as witnesses and, for the others, the furthest a path
@@ -255,7 +278,7 @@ def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarra
     at, idx, e = np.arange(n)[:, None], np.arange(S)[None], np.arange(n)
     clear = np.ones(m.shape, bool)
     if arm.avoid is not None:
-        clear = _clear_of(ctx, arm, rows, cells, poses, q, (m > MIN_MARGIN) | (mf > MIN_MARGIN))
+        clear = _clear_of(ctx, arm, rows, cells, q, (m > MIN_MARGIN) | (mf > MIN_MARGIN))
     M = np.stack([m, mf], axis=1)  # (n, 2, C, S, B)
     good = ((M > MIN_MARGIN) & (cells[..., None] & clear)[:, None]) | ~valid[:, None, None, :, None]
     q0f = q[:, :, 0].copy()
@@ -281,7 +304,9 @@ def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarra
         res.wit_ok[r, slot], res.wit_score[r, slot] = True, score[new]
         res.wit_turn[r, slot], res.wit_margin[r, slot] = turn[new, 0], marg[new]
         res.wit_q[r, slot] = path[new]
-        res.wit_hand[r, slot] = hand_points(ctx, poses[0][at, c, idx][new], poses[1][at, c, idx][new])
+        if len(r):
+            pos, R = poses.at(np.repeat(np.flatnonzero(new), S), c[new].ravel(), np.tile(np.arange(S), len(r)))
+            res.wit_hand[r, slot] = hand_points(ctx, pos, R).reshape(len(r), S, 6, 3)
         got |= feasible
         # the furthest an infeasible path got: its first sample not followed, and why
         first = np.argmin(followed | ~valid, axis=1)
@@ -306,7 +331,7 @@ def _pose_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray
     return np.concatenate([hand_points(ctx, pos, R), wrist[..., None, :] + u * (pos - wrist)[..., None, :]], axis=-2)
 
 
-def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, poses, q, in_range) -> np.ndarray:
+def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, q, in_range) -> np.ndarray:
     """(n, C, S, B) grasp_choice._paths' avoid: the states whose forearm segments and hand keep the gap from the
     other arm's points (arm.avoid; NaN where it is not in its window: no constraint), looked at only where the
     state could be followed otherwise (in range, the pose checks passed). The hand and the wrist -> pinch
@@ -314,8 +339,9 @@ def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, pos
     wrist branches share the elbow; the half-turn moves no point)."""
     n, C, S, B = in_range.shape
     live = cells[..., None] & arm.valid[rows][:, None, :, None] & (in_range[..., :4] | in_range[..., 4:])
-    e, c, s, k = np.nonzero(live & arm.avoid.finite[rows][:, None, :, None])
-    p = ctx.solver.points(arm.base, q[e, c, s, k])
+    cell = np.flatnonzero(live & arm.avoid.finite[rows][:, None, :, None])
+    e, c, s, k = np.unravel_index(cell, live.shape)
+    p = ctx.solver.points(arm.base, np.take(q.reshape(-1, 6), ((e * C + c) * S + s) * B + k, axis=0))  # wrist branch 0
     u = np.linspace(0.0, 1.0, 5)[:, None]
     seg = p["elbow"][:, None] + u * (p["wrist"] - p["elbow"])[:, None]  # (m, 5, 3)
     near = arm.avoid.near(seg, rows[e], s)
@@ -379,11 +405,11 @@ def search_arm(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen) -> None:
     for i in range(0, len(rows), PASS):
         part = rows[i:i + PASS]
         theta = np.broadcast_to(cands.turns, (len(part), len(cands.turns)))
-        poses = cands.turner.turned(theta, part)
+        poses = _Poses(cands.turner, part, theta)
         # the joints only of the poses some path through poses that pass the checks reaches
         on = _on_paths(cands.ok[part], cands.may_turn[part], *cands.nb[:2]) & cands.valid[part][:, None, :]
         res.feasible[part] |= _judge(ctx, cands, res, part, cands.ok[part], poses,
-                                     _solve_cells(ctx, cands.base, *poses, on), theta)
+                                     _solve_cells(ctx, cands.base, poses, on), theta)
 
 
 def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_rows: np.ndarray, res_rows: np.ndarray,
@@ -397,20 +423,20 @@ def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_ro
     sub = cands.take(cand_rows, avoid)
     # the hand's and the wrist -> pinch segment's points depend on the pose only: a pose too near the other arm
     # fails with every branch (looked at where the pose passes the checks and the other arm is in its window)
-    pos, R = sub.turner.turned(np.broadcast_to(sub.turns, (len(cand_rows), len(sub.turns))))
+    n, C, S = sub.ok.shape
+    poses = _Poses(sub.turner, np.arange(n), np.broadcast_to(sub.turns, (n, C)))
     e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & avoid.finite[:, None, :])
-    C, S = sub.ok.shape[1:]
-    cell = (e * C + c) * S + s
 
     def points(k):  # the cells' hand and wrist -> pinch points
-        return _pose_points(ctx, np.take(pos.reshape(-1, 3), cell[k], axis=0), np.take(R.reshape(-1, 3, 3), cell[k], axis=0))
+        return _pose_points(ctx, *poses.at(e[k], c[k], s[k]))
 
     if sub.turner.O is None:
-        near = avoid.near(points(np.arange(len(cell))), e, s)
+        near = avoid.near(points(np.arange(len(e))), e, s)
     else:  # the held object's turns: in closed form about its axis
         O = sub.turner.O
-        near = avoid.near_turned(points, e, c, s, _pose_points(ctx, pos[:, 0], R[:, 0]), O[..., :3, 3], O[..., :3, 2],
-                                 sub.turns)
+        first = poses.at(np.repeat(np.arange(n), S), np.zeros(n * S, int), np.tile(np.arange(S), n))
+        near = avoid.near_turned(points, e, c, s, _pose_points(ctx, *first).reshape(n, S, -1, 3), O[..., :3, 3],
+                                 O[..., :3, 2], sub.turns)
     sub.ok = sub.ok.copy()
     sub.ok[e[near], c[near], s[near]] = False
     sub.dead = _reach(sub.ok, sub.may_turn, *sub.nb[:2])
@@ -428,21 +454,19 @@ def _fixed_turns(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, first_onl
         c = np.argmax(viable[rows], axis=1)
         theta = arm.turns[c][:, None]
         cells = arm.ok[rows, c][:, None]
-        pos, R = arm.turner.turned(theta[:, 0], rows)
-        pos, R = pos[:, None], R[:, None]
     else:
         cols = np.flatnonzero(viable[rows].any(axis=0))  # the turns any of them may take
         rows, cols = (rows, cols) if len(cols) else (rows[:0], cols)
         theta = np.broadcast_to(arm.turns[cols], (len(rows), len(cols)))
         cells = arm.ok[rows][:, cols] & viable[rows][:, cols, None]  # a turn not viable fails at every sample
-        pos, R = arm.turner.turned(theta, rows)
+    poses = _Poses(arm.turner, rows, theta)
     for i in range(0, len(rows), PASS * 4):
         k = slice(i, i + PASS * 4)
         fixed = replace(arm, nb=(np.arange(theta.shape[1])[:, None], np.ones((theta.shape[1], 1), bool),
                                  np.zeros((theta.shape[1], 1))))
         on = cells[k] & arm.valid[rows[k]][:, None, :]
-        got = _judge(ctx, fixed, res, rows[k], cells[k], (pos[k], R[k]),
-                     _solve_cells(ctx, arm.base, pos[k], R[k], on), theta[k])
+        got = _judge(ctx, fixed, res, rows[k], cells[k], poses.sub(k), _solve_cells(ctx, arm.base, poses.sub(k), on),
+                     theta[k])
         res.feasible[rows[k][got]] = True
 
 
