@@ -180,22 +180,23 @@ def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.n
     """(q (n, 8, 6), margin (n, 8), the last joint of the half-turned grasp (n, 8), its margin) of pinch poses
     pos (n, 3), R (n, 3, 3). The gripper's half-turn about its approach axis is the last joint's angle plus pi,
     nothing else (its range is a full turn: every other joint's margin stays). A joint's margin is
-    half - |q - mid| of its range, taken chunk by chunk (in the cache) and joint by joint (the arm's three
+    half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
     joints are the two wrist branches' own: once)."""
     sv = ctx.solver
     n = len(pos)
     q, m, q5f, mf = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
     for i in range(0, n, SOLVE_CHUNK):
         part = slice(i, i + SOLVE_CHUNK)
-        qc = q[part] = sv.joints(base, pos[part], R[part])
-        arm = sv.half[0] - np.abs(qc[:, :4, 0] - sv.mid[0])
+        qj = sv.joints(base, pos[part], R[part])  # (6, k, 8)
+        q[part] = np.moveaxis(qj, 0, -1)
+        arm = sv.half[0] - np.abs(qj[0, :, :4] - sv.mid[0])
         for j in (1, 2):
-            np.minimum(arm, sv.half[j] - np.abs(qc[:, :4, j] - sv.mid[j]), out=arm)
+            np.minimum(arm, sv.half[j] - np.abs(qj[j, :, :4] - sv.mid[j]), out=arm)
         m04 = np.concatenate([arm, arm], axis=1)
         for j in (3, 4):
-            np.minimum(m04, sv.half[j] - np.abs(qc[:, :, j] - sv.mid[j]), out=m04)
-        m[part] = np.minimum(m04, sv.half[5] - np.abs(qc[:, :, 5] - sv.mid[5]))
-        off = qc[:, :, 5] + np.pi - sv.mid[5]
+            np.minimum(m04, sv.half[j] - np.abs(qj[j] - sv.mid[j]), out=m04)
+        m[part] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
+        off = qj[5] + np.pi - sv.mid[5]
         off -= _TAU * np.rint(off / _TAU)
         q5f[part] = off + sv.mid[5]
         mf[part] = np.minimum(m04, sv.half[5] - np.abs(off))
