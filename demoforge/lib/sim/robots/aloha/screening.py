@@ -59,7 +59,7 @@ from .screening_windows import held_batch, object_poses_batch, smooth_batch, win
 
 #: bump when the same episodes would be screened otherwise
 SCREEN_VERSION = "2"  # 2: the held object named by hull distance (segmentation.held_objects)
-CHUNK = 128  # episodes per pass: a pass's arrays stay within a few tens of MB
+CHUNK = 256  # episodes per pass: a pass's arrays stay within a few tens of MB
 
 
 @dataclass
