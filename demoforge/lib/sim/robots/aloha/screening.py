@@ -20,7 +20,8 @@ LIFT_TOLERANCE above the table, the turn changing only while an axially symmetri
 forearm-wrist-hand segments and hands ARM_GAP apart (or as far as the demonstrated hands were, less 1 cm) at
 every sample step of either arm where both windows run, else one arm chosen again around the other.
 screening_windows.py does the part before the grasps over a group's episodes at once, screening_arm.py the
-grasps.
+grasps (screening_paths.py their paths), screening_pairs.py the two arms together (screening_points.py the
+point sets).
 
 An arm can follow its window when some candidate has a path that meets every rule at every sample (a
 *witness*): the planner's shortest path (grasp_choice._best_path, a fault costs BAD, everything else
@@ -33,7 +34,17 @@ from one solve; for the episodes it fails, every turn at once, held fixed (scree
 or, for an axially symmetric held object, on turning paths (the joints only of the poses such a path
 reaches). An episode with no witness is screened out, with the first cause (by window step) as its reason.
 The forearms are checked on the witnesses, and where they clash each arm is searched again around the
-other's witness, as the planner does (_again).
+other's witness, as the planner does (screening_pairs.py _again).
+
+What keeps it fast (one core, numpy only; the verdicts are the same float for float as the plain batched
+rules'): arrays laid out so that each step is element-wise work on contiguous planes (no numpy reductions
+over a short axis, gathers by flat index, not by several index arrays, a few tens of episodes a pass so the
+temporaries stay in the cache); the joints solved once per pose wanted (closed_form.ViperXBatchIK.joints,
+margins per joint); the path search (screening_paths.py) on sample-major float32 planes, without the arm
+branches that have no path of followed states (a path meeting the rules keeps to one) and, around the
+other arm, without the details of the paths that fail; the other arm's points tested against a held
+object's turned hand in closed form (each pair of points comes near on an arc of turns), point distances
+only in a 10 um band; the shared steps, needed gaps and witness points of a pair check taken once.
 
 Where it differs from the planner: the witness is a feasible candidate, not necessarily the planner's best
 one, so the turn and margin reported are the witness's and the forearms are checked on the witnesses'

@@ -6,12 +6,13 @@
     res.feasible        # (E,) some candidate is followed: the planner's own choice is then too
     res.wit_q           # (E, 2, SAMPLES, 6) the witness's joints per half-turn (slot 0 without, 1 with)
     res.reason          # (E,) for an arm that cannot: the first cause (an index into REASONS)
-    again = search_again(ctx, cands, res, rows, avoid)   # the same, kept clear of the other arm
+    again = search_again(ctx, cands, res, cand_rows, res_rows, avoid)   # the same, clear of the other arm
 
 The batched pieces re-implement grasp_choice.py's private _best_path (screening_paths.py: over many
-episodes and both half-turns at once), _segment_points, _hand_points and _gap, and retarget.py's turn_grasp
-and lowest_finger_z on the few numbers a check needs; the rules and their constants are grasp_choice's,
-imported.
+episodes and both half-turns at once), _segment_points, _hand_points and _gap (screening_points.py), and
+retarget.py's turn_grasp and lowest_finger_z on the few numbers a check needs; the rules and their
+constants are grasp_choice's, imported. The turned poses are made for every cell only for the pose checks;
+the joints, the witnesses' hands and the other-arm tests take them cell by cell where wanted (_Poses).
 """
 
 from __future__ import annotations

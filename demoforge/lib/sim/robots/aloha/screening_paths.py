@@ -5,6 +5,8 @@ both half-turns of the gripper (screening_arm.py judges every candidate with it)
 
 The costs are grasp_choice._best_path's (a state not followed or a joint jumping: BAD; a missing margin up to
 MARGIN_CAP; TURN_RATE_WEIGHT per rad of turn); a path costing less than BAD meets every rule at every sample.
+The sums are float32 in grasp_choice's order of additions, the ties broken as argmin's (the first state,
+the first predecessor), so the paths are the plain per-episode DP's exactly.
 """
 
 from __future__ import annotations
