@@ -15,7 +15,7 @@ import numpy as np
 
 from .grasp_choice import ARM_GAP
 from .screening_arm import ArmScreen, ArmsContext, search_again
-from .screening_points import Obstacle, closer_bound, hand_points, min_distance, segments
+from .screening_points import Obstacle, hand_points, min_distance, norm3, radius, segments
 from .screening_windows import rotations
 
 
@@ -53,12 +53,15 @@ def _points_at(ctx: ArmsContext, base, tr: dict, steps: np.ndarray) -> np.ndarra
     return out
 
 
-def _pair_gap(p0: np.ndarray, p1: np.ndarray, use: np.ndarray, needed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pair_gap(p0: np.ndarray, p1: np.ndarray, use: np.ndarray, needed: np.ndarray, r0=None,
+              r1=None) -> tuple[np.ndarray, np.ndarray]:
     """(smallest gap (n,) m, kept (n,)) of two arms' points (n, M, P, 3) at the shared steps use (n, M): kept where
-    every gap is at least the needed one (n, M). The sets' bounding spheres first: the points' distances only
-    where those come within ARM_GAP."""
+    every gap is at least the needed one (n, M). The sets' bounding spheres first (closer_bound: about each
+    set's first point, radii r0, r1 (n, M) if known): the points' distances only where those come within
+    ARM_GAP."""
+    r0, r1 = (radius(p) if r is None else r for p, r in ((p0, r0), (p1, r1)))
     with np.errstate(invalid="ignore"):
-        close = use & ~(closer_bound(p0, p1) >= ARM_GAP)
+        close = use & ~(norm3(p0[..., 0, :] - p1[..., 0, :]) - r0 - r1 >= ARM_GAP)
     g = np.full(use.shape, np.inf)
     g[close] = min_distance(p0[close], p1[close])
     with np.errstate(invalid="ignore"):
@@ -90,15 +93,20 @@ class Shared:
         self.needed = np.where(self.use, need, np.nan)  # (the steps not used count for nothing)
         self._points: dict = {}
 
-    def points(self, a: int, k: int) -> np.ndarray:
-        """(n, M, 16, 3) arm a's witness k (half-turn) at the shared steps."""
+    def points(self, a: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """((n, M, 16, 3), their first-point spheres' radii (n, M)) arm a's witness k (half-turn) at the shared
+        steps."""
         if (a, k) not in self._points:
-            self._points[a, k] = _points_at(self.ctx, self.ctx.bases[a], _track(self.arms[a], self.rows, k), self.steps)
+            pts = _points_at(self.ctx, self.ctx.bases[a], _track(self.arms[a], self.rows, k), self.steps)
+            self._points[a, k] = pts, radius(pts)
         return self._points[a, k]
 
-    def of_slots(self, a: int, slot: np.ndarray, sub: np.ndarray) -> np.ndarray:
-        """Arm a's points at the shared steps of the rows sub (indices into rows) for their witnesses slot (len(sub),)."""
-        return np.where((slot == 0)[:, None, None, None], self.points(a, 0)[sub], self.points(a, 1)[sub])
+    def of_slots(self, a: int, slot: np.ndarray, sub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Arm a's points and radii at the shared steps of the rows sub (indices into rows) for their witnesses
+        slot (len(sub),)."""
+        (p0, r0), (p1, r1) = self.points(a, 0), self.points(a, 1)
+        first = slot == 0
+        return np.where(first[:, None, None, None], p0[sub], p1[sub]), np.where(first[:, None], r0[sub], r1[sub])
 
 
 def forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -130,7 +138,8 @@ def forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tup
         todo = np.flatnonzero(~kept & np.isfinite(score[at, pick]) & ~refused[at, twin])
         if not len(todo):
             continue
-        g, ok = _pair_gap(sh.of_slots(0, i[todo], todo), sh.of_slots(1, j[todo], todo), sh.use[todo], sh.needed[todo])
+        (p0, r0), (p1, r1) = sh.of_slots(0, i[todo], todo), sh.of_slots(1, j[todo], todo)
+        g, ok = _pair_gap(p0, p1, sh.use[todo], sh.needed[todo], r0, r1)
         refused[todo, pick[todo]] = ~ok
         slot[rows[todo[ok]]] = np.stack([i[todo[ok]], j[todo[ok]]], axis=1)
         kept[todo[ok]], last[todo[ok]] = True, g[ok]
@@ -142,8 +151,8 @@ def forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tup
         done[np.flatnonzero(~kept)[found]], last[np.flatnonzero(~kept)[found]] = True, g[found]
     rest = np.flatnonzero(~done)  # neither kept nor found again: the best witnesses' gap
     if len(rest):
-        last[rest] = _pair_gap(sh.of_slots(0, slot[rows[rest], 0], rest), sh.of_slots(1, slot[rows[rest], 1], rest),
-                               sh.use[rest], sh.needed[rest])[0]
+        (p0, r0), (p1, r1) = sh.of_slots(0, slot[rows[rest], 0], rest), sh.of_slots(1, slot[rows[rest], 1], rest)
+        last[rest] = _pair_gap(p0, p1, sh.use[rest], sh.needed[rest], r0, r1)[0]
     gap[rows] = last
     return gap, apart, slot
 
@@ -172,9 +181,10 @@ def _again(ctx: ArmsContext, arms: list, cands: list, sub: np.ndarray, traj: np.
                                  avoid.take(inside))
             k = np.argmax(again.wit_score, axis=1)
             here = _points_at(ctx, ctx.bases[second], _track(again, np.arange(len(inside)), k), sh.steps[part[inside]])
-            there = sh.of_slots(first, slot[rows[inside], first], part[inside])
-            pair = (there, here) if first == 0 else (here, there)
-            g, ok = _pair_gap(*pair, sh.use[part[inside]], sh.needed[part[inside]])
+            there, r_there = sh.of_slots(first, slot[rows[inside], first], part[inside])
+            r_here = radius(here)
+            (p0, r0), (p1, r1) = ((there, r_there), (here, r_here)) if first == 0 else ((here, r_here), (there, r_there))
+            g, ok = _pair_gap(p0, p1, sh.use[part[inside]], sh.needed[part[inside]], r0, r1)
             better = again.feasible & again.active & ok
             take = inside[better]
             for name in ("wit_ok", "wit_score", "wit_turn", "wit_margin", "wit_q", "wit_hand"):

@@ -85,18 +85,19 @@ def _any_of_four(x: np.ndarray) -> np.ndarray:
 
 def _reachable(good, valid, may_turn, nb, nb_mask) -> np.ndarray:
     """(E, 4) the arm branches with a path of followed states over the samples in either half-turn (moves as
-    best_paths', a joint free to jump); element-wise ORs (numpy's any over a short axis costs ten times)."""
+    best_paths', a joint free to jump). A state's eight branches are the bits of a byte (bit 4 w + k)."""
     E, F, C, S, B = good.shape
-    g = good.reshape(E, F, C, S, 2, 4)
-    r = g[:, :, :, 0]  # (E, F, C, 2, 4)
+    g = np.packbits(good, axis=-1, bitorder="little")[..., 0]  # (E, F, C, S)
+    r = g[:, :, :, 0]
     for s in range(1, S):
-        turn = r[:, :, :, 0] | r[:, :, :, 1]  # (E, F, C, 4) either wrist branch
+        turn = (r | (r >> 4)) & 15  # (E, F, C) the arm branches at each turn, either wrist branch
         moved = turn.copy()  # nb[:, 0] is the turn itself
         for j in range(1, nb.shape[1]):
-            moved |= np.take(turn, nb[:, j], axis=2) & nb_mask[:, j, None]
-        came = np.where(may_turn[:, s, None, None, None], moved, turn)[:, :, :, None]
-        r = np.where(valid[:, s, None, None, None, None], g[:, :, :, s] & came, r)
-    return _any_of_four((r[:, :, :, 0] | r[:, :, :, 1]).reshape(E, -1, 4))
+            moved |= np.take(turn, nb[:, j], axis=2) * nb_mask[:, j].astype(np.uint8)
+        came = np.where(may_turn[:, s, None, None], moved, turn)
+        r = np.where(valid[:, s, None, None], g[:, :, :, s] & (came | (came << 4)), r)
+    bits = np.bitwise_or.reduce(((r | (r >> 4)) & 15).reshape(E, -1), axis=1)
+    return ((bits[:, None] >> np.arange(4)) & 1).astype(bool)
 
 
 def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):

@@ -64,11 +64,16 @@ def norm3(v: np.ndarray) -> np.ndarray:
 
 def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about the first point."""
+    return a[..., 0, :], radius(a)
+
+
+def radius(a: np.ndarray) -> np.ndarray:
+    """(...) the radius of _sphere: the points' (..., P, 3) largest distance from the first."""
     c = a[..., 0, :]
     r = norm3(a[..., 1, :] - c)
     for k in range(2, a.shape[-2]):
         np.maximum(r, norm3(a[..., k, :] - c), out=r)
-    return c, r
+    return r
 
 
 def _centred_sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,4 +188,4 @@ def _cylindrical(x: np.ndarray, ctr: np.ndarray, u: np.ndarray) -> tuple[np.ndar
     return h, r, np.where(r > 0.0, px / safe, 1.0), py / safe
 
 
-__all__ = ["GROUPS", "Obstacle", "closer_bound", "hand_points", "min_distance", "norm3", "segments"]
+__all__ = ["GROUPS", "Obstacle", "closer_bound", "hand_points", "min_distance", "norm3", "radius", "segments"]
