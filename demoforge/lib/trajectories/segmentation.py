@@ -86,12 +86,12 @@ def _remove_short(mask: np.ndarray, value: bool, min_len: int) -> np.ndarray:
 def hull_distance(points: np.ndarray, p: np.ndarray) -> float:
     """Distance (m) from p (3,) to the convex hull of points (K, 3), flat or degenerate hulls included: the
     nearest convex combination, as a non-negative least-squares problem whose last row weighs sum = 1."""
-    A = np.vstack([np.asarray(points, float).T, np.full(len(points), _HULL_WEIGHT)])
-    w, _ = nnls(A, np.append(np.asarray(p, float), _HULL_WEIGHT))
+    A = np.vstack([np.asarray(points, float).T, np.full(len(points), HULL_WEIGHT)])
+    w, _ = nnls(A, np.append(np.asarray(p, float), HULL_WEIGHT))
     return float(np.linalg.norm(np.asarray(points, float).T @ w - p))
 
 
-_HULL_WEIGHT = 100.0  # the sum-to-one row's weight: 1e-4 m of slack costs as much as 1 cm off the hull
+HULL_WEIGHT = 100.0  # the sum-to-one row's weight: 1e-4 m of slack costs as much as 1 cm off the hull
 NEAREST_KEYPOINT_WEIGHT = 0.1  # of the nearest keypoint's distance in the held object's score (see the docstring)
 
 

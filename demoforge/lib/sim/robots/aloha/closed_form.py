@@ -79,6 +79,26 @@ class ViperXBatchIK:
         return BatchSolution(q.reshape(*lead, B, 6), np.repeat(closes[:, None], B, axis=1).reshape(*lead, B),
                              (margin >= 0.0).reshape(*lead, B), margin.reshape(*lead, B))
 
+    def joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """solve's q for n (at most about CHUNK) poses pos (n, 3), R (n, 3, 3), joint first: (6, n, 8), the same
+        angles without the margins (a screening takes its own, on each joint's contiguous plane). The arm's
+        three joints are shifted once for both wrist branches (theirs are equal)."""
+        waist, shoulder, elbow, roll, pitch, roll2 = self._angles(base, np.asarray(pos, float), np.asarray(R, float))[0]
+        out = np.empty((6, len(waist), 8))
+        for j, x in enumerate((waist, shoulder, elbow)):
+            out[j, :, :4] = self._shift(x, j)
+            out[j, :, 4:] = out[j, :, :4]
+        for j, (x, other) in enumerate(((roll, roll + np.pi), (pitch, -pitch), (roll2, roll2 + np.pi)), start=3):
+            out[j, :, :4], out[j, :, 4:] = self._shift(x, j), self._shift(other, j)
+        return out
+
+    def _shift(self, x: np.ndarray, j: int) -> np.ndarray:
+        """_wrap's shift of joint j's angles x."""
+        off = x - self.mid[j]
+        off -= TAU * np.rint(off * (1.0 / TAU))
+        off += self.mid[j]
+        return off
+
     def points(self, base: BasePose, q: np.ndarray) -> dict[str, np.ndarray]:
         """World positions (..., 3) of the shoulder (the shoulder joint), the elbow, the wrist centre (the
         wrist-angle joint) and the pinch point for joints q (..., 6): what a screening needs for the table's
@@ -115,6 +135,17 @@ class ViperXBatchIK:
     # ------------------------------------------------------------------ the solution, step by step
     def _joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(q (n, 8, 6) unwrapped, closes (n,)) of n poses: seeds.py's formulas on arrays."""
+        (waist, shoulder, elbow, roll, pitch, roll2), closes = self._angles(base, pos, R)
+        q = np.empty((len(pos), 8, 6))
+        q[:, :4, 0], q[:, :4, 1], q[:, :4, 2] = waist, shoulder, elbow
+        q[:, :4, 3], q[:, :4, 4], q[:, :4, 5] = roll, pitch, roll2
+        q[:, 4:, :3] = q[:, :4, :3]
+        q[:, 4:, 3], q[:, 4:, 4], q[:, 4:, 5] = roll + np.pi, -pitch, roll2 + np.pi  # the other wrist branch
+        return q, closes
+
+    def _angles(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+        """((waist, shoulder, elbow, roll, pitch, roll2) (n, 4) each of the first wrist branch, unwrapped; closes
+        (n,)) of n poses: seeds.py's formulas on arrays (the other wrist branch: roll + pi, -pitch, roll2 + pi)."""
         g = self.g
         Rl = R[:, :, _LINK_COLUMNS]  # the gripper link's axes in the world (x = approach)
         d = pos - g.wrist_to_pinch * Rl[:, :, 0] - (base.x, base.y, base.z)  # base -> wrist centre, world axes
@@ -133,13 +164,8 @@ class ViperXBatchIK:
         r_safe = np.where(r > 0.0, r, 1.0)
         cw, sw = np.where(r > 0.0, d[:, 0] / r_safe, cy), np.where(r > 0.0, d[:, 1] / r_safe, sy)
         roll, pitch, roll2 = _wrist(Rl, cw, sw, psi1 + signed - np.pi / 2)
-        q = np.empty((len(pos), 8, 6))
-        q[:, :4, 0] = np.where(_LEAN > 0, waist[:, None], waist[:, None] + np.pi)
-        q[:, :4, 1], q[:, :4, 2] = psi1 - g.alpha, g.alpha + signed - np.pi / 2
-        q[:, :4, 3], q[:, :4, 4], q[:, :4, 5] = roll, pitch, roll2
-        q[:, 4:, :3] = q[:, :4, :3]
-        q[:, 4:, 3], q[:, 4:, 4], q[:, 4:, 5] = roll + np.pi, -pitch, roll2 + np.pi  # the other wrist branch
-        return q, closes
+        arm = (np.where(_LEAN > 0, waist[:, None], waist[:, None] + np.pi), psi1 - g.alpha, g.alpha + signed - np.pi / 2)
+        return arm + (roll, pitch, roll2), closes
 
     def _wrap(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(q, margin): each angle shifted by a multiple of 2 pi to within pi of its range's middle (the shift

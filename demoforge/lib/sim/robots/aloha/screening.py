@@ -20,7 +20,8 @@ LIFT_TOLERANCE above the table, the turn changing only while an axially symmetri
 forearm-wrist-hand segments and hands ARM_GAP apart (or as far as the demonstrated hands were, less 1 cm) at
 every sample step of either arm where both windows run, else one arm chosen again around the other.
 screening_windows.py does the part before the grasps over a group's episodes at once, screening_arm.py the
-grasps.
+grasps (screening_paths.py their paths), screening_pairs.py the two arms together (screening_points.py the
+point sets).
 
 An arm can follow its window when some candidate has a path that meets every rule at every sample (a
 *witness*): the planner's shortest path (grasp_choice._best_path, a fault costs BAD, everything else
@@ -33,7 +34,17 @@ from one solve; for the episodes it fails, every turn at once, held fixed (scree
 or, for an axially symmetric held object, on turning paths (the joints only of the poses such a path
 reaches). An episode with no witness is screened out, with the first cause (by window step) as its reason.
 The forearms are checked on the witnesses, and where they clash each arm is searched again around the
-other's witness, as the planner does (_again).
+other's witness, as the planner does (screening_pairs.py _again).
+
+What keeps it fast (one core, numpy only; the verdicts are the same float for float as the plain batched
+rules'): arrays laid out so that each step is element-wise work on contiguous planes (no numpy reductions
+over a short axis, gathers by flat index, not by several index arrays, a few tens of episodes a pass so the
+temporaries stay in the cache); the joints solved once per pose wanted (closed_form.ViperXBatchIK.joints,
+margins per joint); the path search (screening_paths.py) on sample-major float32 planes, without the arm
+branches that have no path of followed states (a path meeting the rules keeps to one) and, around the
+other arm, without the details of the paths that fail; the other arm's points tested against a held
+object's turned hand in closed form (each pair of points comes near on an arc of turns), point distances
+only in a 10 um band; the shared steps, needed gaps and witness points of a pair check taken once.
 
 Where it differs from the planner: the witness is a feasible candidate, not necessarily the planner's best
 one, so the turn and margin reported are the witness's and the forearms are checked on the witnesses'
@@ -52,11 +63,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
-from .grasp_choice import ARM_GAP
 from .retargeting import GRASP_REACH
-from .screening_arm import (REASONS, ArmScreen, ArmsContext, closer_bound, hand_points, min_distance, screen_arm,
-                            search_again, segments)
-from .screening_windows import held_batch, object_poses_batch, rotations, smooth_batch, windows_batch
+from .screening_arm import REASONS, ArmScreen, ArmsContext, screen_arm
+from .screening_pairs import forearms
+from .screening_windows import held_batch, object_poses_batch, smooth_batch, windows_batch
 
 #: bump when the same episodes would be screened otherwise
 SCREEN_VERSION = "2"  # 2: the held object named by hull distance (segmentation.held_objects)
@@ -147,7 +157,7 @@ def _screen_part(ctx: ArmsContext, actions: np.ndarray, kp: np.ndarray, out: Scr
                 parts.append((sel, c))
             arms.append(res)
             cands.append(parts)
-        _combine(out, idx[sub], arms, _forearms(ctx, arms, cands, t), windows, objects)
+        _combine(out, idx[sub], arms, forearms(ctx, arms, cands, t), windows, objects)
 
 
 def _window_objects(held: np.ndarray, windows: np.ndarray, traj: np.ndarray, kp: np.ndarray,
@@ -175,156 +185,6 @@ def _window_objects(held: np.ndarray, windows: np.ndarray, traj: np.ndarray, kp:
             near = np.where(o == obj, d, near)
         out[:, a] = np.where(one & (near <= GRASP_REACH), o, -1)
     return out
-
-
-def _needed_gap(ctx: ArmsContext, traj: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """(n, M) the gap the arms keep at steps (n, M): ARM_GAP, or as far as the demonstrated hands' points were
-    (grasp_choice._demonstrated_gap, of the smoothed poses traj (n, T, 2, 8)) less 1 cm."""
-    e = np.arange(len(traj))[:, None]
-    pose = traj[e, steps]  # (n, M, 2, 8)
-    pts = hand_points(ctx, pose[..., :3], rotations(pose))  # (n, M, 2, 6, 3)
-    return np.minimum(ARM_GAP, min_distance(pts[:, :, 0], pts[:, :, 1]) - 0.01)
-
-
-def _track(res: ArmScreen, rows: np.ndarray, slot) -> dict:
-    """An arm's witness (slot: int or (n,)) in episodes rows: its sample steps, which are its own, the joints
-    and the hand's points along it."""
-    k = np.broadcast_to(slot, rows.shape)
-    return {"steps": res.steps[rows], "valid": res.valid[rows], "q": res.wit_q[rows, k],
-            "hand": res.wit_hand[rows, k]}
-
-
-def _points_at(ctx: ArmsContext, base, tr: dict, steps: np.ndarray) -> np.ndarray:
-    """(n, M, 16, 3) grasp_choice._points_at: an arm's forearm segments (its witness's joints interpolated) and
-    its hand's points (at the nearest sample) at steps (n, M); NaN outside its window's samples."""
-    xp, valid, n = tr["steps"], tr["valid"], len(steps)
-    count = valid.sum(axis=1)
-    e = np.arange(n)[:, None]
-    hi = np.minimum(((xp[:, None, :] <= steps[:, :, None]) & valid[:, None, :]).sum(axis=2), count[:, None] - 1)
-    lo = np.maximum(np.where(xp[e, hi] > steps, hi - 1, hi), 0)
-    x0, x1 = xp[e, lo], xp[e, hi]
-    w = np.clip(np.where(x1 > x0, (steps - x0) / np.maximum(x1 - x0, 1), 0.0), 0.0, 1.0)[..., None]
-    q = (1 - w) * tr["q"][e, lo] + w * tr["q"][e, hi]
-    near = np.abs(np.where(valid[:, None, :], xp[:, None, :], 10 ** 9) - steps[:, :, None]).argmin(axis=2)
-    out = np.concatenate([segments(ctx, base, q), tr["hand"][e, near]], axis=-2)
-    out[(steps < xp[:, :1]) | (steps > xp[np.arange(n), count - 1][:, None])] = np.nan
-    return out
-
-
-def _shared_steps(tr0: dict, tr1: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(steps (n, M), use (n, M)): every sample step of either arm where both windows run (grasp_choice._pair_ok:
-    np.union1d within the overlap); use marks the steps that count."""
-    n = len(tr0["steps"])
-    lo = np.maximum(tr0["steps"][:, 0], tr1["steps"][:, 0])
-    hi = np.minimum(*[tr["steps"][np.arange(n), tr["valid"].sum(axis=1) - 1] for tr in (tr0, tr1)])
-    both = np.sort(np.concatenate([np.where(tr0["valid"], tr0["steps"], -1), np.where(tr1["valid"], tr1["steps"], -1)],
-                                  axis=1), axis=1)
-    use = (both >= lo[:, None]) & (both <= hi[:, None]) & np.concatenate(
-        [np.ones((n, 1), bool), both[:, 1:] != both[:, :-1]], axis=1)
-    return np.where(use, both, lo[:, None]), use
-
-
-def _pair_gap(p0: np.ndarray, p1: np.ndarray, use: np.ndarray, needed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(smallest gap (n,) m, kept (n,)) of two arms' points (n, M, P, 3) at the shared steps use (n, M): kept where
-    every gap is at least the needed one (n, M). The sets' bounding spheres first: the points' distances only
-    where those come within ARM_GAP."""
-    with np.errstate(invalid="ignore"):
-        close = use & ~(closer_bound(p0, p1) >= ARM_GAP)
-    g = np.full(use.shape, np.inf)
-    g[close] = min_distance(p0[close], p1[close])
-    with np.errstate(invalid="ignore"):
-        kept = ~(use & ~(g >= needed)).any(axis=1)
-    return g.min(axis=1), kept
-
-
-def _pair_check(ctx: ArmsContext, traj: np.ndarray, tr0: dict, tr1: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(smallest gap (n,) m, kept (n,)) grasp_choice._pair_ok of two witnesses: their points at every sample
-    step of either where both windows run keep the needed gap (_needed_gap)."""
-    steps, use = _shared_steps(tr0, tr1)
-    return _pair_gap(_points_at(ctx, ctx.bases[0], tr0, steps), _points_at(ctx, ctx.bases[1], tr1, steps), use,
-                     _needed_gap(ctx, traj, steps))
-
-
-def _forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(gap (E,) m, apart (E,), slot (E, 2) each arm's witness kept): the pairs of witnesses (half-turns), the
-    best scoring first, until one keeps the gap (a pair whose points are those of one already refused is
-    refused with it); else, as grasp_choice, each arm chosen again around the other's best witness (_again).
-    An arm alone: its best witness."""
-    E = len(traj)
-    gap, apart = np.full(E, np.inf), np.ones(E, bool)
-    slot = np.stack([np.argmax(r.wit_score, axis=1) for r in arms], axis=1)
-    r0, r1 = arms
-    rows = np.flatnonzero(r0.active & r1.active & r0.feasible & r1.feasible)
-    if not len(rows):
-        return gap, apart, slot
-    n, at = len(rows), np.arange(len(rows))
-    score = np.stack([np.where(r0.wit_ok[rows, i] & r1.wit_ok[rows, j],
-                               r0.wit_score[rows, i] + r1.wit_score[rows, j], -np.inf) for i in (0, 1) for j in (0, 1)],
-                     axis=1)
-    order = np.argsort(-score, axis=1, kind="stable")
-    # the half-turn moves no point (the last joint's angle only): two witnesses on one path have the same points
-    same = [np.isclose(r.wit_q[rows, 0, :, :5], r.wit_q[rows, 1, :, :5]).all(axis=(1, 2)) &
-            np.isclose(r.wit_hand[rows, 0], r.wit_hand[rows, 1]).all(axis=(1, 2, 3)) for r in arms]
-    steps, use = _shared_steps(_track(r0, rows, 0), _track(r1, rows, 0))  # the same for either witness
-    needed = _needed_gap(ctx, traj[rows], steps)
-    pts = [[_points_at(ctx, ctx.bases[a], _track(r, rows, k), steps) for k in (0, 1)] for a, r in enumerate(arms)]
-    refused, kept = np.zeros((n, 4), bool), np.zeros(n, bool)
-    for rank in range(4):
-        pick = order[:, rank]
-        i, j = np.divmod(pick, 2)
-        twin = 2 * np.where(same[0], 1 - i, i) + np.where(same[1], 1 - j, j)  # a pair with the same points
-        todo = np.flatnonzero(~kept & np.isfinite(score[at, pick]) & ~refused[at, twin])
-        if not len(todo):
-            continue
-        p0 = np.where((i[todo] == 0)[:, None, None, None], pts[0][0][todo], pts[0][1][todo])
-        p1 = np.where((j[todo] == 0)[:, None, None, None], pts[1][0][todo], pts[1][1][todo])
-        ok = _pair_gap(p0, p1, use[todo], needed[todo])[1]
-        refused[todo, pick[todo]] = ~ok
-        slot[rows[todo[ok]]] = np.stack([i[todo[ok]], j[todo[ok]]], axis=1)
-        kept[todo[ok]] = True
-    apart[rows] = kept
-    if (~kept).any():
-        apart[rows[~kept]] = _again(ctx, arms, cands, rows[~kept], traj, slot)
-    gap[rows] = _pair_check(ctx, traj[rows], _track(r0, rows, slot[rows, 0]), _track(r1, rows, slot[rows, 1]))[0]
-    return gap, apart, slot
-
-
-def _again(ctx: ArmsContext, arms: list, cands: list, rows: np.ndarray, traj: np.ndarray,
-           slot: np.ndarray) -> np.ndarray:
-    """(n,) whether grasp_choice's second choice finds a pair for the episodes rows whose witnesses clash:
-    each arm in turn searched again with every state kept clear of the other's witness, the pair then
-    checked. A pair found replaces the arm's witnesses (the first order that finds one: grasp_choice keeps
-    the better scoring of the two)."""
-    found = np.zeros(len(rows), bool)
-    every = rows
-    for first in (0, 1):  # (the second order only where the first found nothing: one pair decides)
-        rows = every[~found]
-        if not len(rows):
-            break
-        second = 1 - first
-        r1, r2 = arms[first], arms[second]
-        tr1 = _track(r1, rows, slot[rows, first])
-        steps = r2.steps[rows]
-        avoid = (_points_at(ctx, ctx.bases[first], tr1, steps), _needed_gap(ctx, traj[rows], steps))
-        for sel, c in cands[second]:
-            inside = np.flatnonzero(np.isin(rows, sel))
-            if c is None or not len(inside):
-                continue
-            again = search_again(ctx, c, r2, np.searchsorted(sel, rows[inside]), rows[inside],
-                                 (avoid[0][inside], avoid[1][inside]))
-            k = np.argmax(again.wit_score, axis=1)
-            here = _track(again, np.arange(len(inside)), k)
-            there = {key: v[inside] for key, v in tr1.items()}
-            pair = (there, here) if first == 0 else (here, there)
-            ok = _pair_check(ctx, traj[rows[inside]], *pair)[1]
-            score = again.wit_score[np.arange(len(inside)), k] + r1.wit_score[rows[inside], slot[rows[inside], first]]
-            better = again.feasible & again.active & ok
-            take = inside[better]
-            for name in ("wit_ok", "wit_score", "wit_turn", "wit_margin", "wit_q", "wit_hand"):
-                getattr(r2, name)[rows[take]] = getattr(again, name)[better]
-            slot[rows[take], second] = k[better]
-            found[np.searchsorted(every, rows[take])] = True
-    return found
 
 
 def _combine(out: Screening, idx: np.ndarray, arms: list, forearms: tuple, windows: np.ndarray,

@@ -6,12 +6,13 @@
     res.feasible        # (E,) some candidate is followed: the planner's own choice is then too
     res.wit_q           # (E, 2, SAMPLES, 6) the witness's joints per half-turn (slot 0 without, 1 with)
     res.reason          # (E,) for an arm that cannot: the first cause (an index into REASONS)
-    again = search_again(ctx, cands, res, rows, avoid)   # the same, kept clear of the other arm
+    again = search_again(ctx, cands, res, cand_rows, res_rows, avoid)   # the same, clear of the other arm
 
 The batched pieces re-implement grasp_choice.py's private _best_path (screening_paths.py: over many
-episodes and both half-turns at once), _segment_points, _hand_points and _gap, and retarget.py's turn_grasp
-and lowest_finger_z on the few numbers a check needs; the rules and their constants are grasp_choice's,
-imported.
+episodes and both half-turns at once), _segment_points, _hand_points and _gap (screening_points.py), and
+retarget.py's turn_grasp and lowest_finger_z on the few numbers a check needs; the rules and their
+constants are grasp_choice's, imported. The turned poses are made for every cell only for the pose checks;
+the joints, the witnesses' hands and the other-arm tests take them cell by cell where wanted (_Poses).
 """
 
 from __future__ import annotations
@@ -27,10 +28,12 @@ from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_S
                            MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
                            WRIST_ABOVE_TABLE)
 from .screening_paths import best_paths
+from .screening_points import Obstacle, hand_points
 from .screening_windows import object_at_steps
 
 REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
 _TAU = 2.0 * np.pi
+SOLVE_CHUNK = 4096  # poses per pass of the closed form (closed_form.CHUNK: its temporaries stay in the cache)
 PASS = 64  # episodes per pass of the search over every turn at once (their joints: a few MB per episode)
 
 
@@ -134,6 +137,30 @@ class _Turner:
         return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
 
 
+class _Poses:
+    """The pinch poses of the episodes rows (n,) of a _Turner turned by theta (n, C'), made cell by cell where
+    wanted (_Turner.turned's arithmetic: the joints and the hand's points are wanted at some of the cells)."""
+
+    def __init__(self, turner: _Turner, rows: np.ndarray, theta: np.ndarray):
+        self.turner, self.rows, self.theta = turner, rows, theta
+
+    def sub(self, k) -> "_Poses":
+        return _Poses(self.turner, self.rows[k], self.theta[k])
+
+    def at(self, e: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (k, 3), R (k, 3, 3)) of the cells: episode e (of rows), turn c (of theta's columns), sample s."""
+        t = self.turner
+        flat = self.rows[e] * t.P.shape[1] + s
+        if t.O is None:
+            P = np.take(t.P.reshape(-1, 4, 4), flat, axis=0)
+            return P[:, :3, 3].copy(), P[:, :3, :3].copy()
+        th = self.theta[e, c]
+        cos, sin = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+        par, perp, cross = (np.take(x.reshape(-1, 4, 3), flat, axis=0) for x in (t.par, t.perp, t.cross))
+        v = par + cos * perp + sin * cross
+        return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
+
+
 def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(closes, wrist, fingers) (E, C, S) of pinch poses: the wrist centre within the shoulder-elbow
     triangle's reach (closed_form.py: branch-independent), above WRIST_ABOVE_TABLE, and the fingertips'
@@ -151,27 +178,42 @@ def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[n
 
 
 def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(q (..., 8, 6), margin (..., 8), the last joint of the half-turned grasp (..., 8), its margin) of pinch
-    poses pos (..., 3), R (..., 3, 3). The gripper's half-turn about its approach axis is the last joint's
-    angle plus pi, nothing else (its range is a full turn: every other joint's margin stays)."""
+    """(q (n, 8, 6), margin (n, 8), the last joint of the half-turned grasp (n, 8), its margin) of pinch poses
+    pos (n, 3), R (n, 3, 3). The gripper's half-turn about its approach axis is the last joint's angle plus pi,
+    nothing else (its range is a full turn: every other joint's margin stays). A joint's margin is
+    half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
+    joints are the two wrist branches' own: once)."""
     sv = ctx.solver
-    q = sv.solve(base, pos, R).q
-    m = sv.half - np.abs(q - sv.mid)  # per joint
-    off = q[..., 5] + np.pi - sv.mid[5]
-    off -= _TAU * np.rint(off / _TAU)
-    m04 = m[..., 0]
-    for j in range(1, 5):
-        m04 = np.minimum(m04, m[..., j])
-    return q, np.minimum(m04, m[..., 5]), off + sv.mid[5], np.minimum(m04, sv.half[5] - np.abs(off))
+    n = len(pos)
+    q, m, q5f, mf = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    for i in range(0, n, SOLVE_CHUNK):
+        part = slice(i, i + SOLVE_CHUNK)
+        qj = sv.joints(base, pos[part], R[part])  # (6, k, 8)
+        q[part] = np.moveaxis(qj, 0, -1)
+        arm = sv.half[0] - np.abs(qj[0, :, :4] - sv.mid[0])
+        for j in (1, 2):
+            np.minimum(arm, sv.half[j] - np.abs(qj[j, :, :4] - sv.mid[j]), out=arm)
+        m04 = np.concatenate([arm, arm], axis=1)
+        for j in (3, 4):
+            np.minimum(m04, sv.half[j] - np.abs(qj[j] - sv.mid[j]), out=m04)
+        m[part] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
+        off = qj[5] + np.pi - sv.mid[5]
+        off -= _TAU * np.rint(off / _TAU)
+        q5f[part] = off + sv.mid[5]
+        mf[part] = np.minimum(m04, sv.half[5] - np.abs(off))
+    return q, m, q5f, mf
 
 
-def _solve_cells(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, ...]:
-    """_solve of the poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) where cells (n, C, S); elsewhere every branch out of
-    range (margins -inf), its joints 0."""
+def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
+    """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
+    its joints 0. (By flat indices: numpy's scatter by a mask runs at a few ns an element.)"""
     q = np.zeros(cells.shape + (8, 6))
     m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
-    if cells.any():
-        q[cells], m[cells], q5f[cells], mf[cells] = _solve(ctx, base, pos[cells], R[cells])
+    cell = np.flatnonzero(cells)
+    if len(cell):
+        sol = _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)))
+        for out, v in zip((q, m, q5f, mf), sol):
+            out.reshape((-1,) + v.shape[1:])[cell] = v
     return q, m, q5f, mf
 
 
@@ -216,9 +258,9 @@ class ArmCandidates:
     may_turn: np.ndarray
     dead: np.ndarray
     jumps: np.ndarray
-    avoid: tuple | None = None
+    avoid: Obstacle | None = None
 
-    def take(self, rows: np.ndarray, avoid: tuple | None = None) -> "ArmCandidates":
+    def take(self, rows: np.ndarray, avoid: Obstacle | None = None) -> "ArmCandidates":
         """These episodes' candidates, kept clear of `avoid`."""
         return replace(self, turner=self.turner.take(rows), valid=self.valid[rows], ok=self.ok[rows],
                        may_turn=self.may_turn[rows], dead=self.dead[rows], jumps=self.jumps[rows], avoid=avoid)
@@ -226,7 +268,7 @@ class ArmCandidates:
 
 def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarray, cells, poses, sol,
            theta) -> np.ndarray:
-    """Judge candidates of the episodes `rows`: poses (pos (n, C, S, 3), R (n, C, S, 3, 3)) turned by theta
+    """Judge candidates of the episodes `rows`: poses (_Poses (n, C, S)) turned by theta
     (n, C) whose pose checks are cells (n, C, S) (C = 1: one fixed turn; else all turns, a turning path), and
     their joints sol (_solve: q (n, C, S, 8, 6) with margins m, the half-turned grasp's last joint q5f and
     margins mf (n, C, S, 8)). Stores the feasible ones as witnesses and, for the others, the furthest a path
@@ -238,14 +280,16 @@ def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarra
     at, idx, e = np.arange(n)[:, None], np.arange(S)[None], np.arange(n)
     clear = np.ones(m.shape, bool)
     if arm.avoid is not None:
-        clear = _clear_of(ctx, arm, rows, cells, poses, q, (m > MIN_MARGIN) | (mf > MIN_MARGIN))
+        clear = _clear_of(ctx, arm, rows, cells, q, (m > MIN_MARGIN) | (mf > MIN_MARGIN))
     M = np.stack([m, mf], axis=1)  # (n, 2, C, S, B)
     good = ((M > MIN_MARGIN) & (cells[..., None] & clear)[:, None]) | ~valid[:, None, None, :, None]
     q0f = q[:, :, 0].copy()
     q0f[..., 5] = q5f[:, :, 0]
     transit = np.stack([_transit(ctx, arm.a, q[:, :, 0]), _transit(ctx, arm.a, q0f)], axis=1)  # (n, 2, C, B)
     start = TRANSIT_WEIGHT * transit + TURN_WEIGHT * np.abs(theta)[:, None, :, None]
-    cs, bs, cost = best_paths(q, q5f, good, M, start, valid, arm.may_turn[rows], arm.jumps[rows], *arm.nb)
+    # the search around the other arm (arm.avoid) keeps the witnesses only: no infeasible path's details
+    cs, bs, cost = best_paths(q, q5f, good, M, start, valid, arm.may_turn[rows], arm.jumps[rows], *arm.nb,
+                              infeasible=arm.avoid is None)
     for slot in range(2):
         c, b = cs[:, slot], bs[:, slot]
         followed = good[at, slot, c, idx, b]
@@ -262,7 +306,9 @@ def _judge(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, rows: np.ndarra
         res.wit_ok[r, slot], res.wit_score[r, slot] = True, score[new]
         res.wit_turn[r, slot], res.wit_margin[r, slot] = turn[new, 0], marg[new]
         res.wit_q[r, slot] = path[new]
-        res.wit_hand[r, slot] = hand_points(ctx, poses[0][at, c, idx][new], poses[1][at, c, idx][new])
+        if len(r):
+            pos, R = poses.at(np.repeat(np.flatnonzero(new), S), c[new].ravel(), np.tile(np.arange(S), len(r)))
+            res.wit_hand[r, slot] = hand_points(ctx, pos, R).reshape(len(r), S, 6, 3)
         got |= feasible
         # the furthest an infeasible path got: its first sample not followed, and why
         first = np.argmin(followed | ~valid, axis=1)
@@ -287,20 +333,20 @@ def _pose_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray
     return np.concatenate([hand_points(ctx, pos, R), wrist[..., None, :] + u * (pos - wrist)[..., None, :]], axis=-2)
 
 
-def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, poses, q, in_range) -> np.ndarray:
+def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, q, in_range) -> np.ndarray:
     """(n, C, S, B) grasp_choice._paths' avoid: the states whose forearm segments and hand keep the gap from the
     other arm's points (arm.avoid; NaN where it is not in its window: no constraint), looked at only where the
     state could be followed otherwise (in range, the pose checks passed). The hand and the wrist -> pinch
     segment are the pose's (search_again checks them); the elbow -> wrist segment is the arm branch's (the two
     wrist branches share the elbow; the half-turn moves no point)."""
-    pts, gap = arm.avoid[0][rows], arm.avoid[1][rows]  # (n, S, P, 3), (n, S)
     n, C, S, B = in_range.shape
     live = cells[..., None] & arm.valid[rows][:, None, :, None] & (in_range[..., :4] | in_range[..., 4:])
-    e, c, s, k = np.nonzero(live & np.isfinite(gap)[:, None, :, None])
-    p = ctx.solver.points(arm.base, q[e, c, s, k])
+    cell = np.flatnonzero(live & arm.avoid.finite[rows][:, None, :, None])
+    e, c, s, k = np.unravel_index(cell, live.shape)
+    p = ctx.solver.points(arm.base, np.take(q.reshape(-1, 6), ((e * C + c) * S + s) * B + k, axis=0))  # wrist branch 0
     u = np.linspace(0.0, 1.0, 5)[:, None]
     seg = p["elbow"][:, None] + u * (p["wrist"] - p["elbow"])[:, None]  # (m, 5, 3)
-    near = closer_than(seg, pts[e, s], gap[e, s])
+    near = arm.avoid.near(seg, rows[e], s)
     clear = np.ones((n, C, S, 4), bool)
     clear[e[near], c[near], s[near], k[near]] = False
     return np.concatenate([clear, clear], axis=-1)
@@ -361,27 +407,38 @@ def search_arm(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen) -> None:
     for i in range(0, len(rows), PASS):
         part = rows[i:i + PASS]
         theta = np.broadcast_to(cands.turns, (len(part), len(cands.turns)))
-        poses = cands.turner.turned(theta, part)
+        poses = _Poses(cands.turner, part, theta)
         # the joints only of the poses some path through poses that pass the checks reaches
         on = _on_paths(cands.ok[part], cands.may_turn[part], *cands.nb[:2]) & cands.valid[part][:, None, :]
         res.feasible[part] |= _judge(ctx, cands, res, part, cands.ok[part], poses,
-                                     _solve_cells(ctx, cands.base, *poses, on), theta)
+                                     _solve_cells(ctx, cands.base, poses, on), theta)
 
 
 def search_again(ctx: ArmsContext, cands: ArmCandidates, res: ArmScreen, cand_rows: np.ndarray, res_rows: np.ndarray,
-                 avoid: tuple) -> ArmScreen:
+                 avoid: Obstacle) -> ArmScreen:
     """The arm's search again over some episodes (cand_rows of cands, res_rows of res), every state kept clear
-    of the other arm (avoid: its segment points (n, S, P, 3) at this arm's samples, NaN where it is not in its
-    window, and the gap (n, S)): grasp_choice's second choice of an arm around the other."""
+    of the other arm (avoid: its points at this arm's samples and the gap, screening_points.Obstacle):
+    grasp_choice's second choice of an arm around the other."""
     again = ArmScreen(len(res_rows))
     again.active, again.steps, again.valid = res.active[res_rows], res.steps[res_rows], res.valid[res_rows]
     again.feasible[:], again.fail_step[:] = ~again.active, -1
     sub = cands.take(cand_rows, avoid)
     # the hand's and the wrist -> pinch segment's points depend on the pose only: a pose too near the other arm
     # fails with every branch (looked at where the pose passes the checks and the other arm is in its window)
-    pos, R = sub.turner.turned(np.broadcast_to(sub.turns, (len(cand_rows), len(sub.turns))))
-    e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & np.isfinite(avoid[1])[:, None, :])
-    near = closer_than(_pose_points(ctx, pos[e, c, s], R[e, c, s]), avoid[0][e, s], avoid[1][e, s])
+    n, C, S = sub.ok.shape
+    poses = _Poses(sub.turner, np.arange(n), np.broadcast_to(sub.turns, (n, C)))
+    e, c, s = np.nonzero(sub.ok & sub.valid[:, None, :] & avoid.finite[:, None, :])
+
+    def points(k):  # the cells' hand and wrist -> pinch points
+        return _pose_points(ctx, *poses.at(e[k], c[k], s[k]))
+
+    if sub.turner.O is None:
+        near = avoid.near(points(np.arange(len(e))), e, s)
+    else:  # the held object's turns: in closed form about its axis
+        O = sub.turner.O
+        first = poses.at(np.repeat(np.arange(n), S), np.zeros(n * S, int), np.tile(np.arange(S), n))
+        near = avoid.near_turned(points, e, c, s, _pose_points(ctx, *first).reshape(n, S, -1, 3), O[..., :3, 3],
+                                 O[..., :3, 2], sub.turns)
     sub.ok = sub.ok.copy()
     sub.ok[e[near], c[near], s[near]] = False
     sub.dead = _reach(sub.ok, sub.may_turn, *sub.nb[:2])
@@ -399,20 +456,18 @@ def _fixed_turns(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, first_onl
         c = np.argmax(viable[rows], axis=1)
         theta = arm.turns[c][:, None]
         cells = arm.ok[rows, c][:, None]
-        pos, R = arm.turner.turned(theta[:, 0], rows)
-        pos, R = pos[:, None], R[:, None]
     else:
         cols = np.flatnonzero(viable[rows].any(axis=0))  # the turns any of them may take
         rows, cols = (rows, cols) if len(cols) else (rows[:0], cols)
         theta = np.broadcast_to(arm.turns[cols], (len(rows), len(cols)))
         cells = arm.ok[rows][:, cols] & viable[rows][:, cols, None]  # a turn not viable fails at every sample
-        pos, R = arm.turner.turned(theta, rows)
+    poses = _Poses(arm.turner, rows, theta)
     for i in range(0, len(rows), PASS * 4):
         k = slice(i, i + PASS * 4)
         fixed = replace(arm, nb=(np.arange(theta.shape[1])[:, None], np.ones((theta.shape[1], 1), bool),
                                  np.zeros((theta.shape[1], 1))))
         on = cells[k] & arm.valid[rows[k]][:, None, :]
-        got = _judge(ctx, fixed, res, rows[k], cells[k], (pos[k], R[k]), _solve_cells(ctx, arm.base, pos[k], R[k], on),
+        got = _judge(ctx, fixed, res, rows[k], cells[k], poses.sub(k), _solve_cells(ctx, arm.base, poses.sub(k), on),
                      theta[k])
         res.feasible[rows[k][got]] = True
 
@@ -424,9 +479,18 @@ def _reach(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.nda
     r = ok[:, :, 0]
     dead = np.where(r.any(axis=1), -1, 0)
     for s in range(1, S):
-        r = ok[:, :, s] & np.where(may_turn[:, s, None], (r[:, nb] & nb_mask).any(axis=-1), r)
+        r = ok[:, :, s] & np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
         dead = np.where((dead < 0) & ~r.any(axis=1), s, dead)
     return dead
+
+
+def _to_neighbours(r: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
+    """(E, C) (r[:, nb] & nb_mask).any(-1): the turns reached from the set r (E, C) by a move, an OR per
+    neighbour slot (numpy's any over a short axis costs ten times)."""
+    out = np.take(r, nb[:, 0], axis=1) & nb_mask[:, 0]
+    for j in range(1, nb.shape[1]):
+        out |= np.take(r, nb[:, j], axis=1) & nb_mask[:, j]
+    return out
 
 
 def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
@@ -437,7 +501,7 @@ def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.
     fwd[:, :, 0], bwd[:, :, S - 1] = ok[:, :, 0], ok[:, :, S - 1]
 
     def step(r, s):  # the turns reachable from set r across the move into sample s
-        return np.where(may_turn[:, s, None], (r[:, nb] & nb_mask).any(axis=-1), r)
+        return np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
 
     for s in range(1, S):
         fwd[:, :, s] = ok[:, :, s] & step(fwd[:, :, s - 1], s)
@@ -464,71 +528,5 @@ def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np
     return code, np.where(stuck, s, np.minimum(at, S - 1))
 
 
-def segments(ctx: ArmsContext, base, q: np.ndarray, k: int = 5) -> np.ndarray:
-    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
-    (grasp_choice._segment_points)."""
-    p = ctx.solver.points(base, q)
-    u = np.linspace(0.0, 1.0, k)[:, None]
-    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
-    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
-
-
-def hand_points(ctx: ArmsContext, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """(..., 6, 3) grasp_choice._hand_points of pinch poses (pos (..., 3), R (..., 3, 3)): the pinch point, the
-    fingertips HAND_SPREAD to each side along the closing axis, the wrist centre behind along the approach
-    axis and the palm's two sides half-way (a half-turn maps the set onto itself)."""
-    x, z = R[..., :, 0], R[..., :, 2]
-    palm = pos - 0.5 * ctx.w2p * z
-    return np.stack([pos, pos + HAND_SPREAD * x, pos - HAND_SPREAD * x, pos - ctx.w2p * z,
-                     palm + 0.5 * HAND_SPREAD * x, palm - 0.5 * HAND_SPREAD * x], axis=-2)
-
-
-def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...; NaN where a
-    point is NaN), each coordinate's differences on contiguous planes, in float32 (0.1 um at a metre: far
-    below the centimetres the gaps are kept by)."""
-    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
-    A = np.ascontiguousarray(np.moveaxis(np.broadcast_to(a, lead + a.shape[-2:]), -1, 0), np.float32)
-    B = np.ascontiguousarray(np.moveaxis(np.broadcast_to(b, lead + b.shape[-2:]), -1, 0), np.float32)
-    d = (A[0][..., :, None] - B[0][..., None, :]) ** 2
-    for k in (1, 2):
-        d += (A[k][..., :, None] - B[k][..., None, :]) ** 2
-    return np.sqrt(d.reshape(lead + (-1,)).min(axis=-1))
-
-
-def _norm(v: np.ndarray) -> np.ndarray:
-    """|v| over the last axis (3), without a reduction over it."""
-    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
-
-
-def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about the first point."""
-    c = a[..., 0, :]
-    r = _norm(a[..., 1, :] - c)
-    for k in range(2, a.shape[-2]):
-        np.maximum(r, _norm(a[..., k, :] - c), out=r)
-    return c, r
-
-
-def closer_bound(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(...) a lower bound of the distance between point sets a (..., P, 3) and b (..., Q, 3): their spheres'."""
-    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
-    return _norm(ca - cb) - ra - rb
-
-
-def closer_than(a: np.ndarray, b: np.ndarray, gap: np.ndarray) -> np.ndarray:
-    """(...) bool: point sets a (..., P, 3) and b (..., Q, 3) come closer than gap (...) (False where a point or
-    the gap is NaN). Their bounding spheres first: the points' distances only where those come that close."""
-    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2], np.shape(gap))
-    a, b = np.broadcast_to(a, lead + a.shape[-2:]), np.broadcast_to(b, lead + b.shape[-2:])
-    gap = np.broadcast_to(gap, lead)
-    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
-    out = np.zeros(lead, bool)
-    with np.errstate(invalid="ignore"):
-        maybe = _norm(ca - cb) - ra - rb < gap
-        if maybe.any():
-            out[maybe] = min_distance(a[maybe], b[maybe]) < gap[maybe]
-    return out
-
-__all__ = ["ArmCandidates", "ArmScreen", "ArmsContext", "REASONS", "closer_bound", "closer_than", "hand_points", "min_distance", "sample_steps", "screen_arm",
-           "search_again", "search_arm", "segments"]
+__all__ = ["ArmCandidates", "ArmScreen", "ArmsContext", "REASONS", "sample_steps", "screen_arm", "search_again",
+           "search_arm"]

@@ -1,0 +1,191 @@
+"""The point sets of grasp_choice.py's pair check, batched for the screening (screening.py, screening_arm.py):
+an arm's forearm segments and hand points, the smallest distance between two sets, and the other arm as an
+obstacle whose points are tested against many candidate sets at once.
+
+    pts = hand_points(ctx, pos, R)              # (..., 6, 3) grasp_choice._hand_points
+    d = min_distance(a, b)                      # grasp_choice._gap, in float32
+    obstacle = Obstacle(points, gap)            # the other arm's points (n, S, 16, 3) and the gap (n, S)
+    near = obstacle.near(a, e, s)               # point sets a (m, P, 3) at samples (e, s) closer than the gap
+
+The obstacle's test is min_distance's, decided on a cheap bound first: the other arm's points form three
+compact groups (its elbow -> wrist and wrist -> pinch points, its hand's), each held in a sphere; the points'
+distances are taken only to the groups whose spheres come within the gap (a group left out is further than
+the gap by more than any rounding, so the verdict is the full test's).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .grasp_choice import HAND_SPREAD
+
+# the other arm's points (screening._points_at): its elbow -> wrist and wrist -> pinch points, then its hand's
+GROUPS = (slice(0, 5), slice(5, 10), slice(10, 16))
+# m a sphere's test is looser than the exact one: far above the float32 distances' rounding (~1e-7 m)
+SLACK = 1e-5
+
+
+def segments(ctx, base, q: np.ndarray, k: int = 5) -> np.ndarray:
+    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
+    (grasp_choice._segment_points)."""
+    p = ctx.solver.points(base, q)
+    u = np.linspace(0.0, 1.0, k)[:, None]
+    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
+    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
+
+
+def hand_points(ctx, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(..., 6, 3) grasp_choice._hand_points of pinch poses (pos (..., 3), R (..., 3, 3)): the pinch point, the
+    fingertips HAND_SPREAD to each side along the closing axis, the wrist centre behind along the approach
+    axis and the palm's two sides half-way (a half-turn maps the set onto itself)."""
+    x, z = R[..., :, 0], R[..., :, 2]
+    palm = pos - 0.5 * ctx.w2p * z
+    return np.stack([pos, pos + HAND_SPREAD * x, pos - HAND_SPREAD * x, pos - ctx.w2p * z,
+                     palm + 0.5 * HAND_SPREAD * x, palm - 0.5 * HAND_SPREAD * x], axis=-2)
+
+
+def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...; NaN where a
+    point is NaN), each coordinate's differences on contiguous planes, in float32 (0.1 um at a metre: far
+    below the centimetres the gaps are kept by)."""
+    lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    A = np.ascontiguousarray(np.moveaxis(np.broadcast_to(a, lead + a.shape[-2:]), -1, 0), np.float32)
+    B = np.ascontiguousarray(np.moveaxis(np.broadcast_to(b, lead + b.shape[-2:]), -1, 0), np.float32)
+    d = (A[0][..., :, None] - B[0][..., None, :]) ** 2
+    for k in (1, 2):
+        d += (A[k][..., :, None] - B[k][..., None, :]) ** 2
+    return np.sqrt(d.reshape(lead + (-1,)).min(axis=-1))
+
+
+def norm3(v: np.ndarray) -> np.ndarray:
+    """|v| over the last axis (3), without a reduction over it."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
+def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about the first point."""
+    return a[..., 0, :], radius(a)
+
+
+def radius(a: np.ndarray) -> np.ndarray:
+    """(...) the radius of _sphere: the points' (..., P, 3) largest distance from the first."""
+    c = a[..., 0, :]
+    r = norm3(a[..., 1, :] - c)
+    for k in range(2, a.shape[-2]):
+        np.maximum(r, norm3(a[..., k, :] - c), out=r)
+    return r
+
+
+def _centred_sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (..., 3), radius (...)) of a sphere holding points a (..., P, 3): about their mean (tighter than
+    _sphere's for a segment's points; a bound only, so its rounding is covered by SLACK)."""
+    c = a[..., 0, :].copy()
+    for k in range(1, a.shape[-2]):
+        c += a[..., k, :]
+    c /= a.shape[-2]
+    r = norm3(a[..., 0, :] - c)
+    for k in range(1, a.shape[-2]):
+        np.maximum(r, norm3(a[..., k, :] - c), out=r)
+    return c, r
+
+
+def closer_bound(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...) a lower bound of the distance between point sets a (..., P, 3) and b (..., Q, 3): their spheres'."""
+    (ca, ra), (cb, rb) = _sphere(a), _sphere(b)
+    return norm3(ca - cb) - ra - rb
+
+
+class Obstacle:
+    """The other arm kept clear of: its points (n, S, 16, 3) at this arm's samples (NaN where it is not in its
+    window: no constraint) and the gap (n, S) to keep from them, with its groups' spheres (GROUPS)."""
+
+    def __init__(self, points: np.ndarray, gap: np.ndarray):
+        self.points, self.gap = points, gap
+        self.spheres = [_centred_sphere(points[..., g, :]) for g in GROUPS]
+        self.finite = np.isfinite(points).all(axis=(-1, -2)) & np.isfinite(gap)
+
+    def take(self, rows: np.ndarray) -> "Obstacle":
+        """The same for the episodes `rows`."""
+        out = Obstacle.__new__(Obstacle)
+        out.points, out.gap, out.finite = self.points[rows], self.gap[rows], self.finite[rows]
+        out.spheres = [(c[rows], r[rows]) for c, r in self.spheres]
+        return out
+
+    def near(self, a: np.ndarray, e: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """(m,) bool: point sets a (m, P, 3) at the samples (e, s) (m,) come closer than the gap to the other
+        arm's points: min_distance(a, points[e, s]) < gap[e, s] (False where a point or the gap is NaN)."""
+        out = np.zeros(len(e), bool)
+        live = np.flatnonzero(self.finite[e, s])
+        if not len(live):
+            return out
+        a, e, s = a[live], e[live], s[live]
+        gap = self.gap[e, s]
+        ca, ra = _centred_sphere(a)
+        with np.errstate(invalid="ignore"):
+            for g, (cg, rg) in zip(GROUPS, self.spheres):
+                maybe = np.flatnonzero((norm3(ca - cg[e, s]) - ra - rg[e, s] < gap + SLACK) & ~out[live])
+                if len(maybe):
+                    d = min_distance(a[maybe], self.points[e[maybe], s[maybe], g])
+                    out[live[maybe]] = d < gap[maybe]
+        return out
+
+    def near_turned(self, points, e: np.ndarray, c: np.ndarray, s: np.ndarray, a0: np.ndarray, ctr: np.ndarray,
+                    u: np.ndarray, turns: np.ndarray) -> np.ndarray:
+        """near() for the point sets at the turns turns[c] (m,) of the sets a0 (n, S, P, 3) (turn turns[0]) about
+        the axes u (n, S, 3) through ctr (n, S, 3) (a held object's); points(k) gives the sets (len(k), P, 3) of
+        the cells k. A turn keeps each point's height along the axis and distance from it and adds to its angle
+        about it, so two points come nearer than d where the cosine of their angle apart passes a bound, in
+        closed form: a set is near where a pair passes it for gap - SLACK, clear where none passes it for
+        gap + SLACK, and taken point by point (min_distance) in the rare band between."""
+        out = np.zeros(len(e), bool)
+        live = np.flatnonzero(self.finite[e, s])
+        if not len(live):
+            return out
+        n, S, P = a0.shape[:3]
+        Q = self.points.shape[-2]
+        es, inv = np.unique(e[live] * S + s[live], return_inverse=True)
+        axis, centre = u.reshape(-1, 3)[es], ctr.reshape(-1, 3)[es]
+        (ha, ra, xa, ya), (hb, rb, xb, yb) = (_cylindrical(x.reshape(n * S, -1, 3)[es], centre, axis)
+                                              for x in (a0, self.points))
+        gap = self.gap.reshape(-1)[es][:, None, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            base = (ha[:, :, None] - hb[:, None]) ** 2 + ra[:, :, None] ** 2 + rb[:, None] ** 2  # (k, P, Q)
+            twice = 2.0 * ra[:, :, None] * rb[:, None]
+            outer = (base - (gap + SLACK) ** 2) / twice  # the cosine bound: nearer than gap + SLACK
+            pair = np.flatnonzero(outer < 1.0)  # the pairs that ever come that near
+            k, pq = np.divmod(pair, P * Q)
+            i, j = np.divmod(pq, Q)
+            inner = (base.reshape(-1)[pair] - (gap[k, 0, 0] - SLACK) ** 2) / twice.reshape(-1)[pair]
+        # cos(turn - the turn that brings the two points' angles together), by the angles' cosines and sines
+        t = turns - turns[0]
+        ca, sa = xa[k, i] * xb[k, j] + ya[k, i] * yb[k, j], xa[k, i] * yb[k, j] - ya[k, i] * xb[k, j]
+        cos = ca[:, None] * np.cos(t) + sa[:, None] * np.sin(t)  # (pairs, C)
+        first = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if len(k) else np.zeros(0, int)
+        near_at, band_at = np.zeros((len(es), len(turns)), bool), np.zeros((len(es), len(turns)), bool)
+        if len(k):
+            near_at[k[first]] = np.logical_or.reduceat(cos > inner[:, None], first, axis=0)
+            band_at[k[first]] = np.logical_or.reduceat(cos >= outer.reshape(-1)[pair][:, None], first, axis=0)
+        cl = c[live]
+        out[live] = near_at[inv, cl]
+        band = live[band_at[inv, cl] & ~near_at[inv, cl]]
+        if len(band):
+            out[band] = min_distance(points(band), self.points[e[band], s[band]]) < self.gap[e[band], s[band]]
+        return out
+
+
+def _cylindrical(x: np.ndarray, ctr: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(height along the axis, distance from it, cosine and sine of the angle about it) (k, P) of points x
+    (k, P, 3) about unit axes u (k, 3) through ctr (k, 3) (from a direction across the axis, the same for every
+    point of a row; a point on the axis: angle 0)."""
+    across = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    across /= norm3(across)[:, None]
+    other = np.cross(u, across)
+    v = x - ctr[:, None]
+    h = np.einsum("kpi,ki->kp", v, u)
+    px, py = np.einsum("kpi,ki->kp", v, across), np.einsum("kpi,ki->kp", v, other)
+    r = np.hypot(px, py)
+    safe = np.where(r > 0.0, r, 1.0)
+    return h, r, np.where(r > 0.0, px / safe, 1.0), py / safe
+
+
+__all__ = ["GROUPS", "Obstacle", "closer_bound", "hand_points", "min_distance", "norm3", "radius", "segments"]

@@ -1,0 +1,173 @@
+"""The screening's fast parts (lib/sim/robots/aloha/screening_*.py) against their plain definitions, on random
+instances: the batched path search against a per-episode DP written the way grasp_choice._best_path reads (arm
+branches left out, tie order, float32 sums included), the other arm's test against a held object's turned
+hand against the points' distances, and the bounds that spare hull distances against the hull scores."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from demoforge.lib.sim.robots.aloha.grasp_choice import BAD, MARGIN_CAP
+from demoforge.lib.sim.robots.aloha.screening_paths import best_paths
+from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance
+from demoforge.lib.sim.robots.aloha.screening_windows import _score_bounds
+from demoforge.lib.trajectories.segmentation import grasped_object_scores
+
+F32 = np.float32
+
+
+def _plain_dp(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost, e, f):
+    """One episode's, one half-turn's cheapest path: states (turn c, wrist w, arm branch k) over the arm branches
+    followed somewhere (all four if none), moves to a neighbour turn (j > 0 costs BAD where the turn may not
+    change) and either wrist branch, BAD for a joint moving jumps[s] or more, a state's BAD when not followed
+    plus its missing margin; float32 sums in that order, the first state and predecessor on ties."""
+    C, S, B = good.shape[2:]
+    live = [k for k in range(4) if good[e, :, :, :, [k, 4 + k]].any()] or list(range(4))
+    states = [(c, w, k) for c in range(C) for w in range(2) for k in live]
+    index = {st: n for n, st in enumerate(states)}
+    j5 = q[e, ..., 5] if f == 0 else q5f[e]
+
+    def node(s, c, w, k):
+        b = 4 * w + k
+        return F32(BAD * (not good[e, f, c, s, b]) + (MARGIN_CAP - min(margin[e, f, c, s, b], MARGIN_CAP)))
+
+    def joints(c, s, b):
+        return np.append(q[e, c, s, b, :5], j5[c, s, b]).astype(F32)
+
+    cost = [F32(start[e, f, c, 4 * w + k]) + node(0, c, w, k) for c, w, k in states]
+    back = np.zeros((S, len(states)), int)
+    for s in range(1, S):
+        if not valid[e, s]:
+            continue
+        new = []
+        for n, (c, w, k) in enumerate(states):
+            best, arg = None, 0
+            for j in range(nb.shape[1]):
+                for t in (0, 1):
+                    cp, wp = nb[c, j], w ^ t
+                    move = F32(nb_cost[c, j]) if nb_mask[c, j] else F32(np.inf)
+                    step = move + F32(BAD) * F32(j > 0 and not may_turn[e, s])
+                    jump = np.abs(joints(cp, s - 1, 4 * wp + k) - joints(c, s, 4 * w + k)).max()
+                    total = (cost[index[cp, wp, k]] + step) + F32(BAD) * F32(jump >= F32(jumps[e, s]))
+                    if best is None or total < best:
+                        best, arg = total, 2 * j + t
+            new.append(best + node(s, c, w, k))
+            back[s, n] = arg
+        cost = new
+    n = last = int(np.argmin(cost))
+    path = []
+    for s in range(S - 1, -1, -1):
+        c, w, k = states[n]
+        path.append((c, 4 * w + k))
+        if s:
+            j, t = divmod(back[s, n], 2)
+            n = index[nb[c, j], w ^ t, k]
+    return path[::-1], float(cost[last])
+
+
+def _instance(rng, E=6, C=5, S=7):
+    """Random candidates: C turns on a circle (neighbours within one step), 8 branches (the wrist branches of an
+    arm branch sharing its three joints, as the closed form's), followed states sparse enough that some arm
+    branches are followed nowhere or lead nowhere, a window's last samples invalid."""
+    nb = np.array([[c, (c - 1) % C, (c + 1) % C] for c in range(C)])
+    nb_mask = np.ones_like(nb, bool)
+    nb_cost = np.where(np.arange(3) == 0, 0.0, 0.013)[None].repeat(C, axis=0)
+    q = rng.uniform(-np.pi, np.pi, (E, C, S, 8, 6)) * rng.uniform(0.0, 0.3, (E, 1, 1, 8, 1))
+    q[..., 4:, :3] = q[..., :4, :3]  # the closed form's: the two wrist branches share the arm's three joints
+    q5f = rng.uniform(-np.pi, np.pi, (E, C, S, 8))
+    good = rng.random((E, 2, C, S, 8)) < rng.uniform(0.2, 0.9, (E, 1, 1, 1, 8))
+    good[0, :, :, :, [1, 2, 3, 5, 6, 7]] = False  # one arm branch only
+    good[1:3, :, :, :, [2, 3, 6, 7]] = False  # two arm branches followed somewhere ...
+    good[1:3, 0, :, :, [0, 4]], good[1:3, 1, :, :, [0, 4]] = True, False  # ... the first by one half-turn only
+    good[1:3, :, :, 3, [1, 5]] = False  # the second with a sample nowhere followed
+    good[2, :, :, 2, [0, 4]] = False  # (and in the third episode neither has a path)
+    margin = np.where(good, rng.uniform(0.05, 0.6, good.shape), rng.uniform(-0.3, 0.05, good.shape))
+    margin[rng.random(good.shape) < 0.05] = -np.inf  # poses not solved
+    start = rng.uniform(0.0, 0.2, (E, 2, C, 8))
+    valid = np.ones((E, S), bool)
+    valid[1, -2:] = False
+    may_turn = rng.random((E, S)) < 0.6
+    jumps = rng.choice([0.4, 0.6, 1.0], (E, S))
+    return q, q5f, good | ~valid[:, None, None, :, None], margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_batched_path_search_is_the_plain_dp(seed):
+    args = _instance(np.random.default_rng(seed))
+    cs, bs, cost = best_paths(*args)
+    witnesses = best_paths(*args, infeasible=False)
+    E = len(cost)
+    for e in range(E):
+        for f in range(2):
+            path, plain = _plain_dp(*args, e, f)
+            assert [(int(c), int(b)) for c, b in zip(cs[e, f], bs[e, f])] == path, (seed, e, f)
+            assert cost[e, f] == plain
+            if plain < BAD:  # without the failed paths' details: the same witnesses
+                assert witnesses[2][e, f] == plain and (witnesses[0][e, f] == cs[e, f]).all()
+            else:
+                assert not witnesses[2][e, f] < BAD
+
+
+def test_the_other_arm_near_a_turned_hand_is_the_point_test():
+    """Obstacle.near_turned (pairs of points on arcs of turns about the held object's axis) against
+    min_distance of the turned points, with gaps set near the sets' true distances."""
+    rng = np.random.default_rng(7)
+    n, S, P, Q, C = 5, 6, 9, 16, 24
+    turns = np.radians(15.0) * np.arange(C)
+    turns = np.where(turns > np.pi, turns - 2 * np.pi, turns)
+    u = rng.normal(size=(n, S, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    ctr = rng.uniform(-0.2, 0.2, (n, S, 3))
+    a0 = ctr[:, :, None] + rng.uniform(-0.25, 0.25, (n, S, P, 3))
+    other = ctr[:, :, None] + rng.uniform(-0.3, 0.3, (n, S, Q, 3))
+
+    def turned(x, th):  # Rodrigues about u through ctr
+        v = x - ctr[:, :, None]
+        par = u[:, :, None] * (v * u[:, :, None]).sum(-1, keepdims=True)
+        return ctr[:, :, None] + par + np.cos(th) * (v - par) + np.sin(th) * np.cross(u[:, :, None], v)
+
+    sets = np.stack([turned(a0, t) for t in turns], axis=2)  # (n, S, C, P, 3)
+    exact = np.stack([min_distance(sets[:, :, c], other) for c in range(C)], axis=2)  # (n, S, C)
+    gap = np.median(exact, axis=2) + rng.normal(0.0, 0.01, (n, S))
+    gap[0, 0] = exact[0, 0, 3] + 2e-6  # within the band: decided point by point
+    e, s, c = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(S), np.arange(C), indexing="ij"))
+    want = min_distance(sets[e, s, c], other[e, s]) < gap[e, s]
+    got = Obstacle(other, gap).near_turned(lambda k: sets[e[k], s[k], c[k]], e, c, s, a0, ctr, u, turns)
+    assert (got == want).all() and 0 < want.sum() < len(want)
+
+
+def test_the_hull_score_bounds_hold():
+    """held_batch's bounds of segmentation.grasped_object_scores (NNLS hull distance plus a tenth of the nearest
+    keypoint's) bracket the scores: inside, beside and far from the objects."""
+    rng = np.random.default_rng(3)
+    ko = np.array([0] * 5 + [1] * 6)
+    kp = rng.uniform(-0.1, 0.1, (40, 11, 3)) + np.where(ko == 0, -0.15, 0.15)[None, :, None] * np.array([1, 0, 0])
+    p = rng.uniform(-0.3, 0.3, (40, 3))
+    p[:10] = kp[:10, ko == 0].mean(axis=1)  # inside the first object's hull
+    low, high = _score_bounds(kp, ko, p)
+    scores = np.array([grasped_object_scores(kp[e], ko, p[e]) for e in range(len(p))])
+    assert (low <= scores + 1e-12).all() and (scores <= high + 1e-12).all()
+
+
+def test_the_screenings_joints_and_margins_are_the_closed_forms():
+    """screening_arm._solve (ViperXBatchIK.joints, joint first, margins per joint) against ViperXBatchIK.solve's
+    angles and half - |q - mid| of them, the half-turned grasp's last joint included, bit for bit."""
+    from demoforge.lib.geometry import quat_to_matrix, random_quaternions
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext, _solve
+
+    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
+    sv, base = ctx.solver, ctx.bases[0]
+    rng = np.random.default_rng(11)
+    pos = np.array([base.x, base.y, base.z + 0.3]) + rng.uniform(-0.5, 0.5, (5000, 3))
+    R = quat_to_matrix(random_quaternions(5000, rng))
+    q, m, q5f, mf = _solve(ctx, base, pos, R)
+    want = sv.solve(base, pos, R).q
+    assert np.array_equal(q, want)
+    margins = sv.half - np.abs(want - sv.mid)
+    assert np.array_equal(m, margins.min(axis=-1))
+    off = want[..., 5] + np.pi - sv.mid[5]
+    off -= 2.0 * np.pi * np.rint(off / (2.0 * np.pi))
+    assert np.array_equal(q5f, off + sv.mid[5])
+    assert np.array_equal(mf, np.minimum(margins[..., :5].min(axis=-1), sv.half[5] - np.abs(off)))
