@@ -397,17 +397,9 @@ TESTED_THROUGH: dict[str, Entry] = {
         "tests/lib/sim/robots/aloha/test_aloha.py",
         "the arms' grasps of their own: the scripted demonstrations' arm verdicts depend on it",
     ),
-    "demoforge.lib.sim.robots.aloha.screening_arm": reached(
+    "demoforge.lib.sim.robots.aloha.screening_pairs": reached(
         "tests/lib/sim/robots/aloha/test_screening.py",
-        "one arm's screening: part of the screening, whose verdicts are pinned",
-    ),
-    "demoforge.lib.sim.robots.aloha.screening_paths": reached(
-        "tests/lib/sim/robots/aloha/test_screening.py",
-        "the screening's shortest paths over states: part of the screening, whose verdicts are pinned",
-    ),
-    "demoforge.lib.sim.robots.aloha.screening_windows": reached(
-        "tests/lib/sim/robots/aloha/test_screening.py",
-        "the screening's windows: compared with the planner's by the screening tests",
+        "the two arms' forearm pair checks: part of the screening, whose verdicts are pinned",
     ),
     "demoforge.lib.sim.robots.aloha.seeds": through(
         "tests/lib/sim/robots/aloha/test_closed_form.py",

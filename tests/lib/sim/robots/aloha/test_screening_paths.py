@@ -1,7 +1,6 @@
-"""The screening's fast parts (lib/sim/robots/aloha/screening_*.py) against their plain definitions, on random
-instances: the batched path search against a per-episode DP written the way grasp_choice._best_path reads (arm
-branches left out, tie order, float32 sums included), the other arm's test against a held object's turned
-hand against the points' distances, and the bounds that spare hull distances against the hull scores."""
+"""The screening's batched path search (lib/sim/robots/aloha/screening_paths.py) against a per-episode DP
+written the way grasp_choice._best_path reads (arm branches left out, tie order, float32 sums included), on
+random instances."""
 
 from __future__ import annotations
 
@@ -10,9 +9,6 @@ import pytest
 
 from demoforge.lib.sim.robots.aloha.grasp_choice import BAD, MARGIN_CAP
 from demoforge.lib.sim.robots.aloha.screening_paths import best_paths
-from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance
-from demoforge.lib.sim.robots.aloha.screening_windows import _score_bounds
-from demoforge.lib.trajectories.segmentation import grasped_object_scores
 
 F32 = np.float32
 
@@ -107,67 +103,3 @@ def test_the_batched_path_search_is_the_plain_dp(seed):
                 assert witnesses[2][e, f] == plain and (witnesses[0][e, f] == cs[e, f]).all()
             else:
                 assert not witnesses[2][e, f] < BAD
-
-
-def test_the_other_arm_near_a_turned_hand_is_the_point_test():
-    """Obstacle.near_turned (pairs of points on arcs of turns about the held object's axis) against
-    min_distance of the turned points, with gaps set near the sets' true distances."""
-    rng = np.random.default_rng(7)
-    n, S, P, Q, C = 5, 6, 9, 16, 24
-    turns = np.radians(15.0) * np.arange(C)
-    turns = np.where(turns > np.pi, turns - 2 * np.pi, turns)
-    u = rng.normal(size=(n, S, 3))
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    ctr = rng.uniform(-0.2, 0.2, (n, S, 3))
-    a0 = ctr[:, :, None] + rng.uniform(-0.25, 0.25, (n, S, P, 3))
-    other = ctr[:, :, None] + rng.uniform(-0.3, 0.3, (n, S, Q, 3))
-
-    def turned(x, th):  # Rodrigues about u through ctr
-        v = x - ctr[:, :, None]
-        par = u[:, :, None] * (v * u[:, :, None]).sum(-1, keepdims=True)
-        return ctr[:, :, None] + par + np.cos(th) * (v - par) + np.sin(th) * np.cross(u[:, :, None], v)
-
-    sets = np.stack([turned(a0, t) for t in turns], axis=2)  # (n, S, C, P, 3)
-    exact = np.stack([min_distance(sets[:, :, c], other) for c in range(C)], axis=2)  # (n, S, C)
-    gap = np.median(exact, axis=2) + rng.normal(0.0, 0.01, (n, S))
-    gap[0, 0] = exact[0, 0, 3] + 2e-6  # within the band: decided point by point
-    e, s, c = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(S), np.arange(C), indexing="ij"))
-    want = min_distance(sets[e, s, c], other[e, s]) < gap[e, s]
-    got = Obstacle(other, gap).near_turned(lambda k: sets[e[k], s[k], c[k]], e, c, s, a0, ctr, u, turns)
-    assert (got == want).all() and 0 < want.sum() < len(want)
-
-
-def test_the_hull_score_bounds_hold():
-    """held_batch's bounds of segmentation.grasped_object_scores (NNLS hull distance plus a tenth of the nearest
-    keypoint's) bracket the scores: inside, beside and far from the objects."""
-    rng = np.random.default_rng(3)
-    ko = np.array([0] * 5 + [1] * 6)
-    kp = rng.uniform(-0.1, 0.1, (40, 11, 3)) + np.where(ko == 0, -0.15, 0.15)[None, :, None] * np.array([1, 0, 0])
-    p = rng.uniform(-0.3, 0.3, (40, 3))
-    p[:10] = kp[:10, ko == 0].mean(axis=1)  # inside the first object's hull
-    low, high = _score_bounds(kp, ko, p)
-    scores = np.array([grasped_object_scores(kp[e], ko, p[e]) for e in range(len(p))])
-    assert (low <= scores + 1e-12).all() and (scores <= high + 1e-12).all()
-
-
-def test_the_screenings_joints_and_margins_are_the_closed_forms():
-    """screening_arm._solve (ViperXBatchIK.joints, joint first, margins per joint) against ViperXBatchIK.solve's
-    angles and half - |q - mid| of them, the half-turned grasp's last joint included, bit for bit."""
-    from demoforge.lib.geometry import quat_to_matrix, random_quaternions
-    from demoforge.lib.sim.robots import get_robot
-    from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext, _solve
-
-    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
-    sv, base = ctx.solver, ctx.bases[0]
-    rng = np.random.default_rng(11)
-    pos = np.array([base.x, base.y, base.z + 0.3]) + rng.uniform(-0.5, 0.5, (5000, 3))
-    R = quat_to_matrix(random_quaternions(5000, rng))
-    q, m, q5f, mf = _solve(ctx, base, pos, R)
-    want = sv.solve(base, pos, R).q
-    assert np.array_equal(q, want)
-    margins = sv.half - np.abs(want - sv.mid)
-    assert np.array_equal(m, margins.min(axis=-1))
-    off = want[..., 5] + np.pi - sv.mid[5]
-    off -= 2.0 * np.pi * np.rint(off / (2.0 * np.pi))
-    assert np.array_equal(q5f, off + sv.mid[5])
-    assert np.array_equal(mf, np.minimum(margins[..., :5].min(axis=-1), sv.half[5] - np.abs(off)))

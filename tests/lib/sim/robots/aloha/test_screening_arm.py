@@ -1,0 +1,28 @@
+"""One arm's screening (lib/sim/robots/aloha/screening_arm.py): its joints and margins are the closed form's."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demoforge.lib.geometry import quat_to_matrix, random_quaternions
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext, _solve
+
+
+def test_the_screenings_joints_and_margins_are_the_closed_forms():
+    """screening_arm._solve (ViperXBatchIK.joints, joint first, margins per joint) against ViperXBatchIK.solve's
+    angles and half - |q - mid| of them, the half-turned grasp's last joint included, bit for bit."""
+    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
+    sv, base = ctx.solver, ctx.bases[0]
+    rng = np.random.default_rng(11)
+    pos = np.array([base.x, base.y, base.z + 0.3]) + rng.uniform(-0.5, 0.5, (5000, 3))
+    R = quat_to_matrix(random_quaternions(5000, rng))
+    q, m, q5f, mf = _solve(ctx, base, pos, R)
+    want = sv.solve(base, pos, R).q
+    assert np.array_equal(q, want)
+    margins = sv.half - np.abs(want - sv.mid)
+    assert np.array_equal(m, margins.min(axis=-1))
+    off = want[..., 5] + np.pi - sv.mid[5]
+    off -= 2.0 * np.pi * np.rint(off / (2.0 * np.pi))
+    assert np.array_equal(q5f, off + sv.mid[5])
+    assert np.array_equal(mf, np.minimum(margins[..., :5].min(axis=-1), sv.half[5] - np.abs(off)))
