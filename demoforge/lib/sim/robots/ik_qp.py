@@ -9,7 +9,7 @@ ArmsIK's fixed tasks and limits that assembly, a few hundred small numpy calls t
 more than the solve. StepQP does the same arithmetic, in the same order, on the same arrays: mink's own
 native Lie-group operations (the ones its FrameTask calls), MuJoCo's site Jacobian, the same weights,
 products and stacking, mink's collision limits as they are, and DAQP called with the arguments qpsolvers
-passes it. The step is bit for bit mink's (tests/test_robot_arms.py compares the two); where mink runs
+passes it. The step is bit for bit mink's (tests/lib/sim/robots/test_ik_qp.py compares the two); where mink runs
 without its native operations (MINK_DISABLE_NATIVE), or with other tasks, solve() is mink's own path.
 """
 
