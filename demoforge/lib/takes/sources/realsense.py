@@ -41,7 +41,7 @@ def is_realsense_db3(path: Path) -> bool:
 
 
 class RealSenseRecording(Recording):
-    version = "2"   # 2: the playback position of every frame (seeking)
+    version = "3"   # 2: the playback position of every frame (seeking); 3: a frame delivered alone, then with depth, is not a repeat
 
     def _start(self, seek_ns: int = 0):
         """A started pipeline playing the file as fast as it is read from ``seek_ns`` (the playback's
@@ -98,7 +98,7 @@ class RealSenseRecording(Recording):
             registered = _registered(streams[rs.stream.depth].as_video_stream_profile(), colour)
             depth_sensor = profile.get_device().first_depth_sensor()
             scale = float(depth_sensor.get_depth_scale())
-            numbers, times, has_depth, domains, position = [], [], {}, set(), {}
+            numbers, times, has_depth, domains, position, paired = [], [], {}, set(), {}, []
             playback = profile.get_device().as_playback()
             for fs in self._framesets(pipe, profile):
                 c = fs.get_color_frame()
@@ -109,7 +109,8 @@ class RealSenseRecording(Recording):
                 position.setdefault(n, int(playback.get_position()))
                 times.append(float(c.get_timestamp()) / 1000.0)
                 domains.add(str(c.get_frame_timestamp_domain()).rsplit(".", 1)[-1])
-                has_depth[n] = has_depth.get(n, False) or bool(fs.get_depth_frame())
+                paired.append(bool(fs.get_depth_frame()))
+                has_depth[n] = has_depth.get(n, False) or paired[-1]
         except RuntimeError as e:
             raise TakeError(f"{self.path}: the RealSense recording cannot be read to the end ({e}); the file is "
                             f"truncated or corrupt") from None
@@ -117,7 +118,7 @@ class RealSenseRecording(Recording):
             pipe.stop()
         if not numbers:
             raise TakeError(f"{self.path}: no colour frames could be read from the recording (truncated or empty)")
-        index = self._index(numbers, times, has_depth, domains, intr, scale, colour.fps())
+        index = self._index(numbers, times, has_depth, domains, intr, scale, colour.fps(), paired)
         index.info["registered"] = registered
         index.info["position_ns"] = [None if n is None else position.get(n) for n in index.keys]
         if registered:
@@ -125,14 +126,16 @@ class RealSenseRecording(Recording):
                                                     "depth recorded already registered to colour (used as is)")
         return index
 
-    def _index(self, numbers, times, has_depth, domains, intr, scale, fps) -> RecordingIndex:
+    def _index(self, numbers, times, has_depth, domains, intr, scale, fps, paired) -> RecordingIndex:
+        """paired: per delivery, whether its frameset held depth. A colour frame the SDK's syncer delivers
+        alone and then again with its depth (seen on a loaded machine) is one frame, not a repeat: a frame
+        counts as repeated when it came more than once with depth, or more than once and never with it."""
         first_time: dict[int, float] = {}
-        repeats: dict[int, int] = {}
-        for n, t in zip(numbers, times):
-            if n in first_time:
-                repeats[n] = repeats.get(n, 0) + 1
-            else:
-                first_time[n] = t
+        counts: dict[int, list[int]] = {}  # frame number -> [deliveries without depth, with depth]
+        for n, t, d in zip(numbers, times, paired):
+            counts.setdefault(n, [0, 0])[int(d)] += 1
+            first_time.setdefault(n, t)
+        repeats = {n: (c[1] if c[1] else c[0]) - 1 for n, c in counts.items() if (c[1] if c[1] else c[0]) > 1}
         nums = sorted(first_time, key=first_time.get)
         fps, stamps, keys, status, message = place_on_time_axis(
             np.array([first_time[n] for n in nums]), nums, float(fps), str(self.path))

@@ -94,3 +94,21 @@ def test_realsense_bag_gives_the_colour_intrinsics_rgb_and_depth_aligned_by_the_
     # ... which is not the depth as recorded: another valid mask, other values (the depth camera's pixels)
     assert ((raw > 0) != valid).mean() > 0.02
     assert (np.abs(raw.astype(np.float32) * np.float32(info["scale"]) - depth) < 1e-6).mean() < 0.5
+
+
+def test_a_colour_frame_the_syncer_delivers_alone_then_with_depth_is_not_a_repeat(tmp_path):
+    """On a loaded machine the SDK's syncer sometimes hands a colour frame over alone and then again with its
+    depth frame: one frame, status ok. A frame that came twice with depth is a repeat (the copy discarded)."""
+    from types import SimpleNamespace
+
+    from demoforge.lib.takes.sources.realsense import RealSenseRecording
+
+    intr = SimpleNamespace(fx=600.0, fy=600.0, ppx=320.0, ppy=240.0, width=640, height=480, model="none",
+                           coeffs=[0.0] * 5)
+    rec = RealSenseRecording.__new__(RealSenseRecording)
+    rec.path = tmp_path / "x.bag"
+    numbers, times = [0, 1, 1, 2, 3, 3], [0.0, 1 / 30, 1 / 30, 2 / 30, 3 / 30, 3 / 30]
+    paired = [True, False, True, True, True, True]  # frame 1: alone, then with depth; frame 3: twice with depth
+    has_depth = {0: True, 1: True, 2: True, 3: True}
+    index = rec._index(numbers, times, has_depth, {"hardware_clock"}, intr, 0.0001, 30, paired)
+    assert dict(zip(index.keys, index.status)) == {0: "ok", 1: "ok", 2: "ok", 3: "repeated_frame"}
