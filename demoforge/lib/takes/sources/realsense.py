@@ -25,6 +25,7 @@ from demoforge.lib.takes.types import TakeError
 WAIT_MS = 200      # one wait for the next frameset; the end of the file is the playback's "stopped"
 STALL_S = 30.0     # no frame for this long while the playback says it is playing: give up
 SEEK_BACK_NS = 200_000_000  # decoding starts this long before the first frame wanted (the seek is not exact)
+INDEX_PASSES = 3   # readings of the file at most, until two agree on the colour frames (build_index)
 
 
 def is_realsense_db3(path: Path) -> bool:
@@ -41,7 +42,8 @@ def is_realsense_db3(path: Path) -> bool:
 
 
 class RealSenseRecording(Recording):
-    version = "3"   # 2: the playback position of every frame (seeking); 3: a frame delivered alone, then with depth, is not a repeat
+    version = "3"   # 2: the playback position of every frame (seeking); 3: a frame delivered alone, then with depth, is not
+    # a repeat, and the file read until two passes agree
 
     def _start(self, seek_ns: int = 0):
         """A started pipeline playing the file as fast as it is read from ``seek_ns`` (the playback's
@@ -83,6 +85,28 @@ class RealSenseRecording(Recording):
                 return
 
     def build_index(self) -> RecordingIndex:
+        # the playback pipeline can lose a frame when the machine is loaded (seen: the first one, or one
+        # handed over twice); a frame the camera dropped is missing from every pass: the file is read until
+        # two passes agree on the colour frames, at most INDEX_PASSES times, and the fullest pass is kept
+        passes = []
+        for _ in range(INDEX_PASSES):
+            passes.append(self._index_pass())
+            if len(passes) > 1 and set(passes[-1][0]) == set(passes[-2][0]):
+                break
+        numbers, times, has_depth, domains, position, paired, intr, scale, fps, registered = max(
+            passes, key=lambda p: len(set(p[0])))
+        index = self._index(numbers, times, has_depth, domains, intr, scale, fps, paired)
+        index.info["registered"] = registered
+        index.info["position_ns"] = [None if n is None else position.get(n) for n in index.keys]
+        if registered:
+            index.notes[0] = index.notes[0].replace("depth aligned to colour by the SDK",
+                                                    "depth recorded already registered to colour (used as is)")
+        return index
+
+    def _index_pass(self) -> tuple:
+        """One reading of the file: (colour frame numbers, their times s, has depth per number, timestamp
+        domains, playback position per number, whether each delivery held depth, intrinsics, depth scale,
+        fps, depth registered to colour)."""
         import pyrealsense2 as rs
 
         pipe, profile, _ = self._start()
@@ -96,8 +120,7 @@ class RealSenseRecording(Recording):
             colour = streams[rs.stream.color].as_video_stream_profile()
             intr = colour.get_intrinsics()
             registered = _registered(streams[rs.stream.depth].as_video_stream_profile(), colour)
-            depth_sensor = profile.get_device().first_depth_sensor()
-            scale = float(depth_sensor.get_depth_scale())
+            scale = float(profile.get_device().first_depth_sensor().get_depth_scale())
             numbers, times, has_depth, domains, position, paired = [], [], {}, set(), {}, []
             playback = profile.get_device().as_playback()
             for fs in self._framesets(pipe, profile):
@@ -118,13 +141,7 @@ class RealSenseRecording(Recording):
             pipe.stop()
         if not numbers:
             raise TakeError(f"{self.path}: no colour frames could be read from the recording (truncated or empty)")
-        index = self._index(numbers, times, has_depth, domains, intr, scale, colour.fps(), paired)
-        index.info["registered"] = registered
-        index.info["position_ns"] = [None if n is None else position.get(n) for n in index.keys]
-        if registered:
-            index.notes[0] = index.notes[0].replace("depth aligned to colour by the SDK",
-                                                    "depth recorded already registered to colour (used as is)")
-        return index
+        return numbers, times, has_depth, domains, position, paired, intr, scale, colour.fps(), registered
 
     def _index(self, numbers, times, has_depth, domains, intr, scale, fps, paired) -> RecordingIndex:
         """paired: per delivery, whether its frameset held depth. A colour frame the SDK's syncer delivers
