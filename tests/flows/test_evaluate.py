@@ -18,6 +18,7 @@ import psutil
 import pyarrow as pa
 import pytest
 from tests.support.paths import HOLD_POINTS
+from tests.support.tables import canonical_table
 
 VENV_BIN = Path(sys.executable).parent
 pytestmark = pytest.mark.slow
@@ -104,14 +105,7 @@ def _same_rows(a: pa.Table, b: pa.Table, root_a: Path, root_b: Path) -> bool:
 
 
 def _table(warehouse: Path, name: str) -> pa.Table:
-    from demoforge.schemas.core import read_table
-
-    t = read_table(name, warehouse)
-    t = t.drop_columns([c for c in t.column_names if c in VOLATILE])
-    # rows in a canonical order: sorted by every scalar column
-    keys = [f.name for f in t.schema if not (pa.types.is_list(f.type) or pa.types.is_fixed_size_list(f.type)
-                                              or pa.types.is_struct(f.type))]
-    return t.sort_by([(k, "ascending") for k in keys])
+    return canonical_table(warehouse, name, VOLATILE)
 
 
 def _check_report(reports: Path, have_photos: bool, have_mediapipe: bool) -> None:
