@@ -11,8 +11,8 @@ Then skill runs shorter than `min_skill` frames and motion gaps shorter than `mi
 removed.  "Held": the gripper is closed (g < 0.5) and the object is the one nearest at the closing frame,
 by the distance to its keypoints' convex hull plus a tenth of the distance to its nearest keypoint (the
 hull: a stem pinched between its keypoints lies farther from all of them than from the rim of the vase
-it stands in; the keypoint: a pinch around a vase lies inside the hulls of the vase and its flowers).  Keypoints may be given per frame (T, K, 3) or at frame 0 only (K, 3):
-then a held object's keypoints are carried rigidly with the gripper from its grasp frame on and stay
+it stands in; the keypoint: a pinch around a vase lies inside the hulls of the vase and its flowers).
+Keypoints may be given per frame (T, K, 3) or at frame 0 only (K, 3): then a held object's keypoints are carried rigidly with the gripper from its grasp frame on and stay
 where released (static scene otherwise).  Each segment's object: for skill, the object it is nearest
 to / acting on (the other object when the held one is brought to it); for motion, the object of the
 next skill (-1 after the last), as the task library labels them.
@@ -86,9 +86,9 @@ def _remove_short(mask: np.ndarray, value: bool, min_len: int) -> np.ndarray:
 def hull_distance(points: np.ndarray, p: np.ndarray) -> float:
     """Distance (m) from p (3,) to the convex hull of points (K, 3), flat or degenerate hulls included: the
     nearest convex combination, as a non-negative least-squares problem whose last row weighs sum = 1."""
-    A = np.vstack([np.asarray(points, float).T, np.full(len(points), HULL_WEIGHT)])
-    w, _ = nnls(A, np.append(np.asarray(p, float), HULL_WEIGHT))
-    return float(np.linalg.norm(np.asarray(points, float).T @ w - p))
+    P = np.asarray(points, float).T  # (3, K)
+    w, _ = nnls(np.vstack([P, np.full(P.shape[1], HULL_WEIGHT)]), np.append(np.asarray(p, float), HULL_WEIGHT))
+    return float(np.linalg.norm(P @ w - p))
 
 
 HULL_WEIGHT = 100.0  # the sum-to-one row's weight: 1e-4 m of slack costs as much as 1 cm off the hull

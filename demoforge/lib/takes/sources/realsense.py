@@ -152,7 +152,8 @@ class RealSenseRecording(Recording):
         for n, t, d in zip(numbers, times, paired):
             counts.setdefault(n, [0, 0])[int(d)] += 1
             first_time.setdefault(n, t)
-        repeats = {n: (c[1] if c[1] else c[0]) - 1 for n, c in counts.items() if (c[1] if c[1] else c[0]) > 1}
+        copies = {n: (with_depth or alone) for n, (alone, with_depth) in counts.items()}  # the count that matters
+        repeats = {n: k - 1 for n, k in copies.items() if k > 1}
         nums = sorted(first_time, key=first_time.get)
         fps, stamps, keys, status, message = place_on_time_axis(
             np.array([first_time[n] for n in nums]), nums, float(fps), str(self.path))

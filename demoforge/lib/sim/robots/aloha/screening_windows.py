@@ -69,10 +69,9 @@ def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.nda
     """(E, T, 2) segmentation.held_objects of each episode of a group (E, T, 2, 8) with its keypoints (E, K, 3)
     (the runs: the group's). An object's score is its hull distance (at most its nearest keypoint's) plus
     NEAREST_KEYPOINT_WEIGHT times that keypoint's distance, so the hull distances are solved only where the
-    bounds (_hull_bounds) leave more than one object in the running."""
+    bounds (_score_bounds) leave more than one object in the running."""
     E, T = traj.shape[:2]
     ko = np.asarray(keypoint_object, int)
-    n_obj = int(ko.max()) + 1
     held = np.full((E, T, 2), -1)
     for arm in range(2):
         for a, b in runs(traj[0, :, arm, 7] < closed_below):  # the group's closed runs
