@@ -355,10 +355,6 @@ TESTED_THROUGH: dict[str, Entry] = {
         "tests/lib/sim/robots/aloha/test_aloha.py",
         "the robot registry (get_robot, choices): tested with the arms",
     ),
-    "demoforge.lib.sim.robots.arm_motion": through(
-        "tests/lib/sim/robots/aloha/test_screening.py",
-        "the arms' motion windows: the screening's windows are compared with the planner's",
-    ),
     "demoforge.lib.sim.robots.base": reached(
         "tests/lib/sim/test_replay.py",
         "the robot interface: implemented by the grippers, the arms and the replay's hands; no test of its "

@@ -19,7 +19,8 @@ What a researcher with two arms does with a human demonstration (MimicGen's reci
    first); each arm moves from there to its window's first configuration along a straight line in
    joint space (a quintic time profile: at rest at both ends) over the frames before its window, and
    after a window that ends with the gripper open, back to the ready pose over the remaining frames,
-   lifting off first (over a waypoint above the window's last pose). A transit into a window that would
+   lifting off first (over a waypoint above the window's last pose; where one that touches nothing is out of
+   the stretched arm's reach, over one drawn back towards its base, RETREATS). A transit into a window that would
    come too close to the table, an object (at its place at the start) or the other arm goes over a
    waypoint LIFTS above the window's first pose instead, in joint space or (where the robot has a closed
    form) down to the window on a straight line of the pinch point (checked on the robot's scene, every
@@ -63,6 +64,7 @@ CARTESIAN_JUMP = 0.5  # rad a joint may move between two frames of a Cartesian t
 ON_PATH_ROUNDS = 3  # rounds of moving the samples between steps onto the path and retiming
 NEAR_WINDOW = 3  # frames of a transit next to its window that the collision check leaves out
 LIFTS = (0.10, 0.20, 0.30, 0.40)  # m: how much higher a transit's waypoint is when the straight transit touches something
+RETREATS = ((0.10, 0.05), (0.15, 0.10), (0.20, 0.0))  # m (back, up): waypoints of a transit out of a window
 
 
 @dataclass
@@ -145,11 +147,13 @@ def _legs(q_from: np.ndarray, q_to: np.ndarray, k: int, via: np.ndarray | None =
     return np.concatenate([_legs(q_from, via, h), _legs(via, q_to, k - h)[1:]]) if k > 1 else _legs(q_from, q_to, k)
 
 
-def _lifted(ik: ArmsIK, arm: int, q: np.ndarray, lift: float) -> np.ndarray | None:
-    """The arm's joints (d,) with its pinch pose at configuration q (nq,) raised by `lift` metres, nearest q
-    (None when the arm cannot reach it)."""
+def _lifted(ik: ArmsIK, arm: int, q: np.ndarray, lift: float, back: float = 0.0) -> np.ndarray | None:
+    """The arm's joints (d,) with its pinch pose at configuration q (nq,) raised by `lift` metres (and drawn
+    `back` metres horizontally towards the arm's base), nearest q (None when the arm cannot reach it)."""
     pos, R = ik.fk(q[None])
-    pose = np.concatenate([pos[0, arm] + [0.0, 0.0, lift], matrix_to_quat(R[0, arm])])
+    towards = ik.base_xy[arm] - pos[0, arm, :2]
+    towards *= back / max(float(np.linalg.norm(towards)), 1e-9)
+    pose = np.concatenate([pos[0, arm] + [*towards, lift], matrix_to_quat(R[0, arm])])
     dofs = ik.arm_dofs[arm]
     for cand, _, ok in ik.candidates(arm, pose, q[dofs], symmetric=False):
         return cand if ok else None
@@ -186,7 +190,8 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
                      entry: bool):
     """The transits _with_transits weighs, in its order of preference: the straight one (into a window), over
     each waypoint LIFTS higher in joint space, then with the straight line of the pinch point (the robot's closed
-    form); the straight one when there is no other. first_end (2, nq): the ready frame's joints and those at the
+    form); the straight one when there is no other; out of a window, then over each waypoint drawn back towards the arm's
+    base (RETREATS). first_end (2, nq): the ready frame's joints and those at the
     window's end of the transit. Generated one at a time: the first clear one ends the search, and a waypoint
     (mink's IK from every seed) is solved only when an option needs it."""
     if entry:
@@ -202,8 +207,14 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
             path = _cartesian_legs(ik, a, first_end[0], q_from, q_to, k, via, entry)
             if path is not None:
                 yield path
-    if not entry and not vias:
-        yield _legs(q_from, q_to, k)
+    if not entry:
+        if not vias:
+            yield _legs(q_from, q_to, k)
+        # an arm stretched out cannot lift its hand as it is: it draws back towards its base first
+        for back, lift in RETREATS:
+            via = _lifted(ik, a, first_end[1], lift, back)
+            if via is not None:
+                yield _legs(q_from, q_to, k, via)
 
 
 def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.ndarray,

@@ -182,6 +182,9 @@ class ArmsIK:
         # the robot has a closed form: refine() starts from it instead of the joints interpolated between steps
         self.analytic = analytic
         self.iterations, self.first_iterations = int(iterations), int(first_iterations)
+        mujoco.mj_kinematics(self.model, self._kinematics)
+        # (2, 2) each arm's first joint's place on the table: where an arm draws back to
+        self.base_xy = np.array([self._kinematics.xpos[self.model.jnt_bodyid[d[0]], :2] for d in self.arm_dofs])
 
     # ------------------------------------------------------------------ poses
     @staticmethod
