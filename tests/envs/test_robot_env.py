@@ -20,9 +20,7 @@ from demoforge.envs.observation import ENV_STATE, STATE
 from demoforge.lib.task_library import TASK_NAMES
 
 TAKES = ("a_demo", "b_fault", "c_mirror")  # the demonstration, its first fault, its mirror image
-# the scripted seed per task, whose demonstration and mirror image the arms execute (empty_vase's seed 1 ends
-# `arm_collision` as the hands enter: tests/test_robot_arms.py SEEDS)
-SEEDS = {"empty_vase": 5}
+SEED = 1  # the scripted demonstration, and its mirror image, that the arms execute in every task
 
 
 def _step_through(env, actions):
@@ -53,7 +51,7 @@ def exported(tmp_path_factory):
     for name in TASK_NAMES:
         task = get_task(name)
         for take, fault, mirror in zip(TAKES, (None, task.faults[0], None), (False, False, True)):
-            batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(SEEDS.get(name, 1), mirror=mirror, fault=fault)),
+            batch = generate_episodes(from_scripted_demo(task, task.scripted_demo(SEED, mirror=mirror, fault=fault)),
                                       n=0, n_mirrored=0, seed=1, workers=1)
             write_table("episodes", episodes_columns(name, take, 1, batch), wh)
             write_table("episode_steps", episode_steps_columns(name, take, batch), wh)

@@ -206,15 +206,9 @@ def test_the_aloha_hand_cannot_open_around_the_bottle(pouring_with_arms):
 
 
 # The scripted demonstrations (seed 1, plain) executed by the arms with the 2F-140 at each task's base
-# placement, as docs/robot-checks.md ("Why the arms fail more often than the grippers") reports them:
-# from their ready pose, slowed where a servo is too slow, four tasks succeed; paper_in_case's left arm
-# runs its elbow and wrist to the ends of their ranges while it carries the paper, and empty_vase's left
-# hand closes beside the flower's stem (the pose the arm reaches is the demonstrated one; the grasp is not).
-# seed 1 of every task: the arms follow the objects' demonstrated motion with grasps of their own
-# (aloha/retargeting.py); before that, paper_in_case ended `joint_limit` and empty_vase `missed_grasp`.
-# empty_vase: seed 5, since its left window turns about the flowers (the held-object rule of
-# trajectories/segmentation.py), not the vase; its seed 1 now ends `arm_collision` as the hands enter.
-SEEDS = {"empty_vase": 5}
+# placement: the arms follow the objects' demonstrated motion with grasps of their own
+# (aloha/retargeting.py), from their ready pose, slowed where a servo is too slow, and every task succeeds.
+# Before the retargeting paper_in_case ended `joint_limit` and empty_vase `missed_grasp`.
 SCRIPTED = {
     "pouring": (None, "10/10 liquid spheres in the cup"),
     "trash_in_bin": (None, "can centre in bin frame"),
@@ -227,7 +221,7 @@ SCRIPTED = {
 
 def test_the_scripted_demonstrations_with_the_arms_end_as_the_docs_say(pouring_with_arms):
     tasks = [t for t in SCRIPTED if t != "pouring"]
-    eps = {t: get_task(t).scripted_demo(SEEDS.get(t, 1)) for t in tasks}
+    eps = {t: get_task(t).scripted_demo(1) for t in tasks}
     got = {t: execute(t, eps[t].placement.object_poses, eps[t].gripper_actions(),
                       options=SimOptions(robot=get_robot("aloha", "2f140"))) for t in tasks}
     got["pouring"] = pouring_with_arms[1]
