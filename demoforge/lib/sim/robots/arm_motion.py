@@ -23,7 +23,8 @@ What a researcher with two arms does with a human demonstration (MimicGen's reci
    the stretched arm's reach, over one drawn back towards its base, RETREATS). A transit into a window that would
    come too close to the table, an object (at its place at the start) or the other arm goes over a
    waypoint LIFTS above the window's first pose instead, in joint space or (where the robot has a closed
-   form) down to the window on a straight line of the pinch point (checked on the robot's scene, every
+   form) down to the window on a straight line of the pinch point, or with the waist turned first at the
+   ready pose's height (the hand passes high over what lies between) (checked on the robot's scene, every
    frame but the NEAR_WINDOW next to the window; the first option clear, else the one least in
    contact); the physics then checks every transit like any motion (a link in the table is
    `link_collision`).
@@ -147,6 +148,14 @@ def _legs(q_from: np.ndarray, q_to: np.ndarray, k: int, via: np.ndarray | None =
     return np.concatenate([_legs(q_from, via, h), _legs(via, q_to, k - h)[1:]]) if k > 1 else _legs(q_from, q_to, k)
 
 
+def _through(points: list[np.ndarray], k: int) -> np.ndarray:
+    """(k + 1, d) joints along straight lines in joint space through `points`, the k frames shared evenly
+    among the legs, each with a quintic profile (at rest at every point)."""
+    ends = np.linspace(0, k, len(points)).round().astype(int)
+    legs = [_legs(p, q, int(e1 - e0)) for p, q, e0, e1 in zip(points, points[1:], ends, ends[1:])]
+    return np.concatenate([legs[0], *(leg[1:] for leg in legs[1:])])
+
+
 def _lifted(ik: ArmsIK, arm: int, q: np.ndarray, lift: float, back: float = 0.0) -> np.ndarray | None:
     """The arm's joints (d,) with its pinch pose at configuration q (nq,) raised by `lift` metres (and drawn
     `back` metres horizontally towards the arm's base), nearest q (None when the arm cannot reach it)."""
@@ -191,7 +200,8 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
     """The transits _with_transits weighs, in its order of preference: the straight one (into a window), over
     each waypoint LIFTS higher in joint space, then with the straight line of the pinch point (the robot's closed
     form); the straight one when there is no other; out of a window, then over each waypoint drawn back towards the arm's
-    base (RETREATS). first_end (2, nq): the ready frame's joints and those at the
+    base (RETREATS); last, over each lifted waypoint with the waist turned first at the ready pose (last, out of
+    a window). first_end (2, nq): the ready frame's joints and those at the
     window's end of the transit. Generated one at a time: the first clear one ends the search, and a waypoint
     (mink's IK from every seed) is solved only when an option needs it."""
     if entry:
@@ -215,6 +225,12 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
             via = _lifted(ik, a, first_end[1], lift, back)
             if via is not None:
                 yield _legs(q_from, q_to, k, via)
+    # the waist turned at the ready pose's height, so the hand passes high over what lies between
+    for via in vias:
+        ready = q_from if entry else q_to
+        turned = ready.copy()
+        turned[0] = via[0]
+        yield _through([q_from, turned, via, q_to] if entry else [q_from, via, turned, q_to], k)
 
 
 def _with_transits(ik: ArmsIK, sol: IKSolution, windows: np.ndarray, ready: np.ndarray,

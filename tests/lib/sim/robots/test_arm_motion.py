@@ -56,3 +56,31 @@ def test_the_way_out_of_a_window_avoids_what_the_direct_way_passes_through():
     Q = arm_motion._with_transits(ik, sol, np.array([[0, w1], [0, 0]]), rest, collides)
     assert not collides(Q[w1:]).any()
     assert np.allclose(Q[-1], rest) and np.allclose(Q[w1], q)
+
+
+def test_a_transit_through_waypoints_stops_at_each_of_them():
+    points = [np.zeros(6), np.full(6, 1.0), np.array([1.0, 2, 0, 0, 0, 0]), np.full(6, -1.0)]
+    path = arm_motion._through(points, 30)
+    assert path.shape == (31, 6)
+    for i, p in zip((0, 10, 20, 30), points):
+        assert np.allclose(path[i], p)
+        speed = np.abs(np.diff(path, axis=0))
+        assert i == 0 or np.abs(path[i] - path[i - 1]).max() < speed.max() / 5  # at rest there
+
+
+def test_the_hand_passes_over_the_bottle_on_its_way_to_the_grasp():
+    """pouring's seed-2 demonstration: every joint-space way into the left window, over a lifted waypoint
+    or not, sweeps the open fingers through the bottle's top (the ready pose lies beyond the bottle); the
+    way with the waist turned first at the ready pose's height passes over it, so the bottle stands
+    still until the hand closes on it, and the pour succeeds."""
+    from demoforge.lib.sim import SimOptions, execute
+    from demoforge.lib.sim.robots import get_robot
+    from demoforge.lib.task_library import get_task
+
+    demo = get_task("pouring").scripted_demo(2)
+    r = execute("pouring", demo.placement.object_poses, demo.gripper_actions(),
+                options=SimOptions(robot=get_robot("aloha", "2f140"), keep_trajectory=True))
+    assert r.success, (r.failure, r.detail)
+    closed = int(np.argmax(r.command_g[:, 0] < 0.5))
+    bottle = r.object_poses[:closed, 0, :3, 3]
+    assert np.linalg.norm(bottle - bottle[0], axis=-1).max() < 0.005

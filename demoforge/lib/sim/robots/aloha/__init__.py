@@ -52,7 +52,7 @@ HANDS = ("aloha", "2f140")
 # task, fingertips 2 mm above the table, a thin held object turns only in a hand that grips it; 9: the held
 # object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's).
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "12"  # 10 was d6928b5's, reverted: its cached results must not match
+IK_VERSION = "13"  # 10 was d6928b5's, reverted: its cached results must not match
 # mink's collision limits in the IK (lib/sim/robots/ik.py): the two forearms, wrists and hands apart, every link
 # from the upper arm on above the table top; (geoms, geoms, distance kept m)
 _FOREARM = ("5_lower_forearm", "6_wrist", "7_gripper")
