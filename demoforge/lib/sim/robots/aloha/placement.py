@@ -26,15 +26,17 @@ from .model import BasePose
 
 #: the left arm's base per task (the right arm's: BasePose.mirrored()); yaw pi/2 = facing +y. The yaw
 #: only moves where the waist's +-180 degrees end, so the search keeps it fixed. Chosen by
-#: `scripts/place_aloha_bases.py --seeds 2` (both hands; the best mean share of reachable steps):
+#: `scripts/place_aloha_bases.py --seeds 2` (both hands; the best mean share of reachable steps), except
+#: open_container's and empty_vase's, chosen in physics (`--physics`, then a sample of each database:
+#: docs/robot-checks.md, "Where the arms stand"). At the reachable-steps choice open_container's right
+#: arm held the container low beside its riser, its shoulder at its limit, and empty_vase's left hand laid
+#: the flowers down over its own shoulder.
 PLACEMENTS: dict[str, BasePose] = {
     "pouring": BasePose(-0.45, 0.05, 0.15, math.pi / 2),
     "trash_in_bin": BasePose(-0.35, -0.05, 0.15, math.pi / 2),
     "paper_in_case": BasePose(-0.45, 0.05, 0.15, math.pi / 2),
     "mix_bowl": BasePose(-0.45, 0.05, 0.15, math.pi / 2),
-    "open_container": BasePose(-0.45, 0.05, 0.15, math.pi / 2),
-    # empty_vase: the IK search's (-0.45, 0.15, 0) had the flowers laid down over the left arm's own shoulder
-    # (unreachable, link_collision); this one was chosen in physics (docs/robot-checks.md, "Where the arms stand")
+    "open_container": BasePose(-0.35, -0.05, 0.15, math.pi / 2),
     "empty_vase": BasePose(-0.45, 0.05, 0.15, math.pi / 2),
 }
 DEFAULT = BasePose(-0.45, 0.05, 0.15, math.pi / 2)  # a task the table does not list (custom tasks)
