@@ -52,7 +52,7 @@ HANDS = ("aloha", "2f140")
 # task, fingertips 2 mm above the table, a thin held object turns only in a hand that grips it; 9: the held
 # object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's).
 # Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "13"  # 10 was d6928b5's, reverted: its cached results must not match
+IK_VERSION = "14"  # 10 was d6928b5's, reverted: its cached results must not match
 # mink's collision limits in the IK (lib/sim/robots/ik.py): the two forearms, wrists and hands apart, every link
 # from the upper arm on above the table top; (geoms, geoms, distance kept m)
 _FOREARM = ("5_lower_forearm", "6_wrist", "7_gripper")
@@ -248,8 +248,9 @@ class AlohaBinding(RobotBinding):
     def collision_check(self, scene, object_poses):
         """rows (k, 12) of both arms' joints -> (k, 2) bool: the arm comes within TRANSIT_CLEARANCE of the table,
         an object at its place at the episode's start, or the other arm (the scene's contact tables; the fingers
-        open to the gripper's opening). The clearance absorbs what the executed transit deviates from the planned one (the servos'
-        lag, the retiming)."""
+        open to the gripper's opening), or its pinch point leaves the task's workspace by more than the arms'
+        slack (the physics check allows the workspace margin more). The clearance absorbs what the executed
+        transit deviates from the planned one (the servos' lag, the retiming)."""
         import copy
 
         import mujoco
@@ -264,12 +265,15 @@ class AlohaBinding(RobotBinding):
         scene.place_objects(d, np.asarray(object_poses, float))
         d.qpos[self.finger_qadr] = (self.spec.stroke - self.spec.opening) / 2  # open as the executor opens them
         kind, arm_of = scene.pair_kind, self.geom_arm
+        lo, hi = scene.workspace[0] - self.hand_workspace_slack, scene.workspace[1] + self.hand_workspace_slack
 
         def collides(rows: np.ndarray) -> np.ndarray:
             out = np.zeros((len(rows), 2), bool)
             for i, q in enumerate(rows):
                 d.qpos[self.arm_qadr] = q
                 mujoco.mj_kinematics(m, d)
+                pinch = d.site_xpos[self.pinch]
+                out[i] = ((pinch < lo) | (pinch > hi)).any(axis=1)
                 mujoco.mj_collision(m, d)
                 for g1, g2 in d.contact.geom[:d.ncon]:
                     if kind[g1, g2]:

@@ -333,3 +333,19 @@ def test_a_grasp_turned_half_a_turn_is_followed_with_the_nearest_wrist():
     assert sol.flipped[0] and np.abs(sol.q[:, :6] - q[:, :6]).max() < 0.02, sol.q[:, :6] - q[:, :6]
     direct = ik.follow(turned, windows, reference=rest, symmetric=False)
     assert not direct.flipped[0] and abs(direct.q[0, 5] - rest[5]) > 2.5  # the wrist half a turn away
+
+
+def test_the_transit_check_flags_a_hand_raised_out_of_the_workspace():
+    """The transits' check (AlohaBinding.collision_check) flags an arm whose pinch point leaves the task's
+    workspace by more than the arms' slack, as the physics check would fail it (`left_workspace`): the
+    planner then takes another way. The ready pose is inside; the left forearm pointing up is not."""
+    from demoforge.lib.sim.executor import as_object_poses, get_scene
+
+    opt = SimOptions(robot=get_robot("aloha", "2f140"))
+    sc = get_scene("trash_in_bin", opt.robot, opt.physics)
+    demo = get_task("trash_in_bin").scripted_demo(1)
+    collides = sc.binding.collision_check(sc, as_object_poses(sc.task, demo.placement.object_poses))
+    rest = np.array(REST * 2)
+    up = rest.copy()
+    up[1], up[2] = 0.0, -1.5  # shoulder upright, elbow bent up: the hand over a metre high
+    assert collides(np.stack([rest, up])).tolist() == [[False, False], [True, False]]
