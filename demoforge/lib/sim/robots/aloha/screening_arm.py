@@ -136,14 +136,13 @@ class _Turner:
         if self.O is None:
             pos, R = self.turned(np.broadcast_to(theta, (len(self.P), len(theta))))
             return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
-        # turned()'s arithmetic on the parts wanted only: the position and approach axis whole, the x and y
-        # axes' heights (a third of the work of every turned pose)
+        # turned()'s arithmetic on the eight numbers wanted only (the position and approach axis, the x and y
+        # axes' heights), laid out as one contiguous last axis: a third less work, no short strided inner loops
         c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]  # (1, C, 1, 1)
-        ends = [x[:, None, :, 0::3] for x in (self.par, self.perp, self.cross)]  # (E, 1, S, 2, 3)
-        v = ends[0] + c[..., None] * ends[1] + s[..., None] * ends[2]  # (E, C, S, 2, 3)
-        zs = [x[:, None, :, 1:3, 2] for x in (self.par, self.perp, self.cross)]  # (E, 1, S, 2)
-        z = zs[0] + c * zs[1] + s * zs[2]
-        return v[..., 0, :] + self.ctr[:, None], v[..., 1, :], z[..., 0], z[..., 1]
+        par, perp, cross = (np.concatenate([x[..., 0, :], x[..., 3, :], x[..., 1:3, 2]], axis=-1)[:, None]
+                            for x in (self.par, self.perp, self.cross))  # (E, 1, S, 8)
+        v = par + c * perp + s * cross  # (E, C, S, 8)
+        return v[..., 0:3] + self.ctr[:, None], v[..., 3:6], v[..., 6], v[..., 7]
 
 
 class _Poses:
