@@ -185,43 +185,48 @@ def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[n
     return closes, wrist, lowest - ctx.clearance > -LIFT_TOLERANCE
 
 
-def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, out: tuple | None = None,
+           at: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """(q (n, 8, 6), margin (n, 8), the last joint of the half-turned grasp (n, 8), its margin) of pinch poses
-    pos (n, 3), R (n, 3, 3). The gripper's half-turn about its approach axis is the last joint's angle plus pi,
-    nothing else (its range is a full turn: every other joint's margin stays). A joint's margin is
-    half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
+    pos (n, 3), R (n, 3, 3), or written into the rows at (n,) of `out` (four arrays, those shapes but longer:
+    no compact copy to scatter afterwards). The gripper's half-turn about its approach axis is the last joint's
+    angle plus pi, nothing else (its range is a full turn: every other joint's margin stays). A joint's margin
+    is half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
     joints are the two wrist branches' own: once)."""
     sv = ctx.solver
     n = len(pos)
-    q, m, q5f, mf = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    if out is None:
+        out = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    q, m, q5f, mf = out
     for i in range(0, n, SOLVE_CHUNK):
         part = slice(i, i + SOLVE_CHUNK)
+        dst = part if at is None else at[part]
         qj = sv.joints(base, pos[part], R[part])  # (6, k, 8)
-        q[part] = np.moveaxis(qj, 0, -1)
+        q[dst] = np.moveaxis(qj, 0, -1)
         arm = sv.half[0] - np.abs(qj[0, :, :4] - sv.mid[0])
         for j in (1, 2):
             np.minimum(arm, sv.half[j] - np.abs(qj[j, :, :4] - sv.mid[j]), out=arm)
         m04 = np.concatenate([arm, arm], axis=1)
         for j in (3, 4):
             np.minimum(m04, sv.half[j] - np.abs(qj[j] - sv.mid[j]), out=m04)
-        m[part] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
+        m[dst] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
         off = qj[5] + np.pi - sv.mid[5]
         off -= _TAU * np.rint(off / _TAU)
-        q5f[part] = off + sv.mid[5]
-        mf[part] = np.minimum(m04, sv.half[5] - np.abs(off))
+        q5f[dst] = off + sv.mid[5]
+        mf[dst] = np.minimum(m04, sv.half[5] - np.abs(off))
     return q, m, q5f, mf
 
 
 def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
     """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
-    its joints 0. (By flat indices: numpy's scatter by a mask runs at a few ns an element.)"""
+    its joints 0. (By flat indices, chunk by chunk straight into place: numpy's scatter by a mask runs at a few
+    ns an element.)"""
     q = np.zeros(cells.shape + (8, 6))
     m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
     cell = np.flatnonzero(cells)
     if len(cell):
-        sol = _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)))
-        for out, v in zip((q, m, q5f, mf), sol):
-            out.reshape((-1,) + v.shape[1:])[cell] = v
+        flat = tuple(x.reshape((-1,) + x.shape[cells.ndim:]) for x in (q, m, q5f, mf))
+        _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)), out=flat, at=cell)
     return q, m, q5f, mf
 
 
