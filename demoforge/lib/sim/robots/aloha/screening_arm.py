@@ -174,9 +174,10 @@ class _Poses:
             P = np.take(t.P.reshape(-1, 4, 4), flat, axis=0)
             return P[:, :3, 3].copy(), P[:, :3, :3].copy()
         th = self.theta[e, c]
-        cos, sin = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
-        par, perp, cross = (np.take(x.reshape(-1, 4, 3), flat, axis=0) for x in (t.par, t.perp, t.cross))
-        v = par + cos * perp + sin * cross
+        cos, sin = np.cos(th)[:, None], np.sin(th)[:, None]
+        # each cell's four vectors as one row of 12 (a contiguous inner loop, not 4 x 3 broadcast)
+        par, perp, cross = (np.take(x.reshape(-1, 12), flat, axis=0) for x in (t.par, t.perp, t.cross))
+        v = (par + cos * perp + sin * cross).reshape(-1, 4, 3)
         return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
 
 
