@@ -145,7 +145,10 @@ def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
         prev = np.take(Q[s - 1, 3:5], predT, axis=2).reshape(2, E, P, N)
         cur = Q[s, 3:5, :, None]
         jump = np.maximum(np.abs(prev[0] - cur[0]), np.abs(prev[1] - cur[1]))
-        np.maximum(jump.reshape(E, m, 2, C, 2, K), arm.reshape(E, m, 1, C, 1, K), out=jump.reshape(E, m, 2, C, 2, K))
+        # the arm's move into each state (both its wrist branches), broadcast over the predecessor's wrist branch
+        # only (a long inner loop: broadcast over both, the innermost was K long)
+        arm = np.repeat(arm.reshape(E, m, C, 1, K), 2, axis=3).reshape(E, m, 1, N)
+        np.maximum(jump.reshape(E, m, 2, N), arm, out=jump.reshape(E, m, 2, N))
         j5 = np.abs(np.take(Q[s - 1, 5:], predT, axis=2).reshape(F, E, P, N) - Q[s, 5:, :, None])
         np.maximum(j5, jump, out=j5)
         step = moveT + bad * (turnT & ~may_turn[:, s, None, None])  # (E, P, N)
