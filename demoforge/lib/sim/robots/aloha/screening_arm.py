@@ -524,16 +524,17 @@ def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.
     """(E, C, S) the poses (turn, sample) that some path of turns through poses that pass the checks ok (E, C, S)
     reaches from the first sample to the last (moving to neighbours where the turn may change)."""
     E, C, S = ok.shape
+    ok = np.ascontiguousarray(ok.transpose(2, 0, 1))  # (S, E, C): each sample's plane contiguous
     fwd, bwd = np.zeros_like(ok), np.zeros_like(ok)
-    fwd[:, :, 0], bwd[:, :, S - 1] = ok[:, :, 0], ok[:, :, S - 1]
+    fwd[0], bwd[S - 1] = ok[0], ok[S - 1]
 
     def step(r, s):  # the turns reachable from set r across the move into sample s
         return np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
 
     for s in range(1, S):
-        fwd[:, :, s] = ok[:, :, s] & step(fwd[:, :, s - 1], s)
-        bwd[:, :, S - 1 - s] = ok[:, :, S - 1 - s] & step(bwd[:, :, S - s], S - s)
-    return fwd & bwd
+        fwd[s] = ok[s] & step(fwd[s - 1], s)
+        bwd[S - 1 - s] = ok[S - 1 - s] & step(bwd[S - s], S - s)
+    return np.ascontiguousarray((fwd & bwd).transpose(1, 2, 0))
 
 
 def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
