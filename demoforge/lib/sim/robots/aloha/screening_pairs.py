@@ -48,7 +48,8 @@ def _points_at(ctx: ArmsContext, base, tr: dict, steps: np.ndarray) -> np.ndarra
     w = np.clip(np.where(x1 > x0, (steps - x0) / np.maximum(x1 - x0, 1), 0.0), 0.0, 1.0)[..., None]
     q = (1 - w) * tr["q"][e, lo] + w * tr["q"][e, hi]
     near = np.abs(np.where(valid[:, None, :], xp[:, None, :], 10 ** 9) - steps[:, :, None]).argmin(axis=2)
-    out = np.concatenate([segments(ctx, base, q), tr["hand"][e, near]], axis=-2)
+    out = segments(ctx, base, q, extra=6)
+    out[..., 10:, :] = tr["hand"][e, near]
     out[(steps < xp[:, :1]) | (steps > xp[np.arange(n), count - 1][:, None])] = np.nan
     return out
 

@@ -25,13 +25,18 @@ GROUPS = (slice(0, 5), slice(5, 10), slice(10, 16))
 SLACK = 1e-5
 
 
-def segments(ctx, base, q: np.ndarray, k: int = 5) -> np.ndarray:
-    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
-    (grasp_choice._segment_points)."""
+def segments(ctx, base, q: np.ndarray, k: int = 5, extra: int = 0) -> np.ndarray:
+    """(..., 2k + extra, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
+    (grasp_choice._segment_points), then `extra` slots for the caller to fill. Point by point on whole
+    (..., 3) arrays (one contiguous loop each, not a broadcast over a 3-long inner axis)."""
     p = ctx.solver.points(base, q)
-    u = np.linspace(0.0, 1.0, k)[:, None]
-    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
-    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
+    u = np.linspace(0.0, 1.0, k)
+    out = np.empty(q.shape[:-1] + (2 * k + extra, 3))
+    for i, (a, b) in enumerate((("elbow", "wrist"), ("wrist", "pinch"))):
+        start, d = p[a], p[b] - p[a]
+        for j in range(k):
+            out[..., i * k + j, :] = start + u[j] * d
+    return out
 
 
 def hand_points(ctx, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
