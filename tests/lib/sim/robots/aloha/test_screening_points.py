@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext
+from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance, segments
 
 
 def test_the_smallest_distance_is_the_plain_pairwise_one():
@@ -24,6 +26,19 @@ def test_the_smallest_distance_is_the_plain_pairwise_one():
     assert got.shape == (40, 7) and got.dtype == np.float32 and np.isnan(got[3, 2])
     assert np.array_equal(got, plain, equal_nan=True)
     assert min_distance(a[:0, 0], b[0, :0]).shape == (0,)
+
+
+def test_the_segment_points_are_the_plain_interpolation():
+    """segments (point by point, room left for the hand) against grasp_choice's elbow + u (wrist - elbow) and
+    wrist + u (pinch - wrist) broadcast over u, bit for bit."""
+    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
+    q = np.random.default_rng(6).uniform(-1.5, 1.5, (30, 4, 6))
+    p = ctx.solver.points(ctx.bases[1], q)
+    u = np.linspace(0.0, 1.0, 5)[:, None]
+    e, w, t = (p[k][..., None, :] for k in ("elbow", "wrist", "pinch"))
+    got = segments(ctx, ctx.bases[1], q, extra=6)
+    assert got.shape == (30, 4, 16, 3)
+    assert np.array_equal(got[..., :10, :], np.concatenate([e + u * (w - e), w + u * (t - w)], axis=-2))
 
 
 def test_the_other_arm_near_a_turned_hand_is_the_point_test():
