@@ -48,7 +48,18 @@ class ArmsContext:
         self.symmetries = np.array([o.symmetry for o in self.task.objects], int)
         g = self.solver.g
         self.l1, self.l2, self.shoulder_z, self.w2p = g.l1, g.l2, g.shoulder_z, g.wrist_to_pinch
+        self._scratch: dict = {}
 
+    def scratch(self, name: str, shape: tuple, fill: float) -> np.ndarray:
+        """An array of `shape` filled with `fill`, in memory kept for `name` from pass to pass: a pass's largest
+        arrays (tens of MB) freshly allocated would have the kernel map and zero every page again (a fault per
+        4 kB: about a tenth of the run). Valid until the next call with the same name."""
+        size = int(np.prod(shape))
+        if name not in self._scratch or len(self._scratch[name]) < size:
+            self._scratch[name] = np.empty(size)
+        out = self._scratch[name][:size].reshape(shape)
+        out.fill(fill)
+        return out
 
 
 class ArmScreen:
@@ -133,8 +144,16 @@ class _Turner:
     def check_parts(self, theta: np.ndarray) -> tuple[np.ndarray, ...]:
         """For every episode, turn (C,) and sample: pinch position (E, C, S, 3), approach axis (E, C, S, 3) and
         the z (height) parts of the gripper's x and y axes (E, C, S): all the pose checks need."""
-        pos, R = self.turned(np.broadcast_to(theta, (len(self.P), len(theta))))
-        return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
+        if self.O is None:
+            pos, R = self.turned(np.broadcast_to(theta, (len(self.P), len(theta))))
+            return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
+        # turned()'s arithmetic on the eight numbers wanted only (the position and approach axis, the x and y
+        # axes' heights), laid out as one contiguous last axis: a third less work, no short strided inner loops
+        c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]  # (1, C, 1, 1)
+        par, perp, cross = (np.concatenate([x[..., 0, :], x[..., 3, :], x[..., 1:3, 2]], axis=-1)[:, None]
+                            for x in (self.par, self.perp, self.cross))  # (E, 1, S, 8)
+        v = par + c * perp + s * cross  # (E, C, S, 8)
+        return v[..., 0:3] + self.ctr[:, None], v[..., 3:6], v[..., 6], v[..., 7]
 
 
 class _Poses:
@@ -155,9 +174,10 @@ class _Poses:
             P = np.take(t.P.reshape(-1, 4, 4), flat, axis=0)
             return P[:, :3, 3].copy(), P[:, :3, :3].copy()
         th = self.theta[e, c]
-        cos, sin = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
-        par, perp, cross = (np.take(x.reshape(-1, 4, 3), flat, axis=0) for x in (t.par, t.perp, t.cross))
-        v = par + cos * perp + sin * cross
+        cos, sin = np.cos(th)[:, None], np.sin(th)[:, None]
+        # each cell's four vectors as one row of 12 (a contiguous inner loop, not 4 x 3 broadcast)
+        par, perp, cross = (np.take(x.reshape(-1, 12), flat, axis=0) for x in (t.par, t.perp, t.cross))
+        v = (par + cos * perp + sin * cross).reshape(-1, 4, 3)
         return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
 
 
@@ -177,43 +197,50 @@ def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[n
     return closes, wrist, lowest - ctx.clearance > -LIFT_TOLERANCE
 
 
-def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, out: tuple | None = None,
+           at: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """(q (n, 8, 6), margin (n, 8), the last joint of the half-turned grasp (n, 8), its margin) of pinch poses
-    pos (n, 3), R (n, 3, 3). The gripper's half-turn about its approach axis is the last joint's angle plus pi,
-    nothing else (its range is a full turn: every other joint's margin stays). A joint's margin is
-    half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
+    pos (n, 3), R (n, 3, 3), or written into the rows at (n,) of `out` (four arrays, those shapes but longer:
+    no compact copy to scatter afterwards). The gripper's half-turn about its approach axis is the last joint's
+    angle plus pi, nothing else (its range is a full turn: every other joint's margin stays). A joint's margin
+    is half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
     joints are the two wrist branches' own: once)."""
     sv = ctx.solver
     n = len(pos)
-    q, m, q5f, mf = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    if out is None:
+        out = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
+    q, m, q5f, mf = out
     for i in range(0, n, SOLVE_CHUNK):
         part = slice(i, i + SOLVE_CHUNK)
+        dst = part if at is None else at[part]
         qj = sv.joints(base, pos[part], R[part])  # (6, k, 8)
-        q[part] = np.moveaxis(qj, 0, -1)
+        q[dst] = np.moveaxis(qj, 0, -1)
         arm = sv.half[0] - np.abs(qj[0, :, :4] - sv.mid[0])
         for j in (1, 2):
             np.minimum(arm, sv.half[j] - np.abs(qj[j, :, :4] - sv.mid[j]), out=arm)
         m04 = np.concatenate([arm, arm], axis=1)
         for j in (3, 4):
             np.minimum(m04, sv.half[j] - np.abs(qj[j] - sv.mid[j]), out=m04)
-        m[part] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
+        m[dst] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
         off = qj[5] + np.pi - sv.mid[5]
         off -= _TAU * np.rint(off / _TAU)
-        q5f[part] = off + sv.mid[5]
-        mf[part] = np.minimum(m04, sv.half[5] - np.abs(off))
+        q5f[dst] = off + sv.mid[5]
+        mf[dst] = np.minimum(m04, sv.half[5] - np.abs(off))
     return q, m, q5f, mf
 
 
 def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
     """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
-    its joints 0. (By flat indices: numpy's scatter by a mask runs at a few ns an element.)"""
-    q = np.zeros(cells.shape + (8, 6))
-    m, q5f, mf = np.full(cells.shape + (8,), -np.inf), np.zeros(cells.shape + (8,)), np.full(cells.shape + (8,), -np.inf)
+    its joints 0. (By flat indices, chunk by chunk straight into place: numpy's scatter by a mask runs at a few
+    ns an element.)"""
+    # (in ctx's scratch memory: every caller is done with a pass's joints before it solves the next)
+    q = ctx.scratch("q", cells.shape + (8, 6), 0.0)
+    m, q5f = ctx.scratch("m", cells.shape + (8,), -np.inf), ctx.scratch("q5f", cells.shape + (8,), 0.0)
+    mf = ctx.scratch("mf", cells.shape + (8,), -np.inf)
     cell = np.flatnonzero(cells)
     if len(cell):
-        sol = _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)))
-        for out, v in zip((q, m, q5f, mf), sol):
-            out.reshape((-1,) + v.shape[1:])[cell] = v
+        flat = tuple(x.reshape((-1,) + x.shape[cells.ndim:]) for x in (q, m, q5f, mf))
+        _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)), out=flat, at=cell)
     return q, m, q5f, mf
 
 
@@ -497,16 +524,17 @@ def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.
     """(E, C, S) the poses (turn, sample) that some path of turns through poses that pass the checks ok (E, C, S)
     reaches from the first sample to the last (moving to neighbours where the turn may change)."""
     E, C, S = ok.shape
+    ok = np.ascontiguousarray(ok.transpose(2, 0, 1))  # (S, E, C): each sample's plane contiguous
     fwd, bwd = np.zeros_like(ok), np.zeros_like(ok)
-    fwd[:, :, 0], bwd[:, :, S - 1] = ok[:, :, 0], ok[:, :, S - 1]
+    fwd[0], bwd[S - 1] = ok[0], ok[S - 1]
 
     def step(r, s):  # the turns reachable from set r across the move into sample s
         return np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
 
     for s in range(1, S):
-        fwd[:, :, s] = ok[:, :, s] & step(fwd[:, :, s - 1], s)
-        bwd[:, :, S - 1 - s] = ok[:, :, S - 1 - s] & step(bwd[:, :, S - s], S - s)
-    return fwd & bwd
+        fwd[s] = ok[s] & step(fwd[s - 1], s)
+        bwd[S - 1 - s] = ok[S - 1 - s] & step(bwd[S - s], S - s)
+    return np.ascontiguousarray((fwd & bwd).transpose(1, 2, 0))
 
 
 def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -48,7 +48,8 @@ def _points_at(ctx: ArmsContext, base, tr: dict, steps: np.ndarray) -> np.ndarra
     w = np.clip(np.where(x1 > x0, (steps - x0) / np.maximum(x1 - x0, 1), 0.0), 0.0, 1.0)[..., None]
     q = (1 - w) * tr["q"][e, lo] + w * tr["q"][e, hi]
     near = np.abs(np.where(valid[:, None, :], xp[:, None, :], 10 ** 9) - steps[:, :, None]).argmin(axis=2)
-    out = np.concatenate([segments(ctx, base, q), tr["hand"][e, near]], axis=-2)
+    out = segments(ctx, base, q, extra=6)
+    out[..., 10:, :] = tr["hand"][e, near]
     out[(steps < xp[:, :1]) | (steps > xp[np.arange(n), count - 1][:, None])] = np.nan
     return out
 
@@ -104,9 +105,16 @@ class Shared:
     def of_slots(self, a: int, slot: np.ndarray, sub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arm a's points and radii at the shared steps of the rows sub (indices into rows) for their witnesses
         slot (len(sub),)."""
-        (p0, r0), (p1, r1) = self.points(a, 0), self.points(a, 1)
-        first = slot == 0
-        return np.where(first[:, None, None, None], p0[sub], p1[sub]), np.where(first[:, None], r0[sub], r1[sub])
+        p0, r0 = self.points(a, 0)
+        pts, rad = np.empty((len(sub),) + p0.shape[1:]), np.empty((len(sub),) + r0.shape[1:])
+        # each row copied once from its slot's points (a where() over both copies costs three times), the
+        # half-turned witness's points made only if some row keeps it
+        for k in (0, 1):
+            at = np.flatnonzero(slot == k)
+            if len(at):
+                p, r = self.points(a, k)
+                pts[at], rad[at] = p[sub[at]], r[sub[at]]
+        return pts, rad
 
 
 def forearms(ctx: ArmsContext, arms: list, cands: list, traj: np.ndarray) -> tuple[np.ndarray, ...]:

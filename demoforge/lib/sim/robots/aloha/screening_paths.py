@@ -110,11 +110,13 @@ def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
     pred, move, turning = _states(*moves, K)
     N, P = pred.shape
     predT = pred.T.ravel()  # predecessor-major: (P, N) planes
-    # the joints (S, 7, E, N): the arm's five, then the last per half-turn; one strided copy per arm branch
+    # the joints (S, 7, E, N): the arm's five, then the last per half-turn; per arm branch a float32 copy sample
+    # first, then the joint axis moved in (two copies with short strides: a third faster than one long-strided)
     Q = np.empty((S, 7, E, C, 2, K), np.float32)
     q6, q5f6 = q.reshape(E, C, S, 2, 4, 6), q5f.reshape(E, C, S, 2, 4)
     for i, k in enumerate(ks):
-        Q[:, :6, ..., i] = q6[..., k, :].transpose(2, 4, 0, 1, 3)
+        by_sample = np.ascontiguousarray(q6[..., k, :].transpose(2, 0, 1, 3, 4), np.float32)  # (S, E, C, 2, 6)
+        Q[:, :6, ..., i] = by_sample.transpose(0, 4, 1, 2, 3)
         Q[:, 6, ..., i] = q5f6[..., k].transpose(2, 0, 1, 3)
     Q = Q.reshape(S, 7, E, N)
     g = good.reshape(E, F, C, S, 2, 4)[..., ks]
@@ -143,7 +145,10 @@ def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
         prev = np.take(Q[s - 1, 3:5], predT, axis=2).reshape(2, E, P, N)
         cur = Q[s, 3:5, :, None]
         jump = np.maximum(np.abs(prev[0] - cur[0]), np.abs(prev[1] - cur[1]))
-        np.maximum(jump.reshape(E, m, 2, C, 2, K), arm.reshape(E, m, 1, C, 1, K), out=jump.reshape(E, m, 2, C, 2, K))
+        # the arm's move into each state (both its wrist branches), broadcast over the predecessor's wrist branch
+        # only (a long inner loop: broadcast over both, the innermost was K long)
+        arm = np.repeat(arm.reshape(E, m, C, 1, K), 2, axis=3).reshape(E, m, 1, N)
+        np.maximum(jump.reshape(E, m, 2, N), arm, out=jump.reshape(E, m, 2, N))
         j5 = np.abs(np.take(Q[s - 1, 5:], predT, axis=2).reshape(F, E, P, N) - Q[s, 5:, :, None])
         np.maximum(j5, jump, out=j5)
         step = moveT + bad * (turnT & ~may_turn[:, s, None, None])  # (E, P, N)

@@ -25,13 +25,18 @@ GROUPS = (slice(0, 5), slice(5, 10), slice(10, 16))
 SLACK = 1e-5
 
 
-def segments(ctx, base, q: np.ndarray, k: int = 5) -> np.ndarray:
-    """(..., 2k, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
-    (grasp_choice._segment_points)."""
+def segments(ctx, base, q: np.ndarray, k: int = 5, extra: int = 0) -> np.ndarray:
+    """(..., 2k + extra, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
+    (grasp_choice._segment_points), then `extra` slots for the caller to fill. Point by point on whole
+    (..., 3) arrays (one contiguous loop each, not a broadcast over a 3-long inner axis)."""
     p = ctx.solver.points(base, q)
-    u = np.linspace(0.0, 1.0, k)[:, None]
-    elbow, wrist, pinch = (p[n][..., None, :] for n in ("elbow", "wrist", "pinch"))
-    return np.concatenate([elbow + u * (wrist - elbow), wrist + u * (pinch - wrist)], axis=-2)
+    u = np.linspace(0.0, 1.0, k)
+    out = np.empty(q.shape[:-1] + (2 * k + extra, 3))
+    for i, (a, b) in enumerate((("elbow", "wrist"), ("wrist", "pinch"))):
+        start, d = p[a], p[b] - p[a]
+        for j in range(k):
+            out[..., i * k + j, :] = start + u[j] * d
+    return out
 
 
 def hand_points(ctx, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -46,15 +51,17 @@ def hand_points(ctx, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest distance between point sets a (..., P, 3) and b (..., Q, 3) (broadcast over ...; NaN where a
-    point is NaN), each coordinate's differences on contiguous planes, in float32 (0.1 um at a metre: far
-    below the centimetres the gaps are kept by)."""
+    point is NaN), in float32 (0.1 um at a metre: far below the centimetres the gaps are kept by). Laid out
+    coordinate, then point, then set: each pair of points' squares run over every set in one contiguous loop
+    (sets last: a third of the time of the short point loops), the minimum over the pairs' planes."""
     lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
-    A = np.ascontiguousarray(np.moveaxis(np.broadcast_to(a, lead + a.shape[-2:]), -1, 0), np.float32)
-    B = np.ascontiguousarray(np.moveaxis(np.broadcast_to(b, lead + b.shape[-2:]), -1, 0), np.float32)
-    d = (A[0][..., :, None] - B[0][..., None, :]) ** 2
+    n = int(np.prod(lead))
+    A, B = (np.ascontiguousarray(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, x.shape[-2], 3).transpose(2, 1, 0),
+                                 np.float32) for x in (a, b))  # (3, P, n), (3, Q, n)
+    d = (A[0][:, None] - B[0][None]) ** 2  # (P, Q, n)
     for k in (1, 2):
-        d += (A[k][..., :, None] - B[k][..., None, :]) ** 2
-    return np.sqrt(d.reshape(lead + (-1,)).min(axis=-1))
+        d += (A[k][:, None] - B[k][None]) ** 2
+    return np.sqrt(d.reshape(A.shape[1] * B.shape[1], n).min(axis=0, initial=np.inf)).reshape(lead)
 
 
 def norm3(v: np.ndarray) -> np.ndarray:

@@ -16,11 +16,11 @@ last 10 cm of a path whose blend differs per episode).
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import nnls
 
 from demoforge.lib.geometry import pose7_to_transform, quat_to_matrix, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
-from demoforge.lib.trajectories.segmentation import (HULL_WEIGHT, NEAREST_KEYPOINT_WEIGHT, SegmentationParams,
-                                                     grasped_object_scores)
+from demoforge.lib.trajectories.segmentation import HULL_WEIGHT, NEAREST_KEYPOINT_WEIGHT, SegmentationParams
 
 
 WINDOW_BATCH = 64  # episodes per pass of windows_batch (1.5x faster than 256 at once: memory, not arithmetic)
@@ -79,10 +79,28 @@ def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.nda
             low, high = _score_bounds(keypoints0, ko, p)
             choice = np.argmin(high, axis=1)
             open_rows = np.flatnonzero((low <= high.min(axis=1, keepdims=True)).sum(axis=1) > 1)
-            for e in open_rows:
-                choice[e] = np.argmin(grasped_object_scores(keypoints0[e], ko, p[e]))
+            if len(open_rows):
+                choice[open_rows] = np.argmin(held_scores(keypoints0[open_rows], ko, p[open_rows]), axis=1)
             held[:, a:b, arm] = choice[:, None]
     return held
+
+
+def held_scores(kp: np.ndarray, ko: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(n, n_obj) segmentation.grasped_object_scores of n rows (keypoints kp (n, K, 3), pinch points p (n, 3)), the
+    same numbers: each object's NNLS system (hull_distance's) and nearest keypoint taken for every row at once,
+    only the solve and its residual per row (the per-call set-up cost several times the solve)."""
+    n = len(p)
+    out = np.empty((n, int(ko.max()) + 1))
+    for o in range(out.shape[1]):
+        K = np.ascontiguousarray(kp[:, ko == o])  # (n, k, 3), each row's (k, 3) contiguous as hull_distance's
+        A = np.concatenate([np.swapaxes(K, 1, 2), np.full((n, 1, K.shape[1]), HULL_WEIGHT)], axis=1)  # (n, 4, k)
+        b = np.concatenate([p, np.full((n, 1), HULL_WEIGHT)], axis=1)
+        near = np.linalg.norm(K - p[:, None], axis=-1).min(axis=1)
+        for e in range(n):
+            w, _ = nnls(A[e], b[e])
+            # K[e].T: hull_distance's own (3, k) layout, so the product sums in its order
+            out[e, o] = float(np.linalg.norm(K[e].T @ w - p[e])) + NEAREST_KEYPOINT_WEIGHT * near[e]
+    return out
 
 
 def _score_bounds(kp: np.ndarray, ko: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,5 +325,5 @@ def _pose_after(traj: np.ndarray, events: list, inv_grasps: list, steps: np.ndar
     return hand @ G[e, k]
 
 
-__all__ = ["norm_last", "held_batch", "keypoints_over_time", "matrices", "object_at_steps", "object_poses_batch", "rotations",
-           "runs", "skill_masks", "smooth_batch", "windows_batch"]
+__all__ = ["norm_last", "held_batch", "held_scores", "keypoints_over_time", "matrices", "object_at_steps",
+           "object_poses_batch", "rotations", "runs", "skill_masks", "smooth_batch", "windows_batch"]

@@ -1,4 +1,5 @@
-"""One arm's screening (lib/sim/robots/aloha/screening_arm.py): its joints and margins are the closed form's."""
+"""One arm's screening (lib/sim/robots/aloha/screening_arm.py): its joints and margins are the closed form's, written
+in place or into scratch memory alike."""
 
 from __future__ import annotations
 
@@ -26,3 +27,22 @@ def test_the_screenings_joints_and_margins_are_the_closed_forms():
     off -= 2.0 * np.pi * np.rint(off / (2.0 * np.pi))
     assert np.array_equal(q5f, off + sv.mid[5])
     assert np.array_equal(mf, np.minimum(margins[..., :5].min(axis=-1), sv.half[5] - np.abs(off)))
+
+
+def test_joints_written_in_place_and_scratch_memory_are_the_same_numbers():
+    """_solve into the rows `at` of longer arrays (as _solve_cells scatters) gives its compact answer there, and
+    ArmsContext.scratch hands out the same memory again, filled afresh and shaped as asked."""
+    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
+    base = ctx.bases[0]
+    rng = np.random.default_rng(12)
+    pos = np.array([base.x, base.y, base.z + 0.3]) + rng.uniform(-0.5, 0.5, (3000, 3))
+    R = quat_to_matrix(random_quaternions(3000, rng))
+    at = np.sort(rng.choice(9000, 3000, replace=False))
+    out = (np.zeros((9000, 8, 6)), np.zeros((9000, 8)), np.zeros((9000, 8)), np.zeros((9000, 8)))
+    _solve(ctx, base, pos, R, out=out, at=at)
+    for got, want in zip(out, _solve(ctx, base, pos, R)):
+        assert np.array_equal(got[at], want)
+    a = ctx.scratch("x", (4, 5, 6), -np.inf)
+    a[...] = 1.0
+    b = ctx.scratch("x", (3, 5), 0.0)
+    assert b.shape == (3, 5) and (b == 0.0).all() and np.shares_memory(a, b)

@@ -1,11 +1,44 @@
-"""The screening's point sets (lib/sim/robots/aloha/screening_points.py): the other arm's test against a held
-object's turned hand, against the points' distances."""
+"""The screening's point sets (lib/sim/robots/aloha/screening_points.py): the smallest distance between two sets
+against the plain pairwise one, and the other arm's test against a held object's turned hand, against the
+points' distances."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance
+from demoforge.lib.sim.robots import get_robot
+from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext
+from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance, segments
+
+
+def test_the_smallest_distance_is_the_plain_pairwise_one():
+    """min_distance (sets innermost) against every pair's float32 squares summed x, y, z and the minimum taken,
+    bit for bit: NaN points, broadcast leading axes, sets of different sizes, no sets at all."""
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(0.0, 0.3, (40, 7, 16, 3)), rng.normal(0.0, 0.3, (1, 7, 6, 3))
+    a[3, 2, 5] = np.nan
+    a32, b32 = a.astype(np.float32), b.astype(np.float32)
+    d = (a32[..., :, None, 0] - b32[..., None, :, 0]) ** 2
+    for k in (1, 2):
+        d += (a32[..., :, None, k] - b32[..., None, :, k]) ** 2
+    plain = np.sqrt(d.min(axis=(-1, -2)))
+    got = min_distance(a, b)
+    assert got.shape == (40, 7) and got.dtype == np.float32 and np.isnan(got[3, 2])
+    assert np.array_equal(got, plain, equal_nan=True)
+    assert min_distance(a[:0, 0], b[0, :0]).shape == (0,)
+
+
+def test_the_segment_points_are_the_plain_interpolation():
+    """segments (point by point, room left for the hand) against grasp_choice's elbow + u (wrist - elbow) and
+    wrist + u (pinch - wrist) broadcast over u, bit for bit."""
+    ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
+    q = np.random.default_rng(6).uniform(-1.5, 1.5, (30, 4, 6))
+    p = ctx.solver.points(ctx.bases[1], q)
+    u = np.linspace(0.0, 1.0, 5)[:, None]
+    e, w, t = (p[k][..., None, :] for k in ("elbow", "wrist", "pinch"))
+    got = segments(ctx, ctx.bases[1], q, extra=6)
+    assert got.shape == (30, 4, 16, 3)
+    assert np.array_equal(got[..., :10, :], np.concatenate([e + u * (w - e), w + u * (t - w)], axis=-2))
 
 
 def test_the_other_arm_near_a_turned_hand_is_the_point_test():
