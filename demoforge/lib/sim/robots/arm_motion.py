@@ -199,11 +199,11 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
                      entry: bool):
     """The transits _with_transits weighs, in its order of preference: the straight one (into a window), over
     each waypoint LIFTS higher in joint space, then with the straight line of the pinch point (the robot's closed
-    form); the straight one when there is no other; out of a window, then over each waypoint drawn back towards the arm's
-    base (RETREATS); last, over each lifted waypoint with the waist turned first at the ready pose (last, out of
-    a window). first_end (2, nq): the ready frame's joints and those at the
-    window's end of the transit. Generated one at a time: the first clear one ends the search, and a waypoint
-    (mink's IK from every seed) is solved only when an option needs it."""
+    form); out of a window, then the straight one if no lifted waypoint is reachable, and over each waypoint drawn
+    back towards the arm's base (RETREATS); last, over each lifted waypoint with the waist turned first at the
+    ready pose's height (in: before the waypoint; out: after it). first_end (2, nq): the ready frame's joints and
+    those at the window's end of the transit. Generated one at a time: the first clear one ends the search, and
+    a waypoint (mink's IK from every seed) is solved only when an option needs it."""
     if entry:
         yield _legs(q_from, q_to, k)
     vias = []
@@ -226,8 +226,8 @@ def _transit_options(ik: ArmsIK, a: int, first_end: np.ndarray, q_from: np.ndarr
             if via is not None:
                 yield _legs(q_from, q_to, k, via)
     # the waist turned at the ready pose's height, so the hand passes high over what lies between
+    ready = q_from if entry else q_to
     for via in vias:
-        ready = q_from if entry else q_to
         turned = ready.copy()
         turned[0] = via[0]
         yield _through([q_from, turned, via, q_to] if entry else [q_from, via, turned, q_to], k)

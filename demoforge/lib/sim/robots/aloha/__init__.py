@@ -50,9 +50,11 @@ HANDS = ("aloha", "2f140")
 # grasp chosen as a path over turns and branches clear of the other arm, transits with clearance, the path checked
 # as finally run; 7: a grasp path forced across a joint jump is not feasible; 8: mink collision limits and posture
 # task, fingertips 2 mm above the table, a thin held object turns only in a hand that grips it; 9: the held
-# object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's).
-# Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
-IK_VERSION = "14"  # 10 was d6928b5's, reverted: its cached results must not match
+# object named by hull distance (a stem pinched above the vase's rim is the flowers', not the vase's); 10: never
+# again (a reverted wait before each close used it: its cached results must not match); 11: a released arm drawn
+# back towards its base; 12: empty_vase's bases; 13: the waist turned first on a transit; 14: the transit check's
+# workspace. Bump when the motion (ik.py, arm_motion.py, retiming.py, seeds.py) gives other joints for the same poses
+IK_VERSION = "14"
 # mink's collision limits in the IK (lib/sim/robots/ik.py): the two forearms, wrists and hands apart, every link
 # from the upper arm on above the table top; (geoms, geoms, distance kept m)
 _FOREARM = ("5_lower_forearm", "6_wrist", "7_gripper")
