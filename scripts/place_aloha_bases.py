@@ -33,11 +33,13 @@ ZS = (0.0, 0.15)  # on the table top, or on a 15 cm riser
 YAW = math.pi / 2  # the waist turns +-180 degrees: the base yaw only moves where that range ends
 
 
-def demos(task: str, seeds: int) -> list[np.ndarray]:
+def demos(task: str, seeds: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(object poses, actions) of the task's scripted demonstrations, seeds 0..seeds-1, plain and mirrored."""
     from demoforge.lib.task_library import get_task
 
     t = get_task(task)
-    return [t.scripted_demo(s, m).gripper_actions() for s in range(seeds) for m in (False, True)]
+    return [(d.placement.object_poses, d.gripper_actions())
+            for d in (t.scripted_demo(s, m) for s in range(seeds) for m in (False, True))]
 
 
 def score(base, hand: str, episodes: list[np.ndarray]) -> dict:
@@ -66,7 +68,7 @@ def physics_score(base, hand: str, task: str, scripted: list) -> dict:
     results = [execute(task, objects, actions, options=SimOptions(robot=robot)) for objects, actions in scripted]
     failures = Counter(r.failure for r in results if not r.success)
     ok = sum(r.success for r in results) / len(results)
-    return {"x": base.x, "y": base.y, "z": base.z, "steps_ok": ok, "episodes_ok": ok, "failures": dict(failures)}
+    return {"x": base.x, "y": base.y, "z": base.z, "episodes_ok": ok, "failures": dict(failures)}
 
 
 def main() -> None:
@@ -84,17 +86,12 @@ def main() -> None:
     for task in a.tasks:
         eps = demos(task, a.seeds)
         t0 = time.perf_counter()
+        bases = [BasePose(x, y, z, YAW) for x, y, z in itertools.product(XS, YS, ZS)]
         if a.physics:
-            from demoforge.lib.task_library import get_task
-
-            t = get_task(task)
-            scripted = [(d.placement.object_poses, d.gripper_actions())
-                        for d in (t.scripted_demo(s, m) for s in range(a.seeds) for m in (False, True))]
-            rows = [physics_score(BasePose(x, y, z, YAW), a.hand, task, scripted)
-                    for x, y, z in itertools.product(XS, YS, ZS)]
+            rows = [physics_score(b, a.hand, task, eps) for b in bases]
         else:
-            rows = [score(BasePose(x, y, z, YAW), a.hand, eps) for x, y, z in itertools.product(XS, YS, ZS)]
-        rows.sort(key=lambda r: (-r["steps_ok"], -r["episodes_ok"]))
+            rows = [score(b, a.hand, [actions for _, actions in eps]) for b in bases]
+        rows.sort(key=lambda r: (-r.get("steps_ok", 0.0), -r["episodes_ok"]))
         everything[task] = rows
         print(f"\n{task} ({len(eps)} scripted episodes, hand {a.hand}, {time.perf_counter() - t0:.0f} s)")
         for r in rows[:5]:
