@@ -62,6 +62,16 @@ def scripted_policy_data(n: int = 40, n_mirrored: int = 20, seed: int = 1, n_wp:
                       resample_batch(batch.actions, batch.lengths, n_wp))
 
 
+def scripted_pouring_db(demo_seed: int = 3, n: int = 400, n_mirrored: int = 200, seed: int = 3):
+    """(task spec, DemoSource, EpisodeBatch) of a real augmentation of a scripted pouring demonstration."""
+    from demoforge.lib.task_library import get_task
+    from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+
+    spec = get_task("pouring")
+    src = from_scripted_demo(spec, spec.scripted_demo(demo_seed))
+    return spec, src, generate_episodes(src, n=n, n_mirrored=n_mirrored, seed=seed)
+
+
 _SOURCES: dict = {}
 
 

@@ -4,15 +4,12 @@ episode; the average of trajectories."""
 import numpy as np
 import pytest
 
-from demoforge.lib.task_library import get_task
-from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+from tests.support.episodes import scripted_pouring_db
 
 
 @pytest.fixture(scope="module")
 def pouring_db():
-    spec = get_task("pouring")
-    src = from_scripted_demo(spec, spec.scripted_demo(3))
-    return spec, src, generate_episodes(src, n=400, n_mirrored=200, seed=3)
+    return scripted_pouring_db()
 
 
 def test_knn_blend_of_one_neighbour_carries_it_exactly(pouring_db):

@@ -4,18 +4,16 @@ knn_blend baseline: test_blend.py; the grid end to end: tests/flows/test_table3.
 import numpy as np
 import pytest
 
-from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
-from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import generate_episodes
 from demoforge.lib.trajectories.query_scenes import (
     SAME_SCENE_MSE, augmentation_queries, covering_options, nearest_mse, placement_queries,
 )
+from tests.support.episodes import scripted_pouring_db
 
 
 @pytest.fixture(scope="module")
 def pouring_db():
-    spec = get_task("pouring")
-    src = from_scripted_demo(spec, spec.scripted_demo(3))
-    return spec, src, generate_episodes(src, n=400, n_mirrored=200, seed=3)
+    return scripted_pouring_db()
 
 
 def test_thesis_queries_come_from_the_database_sampler_but_are_never_its_episodes(pouring_db):
