@@ -25,7 +25,17 @@ from demoforge.lib.takes.types import TakeError
 WAIT_MS = 200      # one wait for the next frameset; the end of the file is the playback's "stopped"
 STALL_S = 30.0     # no frame for this long while the playback says it is playing: give up
 SEEK_BACK_NS = 200_000_000  # decoding starts this long before the first frame wanted (the seek is not exact)
-INDEX_PASSES = 3   # readings of the file at most, until two agree on the colour frames (build_index)
+INDEX_PASSES = 3   # readings of the file at most, until two agree on the colour frames and repeats (build_index)
+
+
+def _repeats(numbers: list[int], paired: list[bool]) -> dict[int, int]:
+    """{colour frame number: extra deliveries} of one reading (RealSenseRecording._index's rule: a frame delivered
+    alone and then with its depth is one frame)."""
+    counts: dict[int, list[int]] = {}  # frame number -> [deliveries without depth, with depth]
+    for n, d in zip(numbers, paired):
+        counts.setdefault(n, [0, 0])[int(d)] += 1
+    copies = {n: (with_depth or alone) for n, (alone, with_depth) in counts.items()}  # the count that matters
+    return {n: k - 1 for n, k in copies.items() if k > 1}
 
 
 def is_realsense_db3(path: Path) -> bool:
@@ -42,8 +52,8 @@ def is_realsense_db3(path: Path) -> bool:
 
 
 class RealSenseRecording(Recording):
-    version = "3"   # 2: the playback position of every frame (seeking); 3: a frame delivered alone, then with depth, is not
-    # a repeat, and the file read until two passes agree
+    version = "4"   # 2: the playback position of every frame (seeking); 3: a frame delivered alone, then with depth, is not
+    # a repeat, and the file read until two passes agree; 4: the passes agree on the repeats too
 
     def _start(self, seek_ns: int = 0):
         """A started pipeline playing the file as fast as it is read from ``seek_ns`` (the playback's
@@ -86,15 +96,17 @@ class RealSenseRecording(Recording):
 
     def build_index(self) -> RecordingIndex:
         # the playback pipeline can lose a frame when the machine is loaded (seen: the first one, or one
-        # handed over twice); a frame the camera dropped is missing from every pass: the file is read until
-        # two passes agree on the colour frames, at most INDEX_PASSES times, and the fullest pass is kept
-        passes = []
+        # handed over twice) or deliver one twice; a frame the camera dropped or repeated is so in every pass:
+        # the file is read until two passes agree on the colour frames and their repeats, at most INDEX_PASSES
+        # times, and the fullest pass with the fewest repeats is kept
+        passes, seen = [], []
         for _ in range(INDEX_PASSES):
             passes.append(self._index_pass())
-            if len(passes) > 1 and set(passes[-1][0]) == set(passes[-2][0]):
+            seen.append((set(passes[-1][0]), _repeats(passes[-1][0], passes[-1][5])))
+            if len(seen) > 1 and seen[-1] == seen[-2]:
                 break
-        numbers, times, has_depth, domains, position, paired, intr, scale, fps, registered = max(
-            passes, key=lambda p: len(set(p[0])))
+        best = max(range(len(passes)), key=lambda i: (len(seen[i][0]), -sum(seen[i][1].values())))
+        numbers, times, has_depth, domains, position, paired, intr, scale, fps, registered = passes[best]
         index = self._index(numbers, times, has_depth, domains, intr, scale, fps, paired)
         index.info["registered"] = registered
         index.info["position_ns"] = [None if n is None else position.get(n) for n in index.keys]
@@ -148,12 +160,9 @@ class RealSenseRecording(Recording):
         alone and then again with its depth (seen on a loaded machine) is one frame, not a repeat: a frame
         counts as repeated when it came more than once with depth, or more than once and never with it."""
         first_time: dict[int, float] = {}
-        counts: dict[int, list[int]] = {}  # frame number -> [deliveries without depth, with depth]
-        for n, t, d in zip(numbers, times, paired):
-            counts.setdefault(n, [0, 0])[int(d)] += 1
+        for n, t in zip(numbers, times):
             first_time.setdefault(n, t)
-        copies = {n: (with_depth or alone) for n, (alone, with_depth) in counts.items()}  # the count that matters
-        repeats = {n: k - 1 for n, k in copies.items() if k > 1}
+        repeats = _repeats(numbers, paired)
         nums = sorted(first_time, key=first_time.get)
         fps, stamps, keys, status, message = place_on_time_axis(
             np.array([first_time[n] for n in nums]), nums, float(fps), str(self.path))

@@ -112,3 +112,32 @@ def test_a_colour_frame_the_syncer_delivers_alone_then_with_depth_is_not_a_repea
     has_depth = {0: True, 1: True, 2: True, 3: True}
     index = rec._index(numbers, times, has_depth, {"hardware_clock"}, intr, 0.0001, 30, paired)
     assert dict(zip(index.keys, index.status)) == {0: "ok", 1: "ok", 2: "ok", 3: "repeated_frame"}
+
+
+def test_a_repeat_seen_in_one_reading_only_is_the_playbacks_and_one_in_every_reading_is_the_files(tmp_path):
+    """build_index reads the file until two passes agree on the colour frames and their repeats: a frame the
+    playback handed over twice in one pass only is ok; one repeated in every pass stays a repeat."""
+    from types import SimpleNamespace
+
+    from demoforge.lib.takes.sources.realsense import RealSenseRecording
+
+    intr = SimpleNamespace(fx=600.0, fy=600.0, ppx=320.0, ppy=240.0, width=640, height=480, model="none",
+                           coeffs=[0.0] * 5)
+
+    def reading(numbers):
+        times = [n / 30 for n in numbers]
+        return (numbers, times, {n: True for n in numbers}, {"hardware_clock"}, {n: 0 for n in numbers},
+                [True] * len(numbers), intr, 0.0001, 30, False)
+
+    def index_of(readings):
+        rec = RealSenseRecording.__new__(RealSenseRecording)
+        rec.path = tmp_path / "x.bag"
+        it = iter(readings)
+        rec._index_pass = lambda: next(it)
+        index = rec.build_index()
+        return dict(zip(index.keys, index.status))
+
+    clean, spurious = [0, 1, 2, 3], [0, 1, 1, 2, 3]
+    assert index_of([reading(spurious), reading(clean), reading(clean)]) == {0: "ok", 1: "ok", 2: "ok", 3: "ok"}
+    assert index_of([reading(clean), reading(spurious), reading(clean)]) == {0: "ok", 1: "ok", 2: "ok", 3: "ok"}
+    assert index_of([reading(spurious), reading(spurious)])[1] == "repeated_frame"
