@@ -15,6 +15,7 @@ last 10 cm of a path whose blend differs per episode).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy.optimize import nnls
 
@@ -149,55 +150,63 @@ def rotations(pose8: np.ndarray) -> np.ndarray:
     return quat_to_matrix(q / norm_last(q)[..., None])
 
 
-def _sq_dist(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Squared distances of points (..., 3, k) and (..., 3, k') broadcast: (..., k) or (..., k, k') as given."""
-    d = (P[..., 0, :] - Q[..., 0, :]) ** 2
-    d += (P[..., 1, :] - Q[..., 1, :]) ** 2
-    d += (P[..., 2, :] - Q[..., 2, :]) ** 2
-    return d
-
-
-def _min_over(d: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """d[..., cols].min(-1) for a few columns, by element-wise minima (a reduction over a short last axis
-    costs about ten times as much)."""
-    out = d[..., cols[0]].copy()
-    for c in cols[1:]:
-        np.minimum(out, d[..., c], out=out)
-    return out
-
-
 def _proximity_sq(traj: np.ndarray, kpt: np.ndarray, ko: np.ndarray, held: np.ndarray, arm: int) -> np.ndarray:
-    """(E, T) the square of segmentation.proximity's signal d of one arm over a group (kpt (E, T, 3, K)). Run by
-    held run (slices, not gathers): the held object's keypoints where the run starts, and its keypoints' nearest
-    approach to each other object's, coordinate by coordinate on contiguous (E, steps) planes."""
-    n_obj = int(ko.max()) + 1
-    cols = [np.flatnonzero(ko == o) for o in range(n_obj)]
-    g = traj[:, :, arm, :3, None]  # (E, T, 3, 1)
-    dk = _sq_dist(kpt, g)  # (E, T, K)
-    per_obj = [_min_over(dk, c) for c in cols]
-    h = held[:, arm]
-    for o in range(n_obj):
-        for a, b in runs(h == o):  # the grasp frame of each step of a run: its first
-            per_obj[o][:, a:b] = _min_over(_sq_dist(kpt[:, a, None][..., cols[o]], g[:, a:b]), np.arange(len(cols[o])))
-            Kc = np.ascontiguousarray(np.moveaxis(kpt[:, a:b], (2, 3), (0, 1)))  # (3, K, E, b - a)
-            for o2 in range(n_obj):
-                if o2 != o:
-                    per_obj[o2][:, a:b] = np.minimum(per_obj[o2][:, a:b], _nearest_pair_sq(Kc, cols[o], cols[o2]))
-    out = per_obj[0]
-    for p in per_obj[1:]:
-        out = np.minimum(out, p)
-    return out
+    """(E, T) the square of segmentation.proximity's signal d of one arm over a group (kpt (E, T, 3, K)): per step
+    the nearest keypoint of any object to the hand; while the hand holds an object, its keypoints where the run
+    starts (the grasp frame) instead of its own, and its keypoints' nearest approach to each other object's."""
+    h = np.asarray(held[:, arm], np.int64)
+    first = (h >= 0) & np.concatenate([[True], h[1:] != h[:-1]])
+    start = np.maximum.accumulate(np.where(first, np.arange(len(h)), 0))  # each step's held run's first step
+    return _proximity_kernel(np.ascontiguousarray(traj[:, :, arm, :3]), np.ascontiguousarray(kpt),
+                             np.asarray(ko, np.int64), h, start, int(np.max(ko)) + 1)
 
 
-def _nearest_pair_sq(Kc: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
-    """(E, n) the smallest squared distance between keypoints ci and cj of Kc (3, K, E, n)."""
-    out = None
-    for i in ci:
-        d = (Kc[0, i] - Kc[0, cj]) ** 2  # (k_j, E, n)
-        d += (Kc[1, i] - Kc[1, cj]) ** 2
-        d += (Kc[2, i] - Kc[2, cj]) ** 2
-        d = d.min(axis=0)
-        out = d if out is None else np.minimum(out, d)
+@numba.njit(cache=True)
+def _proximity_kernel(g, kpt, ko, h, start, n_obj):
+    """_proximity_sq's arithmetic (squares summed x, y, z in float64; minima, exact in any order) per episode and
+    step: the hand g (E, T, 3), the keypoints kpt (E, T, 3, K), their objects ko (K,), the held object h (T,)
+    (-1: none) and the first step of its run start (T,). One compiled loop: numpy's took a pass over memory per
+    term and object."""
+    E, T, K = kpt.shape[0], kpt.shape[1], kpt.shape[3]
+    out = np.empty((E, T))
+    per = np.empty(n_obj)
+    for e in range(E):
+        for t in range(T):
+            for o in range(n_obj):
+                per[o] = np.inf
+            held, a = h[t], start[t]
+            for k in range(K):
+                o = ko[k]
+                src = a if o == held else t  # the held object's keypoints in its grasp frame: where the run starts
+                dx = kpt[e, src, 0, k] - g[e, t, 0]
+                d = dx * dx
+                dy = kpt[e, src, 1, k] - g[e, t, 1]
+                d += dy * dy
+                dz = kpt[e, src, 2, k] - g[e, t, 2]
+                d += dz * dz
+                if d < per[o]:
+                    per[o] = d
+            if held >= 0:
+                for i in range(K):
+                    if ko[i] != held:
+                        continue
+                    for j in range(K):
+                        o2 = ko[j]
+                        if o2 == held:
+                            continue
+                        dx = kpt[e, t, 0, i] - kpt[e, t, 0, j]
+                        d = dx * dx
+                        dy = kpt[e, t, 1, i] - kpt[e, t, 1, j]
+                        d += dy * dy
+                        dz = kpt[e, t, 2, i] - kpt[e, t, 2, j]
+                        d += dz * dz
+                        if d < per[o2]:
+                            per[o2] = d
+            best = per[0]
+            for o in range(1, n_obj):
+                if per[o] < best:
+                    best = per[o]
+            out[e, t] = best
     return out
 
 
@@ -325,5 +334,5 @@ def _pose_after(traj: np.ndarray, events: list, inv_grasps: list, steps: np.ndar
     return hand @ G[e, k]
 
 
-__all__ = ["norm_last", "held_batch", "held_scores", "keypoints_over_time", "matrices", "object_at_steps",
+__all__ = ["norm_last", "held_batch", "held_scores", "keypoints_over_time", "object_at_steps",
            "object_poses_batch", "rotations", "runs", "skill_masks", "smooth_batch", "windows_batch"]
