@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from demoforge.lib.geometry import pose7_to_transform
@@ -502,39 +503,44 @@ def _fixed_turns(ctx: ArmsContext, arm: ArmCandidates, res: ArmScreen, first_onl
 def _reach(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
     """(E,) the first sample at which no path of turns (moving to neighbours where the turn may change)
     through poses that pass the checks ok (E, C, S) is left; -1: one runs through."""
-    E, C, S = ok.shape
-    r = ok[:, :, 0]
-    dead = np.where(r.any(axis=1), -1, 0)
-    for s in range(1, S):
-        r = ok[:, :, s] & np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
-        dead = np.where((dead < 0) & ~r.any(axis=1), s, dead)
-    return dead
-
-
-def _to_neighbours(r: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
-    """(E, C) (r[:, nb] & nb_mask).any(-1): the turns reached from the set r (E, C) by a move, an OR per
-    neighbour slot (numpy's any over a short axis costs ten times)."""
-    out = np.take(r, nb[:, 0], axis=1) & nb_mask[:, 0]
-    for j in range(1, nb.shape[1]):
-        out |= np.take(r, nb[:, j], axis=1) & nb_mask[:, j]
-    return out
+    fwd = _sweep(np.ascontiguousarray(ok), np.ascontiguousarray(may_turn), nb, nb_mask, False)
+    left = fwd.any(axis=1)  # (E, S)
+    return np.where(left.all(axis=1), -1, np.argmin(left, axis=1))
 
 
 def _on_paths(ok: np.ndarray, may_turn: np.ndarray, nb: np.ndarray, nb_mask: np.ndarray) -> np.ndarray:
     """(E, C, S) the poses (turn, sample) that some path of turns through poses that pass the checks ok (E, C, S)
     reaches from the first sample to the last (moving to neighbours where the turn may change)."""
+    ok, may_turn = np.ascontiguousarray(ok), np.ascontiguousarray(may_turn)
+    return _sweep(ok, may_turn, nb, nb_mask, False) & _sweep(ok, may_turn, nb, nb_mask, True)
+
+
+@numba.njit(cache=True)
+def _sweep(ok, may_turn, nb, nb_mask, backwards):
+    """(E, C, S) the turns reached at each sample by paths through ok (E, C, S) from the first sample (or, backwards,
+    from the last): a turn is reached where its pose passes and a turn reached at the sample before moves to it
+    (itself, or a neighbour nb (C, m) where nb_mask and the turn may change into the later sample). One
+    compiled loop per episode: numpy's took a pass per sample and neighbour slot."""
     E, C, S = ok.shape
-    ok = np.ascontiguousarray(ok.transpose(2, 0, 1))  # (S, E, C): each sample's plane contiguous
-    fwd, bwd = np.zeros_like(ok), np.zeros_like(ok)
-    fwd[0], bwd[S - 1] = ok[0], ok[S - 1]
-
-    def step(r, s):  # the turns reachable from set r across the move into sample s
-        return np.where(may_turn[:, s, None], _to_neighbours(r, nb, nb_mask), r)
-
-    for s in range(1, S):
-        fwd[s] = ok[s] & step(fwd[s - 1], s)
-        bwd[S - 1 - s] = ok[S - 1 - s] & step(bwd[S - s], S - s)
-    return np.ascontiguousarray((fwd & bwd).transpose(1, 2, 0))
+    out = np.zeros((E, C, S), np.bool_)
+    for e in range(E):
+        s0 = S - 1 if backwards else 0
+        for c in range(C):
+            out[e, c, s0] = ok[e, c, s0]
+        for i in range(1, S):
+            s, prev = (S - 1 - i, S - i) if backwards else (i, i - 1)
+            turn = may_turn[e, prev if backwards else s]  # the move between the two samples
+            for c in range(C):
+                if not ok[e, c, s]:
+                    continue
+                if not turn:
+                    out[e, c, s] = out[e, c, prev]
+                    continue
+                for j in range(nb.shape[1]):
+                    if nb_mask[c, j] and out[e, nb[c, j], prev]:
+                        out[e, c, s] = True
+                        break
+    return out
 
 
 def _pose_reason(closes: np.ndarray, wrist: np.ndarray, ok: np.ndarray, dead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
