@@ -96,12 +96,26 @@ def _sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def radius(a: np.ndarray) -> np.ndarray:
-    """(...) the radius of _sphere: the points' (..., P, 3) largest distance from the first."""
-    c = a[..., 0, :]
-    r = norm3(a[..., 1, :] - c)
-    for k in range(2, a.shape[-2]):
-        np.maximum(r, norm3(a[..., k, :] - c), out=r)
-    return r
+    """(...) the radius of _sphere: the points' (..., P, 3) largest distance from the first (NaN where one is)."""
+    flat = np.ascontiguousarray(a, float).reshape(-1, a.shape[-2], 3)
+    return _radius_kernel(flat).reshape(a.shape[:-2])
+
+
+@numba.njit(cache=True)
+def _radius_kernel(a: np.ndarray) -> np.ndarray:
+    """radius of sets a (n, P, 3): norm3's sum (x x + y y) + z z per point, the largest kept as np.maximum keeps
+    it (NaN once one is NaN), in one loop per set (numpy's: a pass over memory per point and coordinate)."""
+    n, P = a.shape[0], a.shape[1]
+    out = np.empty(n)
+    for e in range(n):
+        r = 0.0
+        for k in range(1, P):
+            dx, dy, dz = a[e, k, 0] - a[e, 0, 0], a[e, k, 1] - a[e, 0, 1], a[e, k, 2] - a[e, 0, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if k == 1 or (r == r and (d > r or d != d)):
+                r = d
+        out[e] = r
+    return out
 
 
 def _centred_sphere(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -46,3 +46,34 @@ def test_joints_written_in_place_and_scratch_memory_are_the_same_numbers():
     a[...] = 1.0
     b = ctx.scratch("x", (3, 5), 0.0)
     assert b.shape == (3, 5) and (b == 0.0).all() and np.shares_memory(a, b)
+
+
+def test_the_turn_paths_reach_is_every_paths_by_enumeration():
+    """_on_paths (the poses some path of turns through passing poses reaches end to end) and _reach (the first
+    sample no such path is left at) against every path enumerated on small random instances: moves to a
+    neighbour only into a sample where the turn may change."""
+    from itertools import product
+
+    from demoforge.lib.sim.robots.aloha.screening_arm import _neighbours, _on_paths, _reach
+
+    rng = np.random.default_rng(11)
+    turns = np.radians(90.0) * np.arange(4) - np.pi  # four turns, each a neighbour of two others
+    nb, mask, _ = _neighbours(turns, np.radians(90.0))
+    E, C, S = 60, 4, 5
+    ok = rng.random((E, C, S)) < 0.7
+    may_turn = rng.random((E, S)) < 0.5
+    on, dead = _on_paths(ok, may_turn, nb, mask), _reach(ok, may_turn, nb, mask)
+    for e in range(E):
+        want, furthest = np.zeros((C, S), bool), 0
+        for path in product(range(C), repeat=S):
+            moves_ok = [path[s] == path[s - 1] or (may_turn[e, s] and path[s - 1] in nb[path[s]][mask[path[s]]])
+                        for s in range(1, S)]
+            good = [ok[e, path[0], 0]] + [ok[e, path[s], s] and moves_ok[s - 1] for s in range(1, S)]
+            run = next((s for s in range(S) if not good[s]), S)
+            furthest = max(furthest, run)
+            if run == S:
+                want[list(path), range(S)] = True
+        assert (on[e] == want).all(), e
+        assert dead[e] == (-1 if furthest == S else furthest), e
+    assert 0 < on.any(axis=(1, 2)).sum() < E and (dead >= 0).any()
+

@@ -8,7 +8,7 @@ import numpy as np
 
 from demoforge.lib.sim.robots import get_robot
 from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext
-from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance, segments
+from demoforge.lib.sim.robots.aloha.screening_points import Obstacle, min_distance, norm3, radius, segments
 
 
 def test_the_smallest_distance_is_the_plain_pairwise_one():
@@ -67,3 +67,15 @@ def test_the_other_arm_near_a_turned_hand_is_the_point_test():
     want = min_distance(sets[e, s, c], other[e, s]) < gap[e, s]
     got = Obstacle(other, gap).near_turned(lambda k: sets[e[k], s[k], c[k]], e, c, s, a0, ctr, u, turns)
     assert (got == want).all() and 0 < want.sum() < len(want)
+
+
+def test_the_sphere_radius_is_the_largest_distance_from_the_first_point():
+    """screening_points.radius against norm3's largest distance from each set's first point, NaN where a point is."""
+    a = np.random.default_rng(12).normal(size=(50, 7, 16, 3))
+    a[3, 2, 5], a[4, 1, 0], a[5, 5, 1] = np.nan, np.nan, np.nan
+    want = norm3(a[..., 1, :] - a[..., 0, :])
+    for k in range(2, 16):
+        np.maximum(want, norm3(a[..., k, :] - a[..., 0, :]), out=want)
+    got = radius(a)
+    assert got.shape == (50, 7) and np.isnan(got).sum() == 3
+    assert np.array_equal(got, want, equal_nan=True)
