@@ -183,36 +183,52 @@ class Obstacle:
         live = np.flatnonzero(self.finite[e, s])
         if not len(live):
             return out
-        n, S, P = a0.shape[:3]
-        Q = self.points.shape[-2]
+        n, S = a0.shape[:2]
         es, inv = np.unique(e[live] * S + s[live], return_inverse=True)
         axis, centre = u.reshape(-1, 3)[es], ctr.reshape(-1, 3)[es]
         (ha, ra, xa, ya), (hb, rb, xb, yb) = (_cylindrical(x.reshape(n * S, -1, 3)[es], centre, axis)
                                               for x in (a0, self.points))
-        gap = self.gap.reshape(-1)[es][:, None, None]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            base = (ha[:, :, None] - hb[:, None]) ** 2 + ra[:, :, None] ** 2 + rb[:, None] ** 2  # (k, P, Q)
-            twice = 2.0 * ra[:, :, None] * rb[:, None]
-            outer = (base - (gap + SLACK) ** 2) / twice  # the cosine bound: nearer than gap + SLACK
-            pair = np.flatnonzero(outer < 1.0)  # the pairs that ever come that near
-            k, pq = np.divmod(pair, P * Q)
-            i, j = np.divmod(pq, Q)
-            inner = (base.reshape(-1)[pair] - (gap[k, 0, 0] - SLACK) ** 2) / twice.reshape(-1)[pair]
-        # cos(turn - the turn that brings the two points' angles together), by the angles' cosines and sines
+        gap = self.gap.reshape(-1)[es]
         t = turns - turns[0]
-        ca, sa = xa[k, i] * xb[k, j] + ya[k, i] * yb[k, j], xa[k, i] * yb[k, j] - ya[k, i] * xb[k, j]
-        cos = ca[:, None] * np.cos(t) + sa[:, None] * np.sin(t)  # (pairs, C)
-        first = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if len(k) else np.zeros(0, int)
-        near_at, band_at = np.zeros((len(es), len(turns)), bool), np.zeros((len(es), len(turns)), bool)
-        if len(k):
-            near_at[k[first]] = np.logical_or.reduceat(cos > inner[:, None], first, axis=0)
-            band_at[k[first]] = np.logical_or.reduceat(cos >= outer.reshape(-1)[pair][:, None], first, axis=0)
+        near_at, band_at = _turned_bands(ha, ra, xa, ya, hb, rb, xb, yb, gap, np.cos(t), np.sin(t))
         cl = c[live]
         out[live] = near_at[inv, cl]
         band = live[band_at[inv, cl] & ~near_at[inv, cl]]
         if len(band):
             out[band] = min_distance(points(band), self.points[e[band], s[band]]) < self.gap[e[band], s[band]]
         return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _turned_bands(ha, ra, xa, ya, hb, rb, xb, yb, gap, cos_t, sin_t):
+    """(near (k, C), band (k, C)) of near_turned: per row k and turn, some pair of points (i of a's P, j of the
+    other arm's Q, in cylindrical coordinates (k, P) and (k, Q) about the row's axis) comes nearer than
+    gap - SLACK (near), or nearer than gap + SLACK (band). The pair's squared distance at a turn is base - twice
+    cos(angle apart), so it passes a bound where that cosine exceeds (base - bound^2) / twice; a pair that
+    never comes within gap + SLACK (the bound over 1) is skipped. One loop per row: numpy's (k, P, Q) planes and
+    gathers of the passing pairs cost ten times this arithmetic."""
+    k_n, P, Q, C = ha.shape[0], ha.shape[1], hb.shape[1], len(cos_t)
+    near, band = np.zeros((k_n, C), np.bool_), np.zeros((k_n, C), np.bool_)
+    for k in range(k_n):
+        wide, tight = (gap[k] + SLACK) * (gap[k] + SLACK), (gap[k] - SLACK) * (gap[k] - SLACK)
+        for i in range(P):
+            for j in range(Q):
+                dh = ha[k, i] - hb[k, j]
+                base = dh * dh + ra[k, i] * ra[k, i] + rb[k, j] * rb[k, j]
+                twice = 2.0 * ra[k, i] * rb[k, j]
+                outer = (base - wide) / twice
+                if not outer < 1.0:
+                    continue
+                inner = (base - tight) / twice
+                ca = xa[k, i] * xb[k, j] + ya[k, i] * yb[k, j]
+                sa = xa[k, i] * yb[k, j] - ya[k, i] * xb[k, j]
+                for c in range(C):
+                    cos = ca * cos_t[c] + sa * sin_t[c]
+                    if cos > inner:
+                        near[k, c] = True
+                    if cos >= outer:
+                        band[k, c] = True
+    return near, band
 
 
 def _cylindrical(x: np.ndarray, ctr: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, ...]:
