@@ -82,19 +82,6 @@ class ViperXBatchIK:
         return BatchSolution(q.reshape(*lead, B, 6), np.repeat(closes[:, None], B, axis=1).reshape(*lead, B),
                              (margin >= 0.0).reshape(*lead, B), margin.reshape(*lead, B))
 
-    def joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """solve's q for n (at most about CHUNK) poses pos (n, 3), R (n, 3, 3), joint first: (6, n, 8), the same
-        angles without the margins (a screening takes its own, on each joint's contiguous plane). The arm's
-        three joints are shifted once for both wrist branches (theirs are equal)."""
-        waist, shoulder, elbow, roll, pitch, roll2 = self._angles(base, np.asarray(pos, float), np.asarray(R, float))[0]
-        out = np.empty((6, len(waist), 8))
-        for j, x in enumerate((waist, shoulder, elbow)):
-            out[j, :, :4] = self._shift(x, j)
-            out[j, :, 4:] = out[j, :, :4]
-        for j, (x, other) in enumerate(((roll, roll + np.pi), (pitch, -pitch), (roll2, roll2 + np.pi)), start=3):
-            out[j, :, :4], out[j, :, 4:] = self._shift(x, j), self._shift(other, j)
-        return out
-
     def solve_into(self, base: BasePose, n: int, poses, at: np.ndarray, q: np.ndarray, m: np.ndarray, q5f: np.ndarray,
                    mf: np.ndarray) -> None:
         """A screening's joints of n poses, written into the rows at (n,) of q (N, 8, 6), m, q5f, mf (N, 8): solve's
@@ -130,13 +117,6 @@ class ViperXBatchIK:
         g = self.g
         return np.array([base.x, base.y, base.z, np.cos(base.yaw), np.sin(base.yaw), g.wrist_to_pinch, g.shoulder_z,
                          g.l1, g.l2, g.l1 ** 2, g.l2 ** 2, 2.0 * g.l1 * g.l2, g.alpha])
-
-    def _shift(self, x: np.ndarray, j: int) -> np.ndarray:
-        """_wrap's shift of joint j's angles x."""
-        off = x - self.mid[j]
-        off -= TAU * np.rint(off * (1.0 / TAU))
-        off += self.mid[j]
-        return off
 
     def points(self, base: BasePose, q: np.ndarray) -> dict[str, np.ndarray]:
         """World positions (..., 3) of the shoulder (the shoulder joint), the elbow, the wrist centre (the
