@@ -20,8 +20,10 @@ it against MuJoCo's forward kinematics).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .model import LINK_TO_GRIPPER, BasePose
@@ -40,6 +42,7 @@ _LEAN = np.array([1.0, 1.0, -1.0, -1.0])  # +1 facing the wrist centre, -1 turne
 _LINK_COLUMNS = np.argmax(LINK_TO_GRIPPER, axis=1)
 # below this sin(pitch) the wrist's rolls are one angle (gimbal lock): scipy's rule, roll2 = 0
 _GIMBAL = 1e-7
+_INV_TAU = 1.0 / TAU  # _wrap's factor, for the kernels (the same double)
 
 
 @dataclass
@@ -79,25 +82,41 @@ class ViperXBatchIK:
         return BatchSolution(q.reshape(*lead, B, 6), np.repeat(closes[:, None], B, axis=1).reshape(*lead, B),
                              (margin >= 0.0).reshape(*lead, B), margin.reshape(*lead, B))
 
-    def joints(self, base: BasePose, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """solve's q for n (at most about CHUNK) poses pos (n, 3), R (n, 3, 3), joint first: (6, n, 8), the same
-        angles without the margins (a screening takes its own, on each joint's contiguous plane). The arm's
-        three joints are shifted once for both wrist branches (theirs are equal)."""
-        waist, shoulder, elbow, roll, pitch, roll2 = self._angles(base, np.asarray(pos, float), np.asarray(R, float))[0]
-        out = np.empty((6, len(waist), 8))
-        for j, x in enumerate((waist, shoulder, elbow)):
-            out[j, :, :4] = self._shift(x, j)
-            out[j, :, 4:] = out[j, :, :4]
-        for j, (x, other) in enumerate(((roll, roll + np.pi), (pitch, -pitch), (roll2, roll2 + np.pi)), start=3):
-            out[j, :, :4], out[j, :, 4:] = self._shift(x, j), self._shift(other, j)
-        return out
+    def solve_into(self, base: BasePose, n: int, poses, at: np.ndarray, q: np.ndarray, m: np.ndarray, q5f: np.ndarray,
+                   mf: np.ndarray) -> None:
+        """A screening's joints of n poses, written into the rows at (n,) of q (N, 8, 6), m, q5f, mf (N, 8): solve's
+        angles (bit for bit), m the smallest margin half - |q - mid| of a joint, q5f the last joint of the grasp
+        half-turned about its approach (+ pi, shifted into its range) and mf that grasp's margin. poses(i, j)
+        gives the poses i to j (pos (j - i, 3), R (j - i, 3, 3), C-contiguous). Chunk by chunk: numba kernels
+        between numpy's transcendental functions (see the kernels' section), no (n, 8, 6) temporaries."""
+        g, geo, ch = self.g, self.kernel_geometry(base), max(min(n, SCREEN_CHUNK), 1)
+        Y1, X1, cc, A, s = np.empty((ch, 2)), np.empty((ch, 2)), np.empty(ch), np.empty((ch, 8)), np.empty((ch, 4))
+        W, arm, Y, X, ang = np.empty((ch, 2)), np.empty((ch, 4, 3)), np.empty((ch, 3, 4)), np.empty((ch, 3, 4)), \
+            np.empty((ch, 3, 4))
+        for i in range(0, n, ch):
+            k = min(ch, n - i)
+            pos, R = poses(i, i + k)
+            _arm_inputs(geo, pos, R, Y1[:k], X1[:k], cc[:k], A[:k])
+            np.arctan2(Y1[:k], X1[:k], out=W[:k])  # waist, reach
+            delta = np.arccos(cc[:k])
+            tilt = np.arctan2(g.l2 * np.sin(delta), g.l1 + g.l2 * np.cos(delta))
+            _forearm(geo, W[:k], delta, tilt, s[:k], arm[:k])
+            cs, ss = np.cos(s[:k]), np.sin(s[:k])
+            locked = _wrist_inputs(A[:k], cs, ss, Y[:k], X[:k])
+            np.arctan2(Y[:k], X[:k], out=ang[:k])  # pitch, roll, roll2
+            if locked:  # _wrist's rule, on its arrays
+                lock = Y[:k, 0] < _GIMBAL
+                M21 = ss * _LEAN * A[:k, 1, None] + cs * A[:k, 6, None]
+                ang[:k, 1][lock] = np.arctan2(M21, _LEAN * A[:k, 4, None])[lock]
+                ang[:k, 2][lock] = 0.0
+            _wrap_into(arm[:k], ang[:k], self.mid, self.half, at[i:i + k], q, m, q5f, mf)
 
-    def _shift(self, x: np.ndarray, j: int) -> np.ndarray:
-        """_wrap's shift of joint j's angles x."""
-        off = x - self.mid[j]
-        off -= TAU * np.rint(off * (1.0 / TAU))
-        off += self.mid[j]
-        return off
+    def kernel_geometry(self, base: BasePose) -> np.ndarray:
+        """The numbers the kernels take of the arm on `base` (KERNEL_GEOMETRY's order), each computed as
+        _angles computes it (numpy's cos and sin of the yaw, Python's powers and products)."""
+        g = self.g
+        return np.array([base.x, base.y, base.z, np.cos(base.yaw), np.sin(base.yaw), g.wrist_to_pinch, g.shoulder_z,
+                         g.l1, g.l2, g.l1 ** 2, g.l2 ** 2, 2.0 * g.l1 * g.l2, g.alpha])
 
     def points(self, base: BasePose, q: np.ndarray) -> dict[str, np.ndarray]:
         """World positions (..., 3) of the shoulder (the shoulder joint), the elbow, the wrist centre (the
@@ -217,3 +236,136 @@ def _wrist(Rl: np.ndarray, cw: np.ndarray, sw: np.ndarray, s: np.ndarray) -> tup
         roll[lock] = np.arctan2(M21, _LEAN * A1[:, 1, None])[lock]
         roll2[lock] = 0.0
     return roll, pitch, roll2
+
+
+# ---------------------------------------------------------------------- a screening's joints: numba + numpy
+# A screening solves millions of poses, thousands per call. numpy's _angles makes a dozen passes over (n, 4)
+# temporaries per step; a numba kernel pose by pose is no faster whole, its scalar atan2 and acos (libm) costing
+# 7 and 4 times numpy's SIMD ones (and differing from them in the last bit for a few percent of the arguments).
+# So solve_into takes the arithmetic between the transcendental functions to numba kernels, pose by pose, and
+# leaves every atan2, acos, sin and cos to numpy on whole chunks: the same operations in the same order as
+# _angles, _wrist and _wrap (no fastmath: no reassociation, no fused multiply-adds), the angles solve()'s bit
+# for bit. (hypot is the kernels': numpy's is libm's too.)
+KERNEL_GEOMETRY = ("base x", "base y", "base z", "cos yaw", "sin yaw", "wrist to pinch", "shoulder z", "l1", "l2",
+                   "l1^2", "l2^2", "2 l1 l2", "alpha")
+SCREEN_CHUNK = 2048  # poses per pass of solve_into: its buffers (a few hundred kB) stay in the cache
+
+
+@numba.njit(cache=True)
+def _arm_inputs(geo: np.ndarray, pos: np.ndarray, R: np.ndarray, Y: np.ndarray, X: np.ndarray, cc: np.ndarray,
+                A: np.ndarray) -> None:
+    """_angles up to its first atan2s and acos, of poses pos (k, 3), R (k, 3, 3) on the arm geo (kernel_geometry):
+    (Y, X) (k, 2) the arguments of the waist's and the reach's atan2, cc (k,) the clipped cosine of the elbow,
+    A (k, 8) the entries of A = Rz(phi)^T R_link _wrist needs (A0 0-2, A1 0-1, A2 0-2)."""
+    lc = _LINK_COLUMNS
+    cy, sy = geo[3], geo[4]
+    for i in range(len(pos)):
+        d0 = pos[i, 0] - geo[5] * R[i, 0, lc[0]] - geo[0]  # base -> wrist centre, world axes
+        d1 = pos[i, 1] - geo[5] * R[i, 1, lc[0]] - geo[1]
+        d2 = pos[i, 2] - geo[5] * R[i, 2, lc[0]] - geo[2]
+        wx, wy = cy * d0 + sy * d1, cy * d1 - sy * d0
+        r, h = math.hypot(wx, wy), d2 - geo[6]
+        c = (r * r + h * h - geo[9] - geo[10]) / geo[11]
+        cc[i] = -1.0 if c < -1.0 else (1.0 if c > 1.0 else c)  # np.clip's (NaN stays NaN)
+        Y[i, 0], X[i, 0], Y[i, 1], X[i, 1] = wy, wx, r, h
+        cw, sw = (d0 / r, d1 / r) if r > 0.0 else (cy, sy)
+        for j in range(3):
+            A[i, j] = cw * R[i, 0, lc[j]] + sw * R[i, 1, lc[j]]
+            A[i, 5 + j] = R[i, 2, lc[j]]
+        for j in range(2):
+            A[i, 3 + j] = cw * R[i, 1, lc[j]] - sw * R[i, 0, lc[j]]
+
+
+@numba.njit(cache=True)
+def _forearm(geo: np.ndarray, W: np.ndarray, delta: np.ndarray, tilt: np.ndarray, s: np.ndarray,
+             arm: np.ndarray) -> None:
+    """_angles' arm: from W (k, 2) = (waist, reach) and the elbow's delta, tilt (k,), per branch the forearm's
+    pitch s (k, 4) and the unwrapped waist, shoulder and elbow arm (k, 4, 3)."""
+    for i in range(len(W)):
+        for b in range(4):
+            signed = delta[i] * _SIGN[b]
+            psi1 = W[i, 1] * _LEAN[b] - tilt[i] * _SIGN[b]
+            s[i, b] = psi1 + signed - np.pi / 2
+            arm[i, b, 0] = W[i, 0] if _LEAN[b] > 0 else W[i, 0] + np.pi
+            arm[i, b, 1] = psi1 - geo[12]
+            arm[i, b, 2] = geo[12] + signed - np.pi / 2
+
+
+@numba.njit(cache=True)
+def _wrist_inputs(A: np.ndarray, cs: np.ndarray, ss: np.ndarray, Y: np.ndarray, X: np.ndarray) -> int:
+    """_wrist's entries of M = Ry(s)^T A per branch (cs, ss (k, 4): cos s, sin s) as the arguments (Y, X)
+    (k, 3, 4) of the pitch's, the roll's and the second roll's atan2; returns how many are in gimbal lock."""
+    locked = 0
+    for i in range(len(A)):
+        for b in range(4):
+            cl, lean = cs[i, b] * _LEAN[b], _LEAN[b]
+            m01, m02 = cl * A[i, 1] - ss[i, b] * A[i, 6], cl * A[i, 2] - ss[i, b] * A[i, 7]
+            sin_pitch = math.hypot(m01, m02)
+            Y[i, 0, b], X[i, 0, b] = sin_pitch, cl * A[i, 0] - ss[i, b] * A[i, 5]
+            Y[i, 1, b], X[i, 1, b] = lean * A[i, 3], -(ss[i, b] * lean * A[i, 0] + cs[i, b] * A[i, 5])
+            Y[i, 2, b], X[i, 2, b] = m01, m02
+            locked += sin_pitch < _GIMBAL
+    return locked
+
+
+@numba.njit(cache=True)
+def _shift_angle(x: float, mid: float) -> float:
+    """_wrap's shift of one angle x by a multiple of 2 pi to within pi of its range's middle mid."""
+    off = x - mid
+    off -= TAU * np.rint(off * _INV_TAU)
+    return off + mid
+
+
+@numba.njit(cache=True)
+def _nan_min(a: float, b: float) -> float:
+    """np.minimum of two numbers: NaN if either is."""
+    return a if (a < b or a != a) else b
+
+
+@numba.njit(cache=True)
+def _wrap_into(arm: np.ndarray, ang: np.ndarray, mid: np.ndarray, half: np.ndarray, at: np.ndarray, q: np.ndarray,
+               m: np.ndarray, q5f: np.ndarray, mf: np.ndarray) -> None:
+    """_wrap of the arm's angles arm (k, 4, 3) and the wrist's ang (k, 3, 4) (pitch, roll, roll2 of the first
+    wrist branch; the other: roll + pi, -pitch, roll2 + pi) into the rows at (k,): q (N, 8, 6), m (N, 8) the
+    smallest margin half - |q - mid| of a joint, q5f (N, 8) the last joint of the gripper half-turned about its
+    approach (+ pi, shifted: its range is a full turn, every other joint's margin stays), mf (N, 8) its margin."""
+    for i in range(len(arm)):
+        row = at[i]
+        for b in range(4):
+            margin = np.inf
+            for j in range(3):
+                x = _shift_angle(arm[i, b, j], mid[j])
+                q[row, b, j], q[row, b + 4, j] = x, x
+                mj = half[j] - abs(x - mid[j])
+                margin = mj if j == 0 else _nan_min(margin, mj)
+            roll, pitch, roll2 = ang[i, 1, b], ang[i, 0, b], ang[i, 2, b]
+            for k, wrist in ((b, (roll, pitch, roll2)), (b + 4, (roll + np.pi, -pitch, roll2 + np.pi))):
+                m04 = margin
+                for j in range(3, 6):
+                    x = _shift_angle(wrist[j - 3], mid[j])
+                    q[row, k, j] = x
+                    if j < 5:
+                        m04 = _nan_min(m04, half[j] - abs(x - mid[j]))
+                m[row, k] = _nan_min(m04, half[5] - abs(x - mid[5]))
+                off = x + np.pi - mid[5]
+                off -= TAU * np.rint(off / TAU)
+                q5f[row, k] = off + mid[5]
+                mf[row, k] = _nan_min(m04, half[5] - abs(off))
+
+
+@numba.njit(cache=True)
+def turned_poses(par: np.ndarray, perp: np.ndarray, cross: np.ndarray, ctr: np.ndarray, rows: np.ndarray,
+                 cos_t: np.ndarray, sin_t: np.ndarray, cells: np.ndarray, pos: np.ndarray, R: np.ndarray) -> None:
+    """Pinch poses turned about a held object's axis (screening_arm._Turner, _Poses.at's arithmetic) into pos
+    (k, 3), R (k, 3, 3): the flat cells (k,) of (n, C, S) are episode rows[e], turn c (cos_t, sin_t (n, C)),
+    sample s; par, perp, cross (E, S, 12) the parts of the pinch position - ctr (E, S, 3) and the rotation's
+    columns along the axis, across it and the axis x it: v = par + cos perp + sin cross."""
+    C, S = cos_t.shape[1], par.shape[1]
+    for i in range(len(cells)):
+        e, c, s = cells[i] // (C * S), cells[i] // S % C, cells[i] % S
+        ep, ct, st = rows[e], cos_t[e, c], sin_t[e, c]
+        for j in range(3):
+            pos[i, j] = par[ep, s, j] + ct * perp[ep, s, j] + st * cross[ep, s, j] + ctr[ep, s, j]
+            for col in range(3):
+                x = 3 + 3 * col + j
+                R[i, j, col] = par[ep, s, x] + ct * perp[ep, s, x] + st * cross[ep, s, x]

@@ -25,6 +25,7 @@ import numpy as np
 from demoforge.lib.geometry import pose7_to_transform
 from demoforge.lib.sim.robots.retarget import finger_half_width, grasp_turns
 
+from .closed_form import SCREEN_CHUNK, turned_poses
 from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_STEP, LIFT_TOLERANCE, MARGIN_CAP,
                            MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
                            WRIST_ABOVE_TABLE)
@@ -33,8 +34,6 @@ from .screening_points import Obstacle, hand_points
 from .screening_windows import object_at_steps
 
 REASONS = ("unreachable", "wrist_in_table", "fingers_in_table", "joint_limit", "branch_jump", "forearms_meet")
-_TAU = 2.0 * np.pi
-SOLVE_CHUNK = 4096  # poses per pass of the closed form (closed_form.CHUNK: its temporaries stay in the cache)
 PASS = 64  # episodes per pass of the search over every turn at once (their joints: a few MB per episode)
 
 
@@ -204,44 +203,46 @@ def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, out: tuple | 
     pos (n, 3), R (n, 3, 3), or written into the rows at (n,) of `out` (four arrays, those shapes but longer:
     no compact copy to scatter afterwards). The gripper's half-turn about its approach axis is the last joint's
     angle plus pi, nothing else (its range is a full turn: every other joint's margin stays). A joint's margin
-    is half - |q - mid| of its range, taken chunk by chunk (in the cache) on each joint's plane (the arm's three
-    joints are the two wrist branches' own: once)."""
-    sv = ctx.solver
+    is half - |q - mid| of its range (ViperXBatchIK.solve_into: no (n, 8, 6) temporaries)."""
     n = len(pos)
     if out is None:
         out = np.empty((n, 8, 6)), np.empty((n, 8)), np.empty((n, 8)), np.empty((n, 8))
-    q, m, q5f, mf = out
-    for i in range(0, n, SOLVE_CHUNK):
-        part = slice(i, i + SOLVE_CHUNK)
-        dst = part if at is None else at[part]
-        qj = sv.joints(base, pos[part], R[part])  # (6, k, 8)
-        q[dst] = np.moveaxis(qj, 0, -1)
-        arm = sv.half[0] - np.abs(qj[0, :, :4] - sv.mid[0])
-        for j in (1, 2):
-            np.minimum(arm, sv.half[j] - np.abs(qj[j, :, :4] - sv.mid[j]), out=arm)
-        m04 = np.concatenate([arm, arm], axis=1)
-        for j in (3, 4):
-            np.minimum(m04, sv.half[j] - np.abs(qj[j] - sv.mid[j]), out=m04)
-        m[dst] = np.minimum(m04, sv.half[5] - np.abs(qj[5] - sv.mid[5]))
-        off = qj[5] + np.pi - sv.mid[5]
-        off -= _TAU * np.rint(off / _TAU)
-        q5f[dst] = off + sv.mid[5]
-        mf[dst] = np.minimum(m04, sv.half[5] - np.abs(off))
-    return q, m, q5f, mf
+    at = np.arange(n) if at is None else np.asarray(at, np.int64)
+    pos, R = np.ascontiguousarray(pos, float), np.ascontiguousarray(R, float)
+    ctx.solver.solve_into(base, n, lambda i, j: (pos[i:j], R[i:j]), at, *out)
+    return out
 
 
 def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
     """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
-    its joints 0. (By flat indices, chunk by chunk straight into place: numpy's scatter by a mask runs at a few
-    ns an element.)"""
+    its joints 0. (By flat indices, chunk by chunk straight into place; a held object's turns made by a kernel
+    (closed_form.turned_poses) chunk by chunk, not gathered from (k, 12) copies of the turner's parts first.)"""
     # (in ctx's scratch memory: every caller is done with a pass's joints before it solves the next)
     q = ctx.scratch("q", cells.shape + (8, 6), 0.0)
     m, q5f = ctx.scratch("m", cells.shape + (8,), -np.inf), ctx.scratch("q5f", cells.shape + (8,), 0.0)
     mf = ctx.scratch("mf", cells.shape + (8,), -np.inf)
     cell = np.flatnonzero(cells)
-    if len(cell):
-        flat = tuple(x.reshape((-1,) + x.shape[cells.ndim:]) for x in (q, m, q5f, mf))
+    if not len(cell):
+        return q, m, q5f, mf
+    flat = tuple(x.reshape((-1,) + x.shape[cells.ndim:]) for x in (q, m, q5f, mf))
+    t = poses.turner
+    if t.O is None:
         _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)), out=flat, at=cell)
+        return q, m, q5f, mf
+    E, S = t.P.shape[:2]
+    par, perp, cross = (np.ascontiguousarray(x).reshape(E, S, 12) for x in (t.par, t.perp, t.cross))
+    ctr, rows = np.ascontiguousarray(t.ctr), np.asarray(poses.rows, np.int64)
+    theta = np.ascontiguousarray(poses.theta, float)  # (numpy's cos and sin on it, as _Poses.at's)
+    assert cells.shape[1:] == (theta.shape[1], S)
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    buf = np.empty((min(len(cell), SCREEN_CHUNK), 3)), np.empty((min(len(cell), SCREEN_CHUNK), 3, 3))
+
+    def turned(i, j):  # _Poses.at's poses of the cells i to j
+        pos, R = buf[0][:j - i], buf[1][:j - i]
+        turned_poses(par, perp, cross, ctr, rows, cos_t, sin_t, cell[i:j], pos, R)
+        return pos, R
+
+    ctx.solver.solve_into(base, len(cell), turned, cell, *flat)
     return q, m, q5f, mf
 
 

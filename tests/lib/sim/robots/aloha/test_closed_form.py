@@ -11,7 +11,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from demoforge.lib.sim.robots.aloha import AlohaRobot
-from demoforge.lib.sim.robots.aloha.closed_form import BRANCHES, ViperXBatchIK
+from demoforge.lib.sim.robots.aloha.closed_form import BRANCHES, SCREEN_CHUNK, ViperXBatchIK
 from demoforge.lib.sim.robots.aloha.model import BasePose
 from demoforge.lib.sim.robots.aloha.placement import bases_for
 from demoforge.lib.sim.robots.aloha.seeds import ViperXGeometry
@@ -155,3 +155,31 @@ def test_a_straight_wrist_still_lands_on_the_pose():
     back_pos, back_R = _fk(hand, arm, sol.q.reshape(24, 8, 6))
     assert np.linalg.norm(back_pos - pos[:, None], axis=-1).max() < 1e-9
     assert np.degrees(_angle(back_R, R[:, None])).max() < 1e-8
+
+
+@pytest.mark.parametrize("arm", [0, 1])
+def test_solve_into_is_solve_bit_for_bit(arm):
+    """The screening's numba kernels (solve_into) give solve's angles to the last bit (numpy's transcendental
+    functions between them): straight wrists (gimbal lock), poses beyond reach and any orientation among them,
+    over more than one chunk, written into scattered rows; the margins are half - |q - mid| of those angles
+    and the half-turned grasp's last joint is q + pi shifted into its range."""
+    hand, base = "2f140", BASES[arm]
+    batch = _batch(hand)
+    q0 = _random_q(hand, 60, seed=50 + arm)
+    q0[::2, 4] = 0.0
+    pos, R = _fk(hand, arm, q0)
+    far_pos, far_R = _random_poses(base, SCREEN_CHUNK + 40, seed=52 + arm)
+    pos, R = np.concatenate([pos, far_pos]), np.concatenate([R, far_R])
+    n = len(pos)
+    at = np.random.default_rng(54).permutation(2 * n)[:n]
+    out = np.zeros((2 * n, 8, 6)), np.zeros((2 * n, 8)), np.zeros((2 * n, 8)), np.zeros((2 * n, 8))
+    batch.solve_into(base, n, lambda i, j: (pos[i:j], R[i:j]), at, *out)
+    q, m, q5f, mf = (x[at] for x in out)
+    want = batch.solve(base, pos, R)
+    assert not want.closes.all() and np.array_equal(q, want.q)
+    margins = batch.half - np.abs(want.q - batch.mid)
+    assert np.array_equal(m, margins.min(axis=-1))
+    off = want.q[..., 5] + np.pi - batch.mid[5]
+    off -= 2.0 * np.pi * np.rint(off / (2.0 * np.pi))
+    assert np.array_equal(q5f, off + batch.mid[5])
+    assert np.array_equal(mf, np.minimum(margins[..., :5].min(axis=-1), batch.half[5] - np.abs(off)))

@@ -11,7 +11,7 @@ from demoforge.lib.sim.robots.aloha.screening_arm import ArmsContext, _solve
 
 
 def test_the_screenings_joints_and_margins_are_the_closed_forms():
-    """screening_arm._solve (ViperXBatchIK.joints, joint first, margins per joint) against ViperXBatchIK.solve's
+    """screening_arm._solve (ViperXBatchIK.solve_into: numba kernels, margins per joint) against ViperXBatchIK.solve's
     angles and half - |q - mid| of them, the half-turned grasp's last joint included, bit for bit."""
     ctx = ArmsContext(get_robot("aloha", "2f140").retargeting("pouring"))
     sv, base = ctx.solver, ctx.bases[0]
