@@ -141,20 +141,6 @@ class _Turner:
         ctr = self.ctr[rows][:, None] if extra else self.ctr[rows]
         return v[..., 0, :] + ctr, np.swapaxes(v[..., 1:, :], -1, -2)
 
-    def check_parts(self, theta: np.ndarray) -> tuple[np.ndarray, ...]:
-        """For every episode, turn (C,) and sample: pinch position (E, C, S, 3), approach axis (E, C, S, 3) and
-        the z (height) parts of the gripper's x and y axes (E, C, S): all the pose checks need."""
-        if self.O is None:
-            pos, R = self.turned(np.broadcast_to(theta, (len(self.P), len(theta))))
-            return pos, R[..., :, 2], R[..., 2, 0], R[..., 2, 1]
-        # turned()'s arithmetic on the eight numbers wanted only (the position and approach axis, the x and y
-        # axes' heights), laid out as one contiguous last axis: a third less work, no short strided inner loops
-        c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]  # (1, C, 1, 1)
-        par, perp, cross = (np.concatenate([x[..., 0, :], x[..., 3, :], x[..., 1:3, 2]], axis=-1)[:, None]
-                            for x in (self.par, self.perp, self.cross))  # (E, 1, S, 8)
-        v = par + c * perp + s * cross  # (E, C, S, 8)
-        return v[..., 0:3] + self.ctr[:, None], v[..., 3:6], v[..., 6], v[..., 7]
-
 
 class _Poses:
     """The pinch poses of the episodes rows (n,) of a _Turner turned by theta (n, C'), made cell by cell where
@@ -181,20 +167,61 @@ class _Poses:
         return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
 
 
-def _pose_checks(ctx: ArmsContext, base, pos, approach, xz, yz, half) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(closes, wrist, fingers) (E, C, S) of pinch poses: the wrist centre within the shoulder-elbow
-    triangle's reach (closed_form.py: branch-independent), above WRIST_ABOVE_TABLE, and the fingertips'
-    lowest point (retarget.lowest_finger_z: its minimum over the fingers' corners, taken term by term)
-    at most LIFT_TOLERANCE below the clearance. half (E, S): each finger's distance from the pinch axis."""
-    wc = pos - ctx.w2p * approach
-    dx, dy, h = wc[..., 0] - base.x, wc[..., 1] - base.y, wc[..., 2] - base.z - ctx.shoulder_z
-    c = (dx * dx + dy * dy + h * h - ctx.l1 ** 2 - ctx.l2 ** 2) / (2.0 * ctx.l1 * ctx.l2)
-    closes = np.abs(c) <= 1.0
-    wrist = wc[..., 2] > WRIST_ABOVE_TABLE
-    spec = ctx.spec
-    xo = (half + 2.0 * spec.pad_half[0] + spec.finger_thick)[:, None]  # (E, 1, S) the finger's outer face
-    lowest = pos[..., 2] - np.abs(xz) * xo - np.abs(yz) * spec.pad_half[1] + approach[..., 2] * spec.tip_offset
-    return closes, wrist, lowest - ctx.clearance > -LIFT_TOLERANCE
+def _pose_checks(ctx: ArmsContext, base, turner: _Turner, turns: np.ndarray,
+                 half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(closes, wrist, fingers) (E, C, S) of the turner's pinch poses at every turn (C,) and sample: the wrist
+    centre within the shoulder-elbow triangle's reach (closed_form.py: branch-independent), above
+    WRIST_ABOVE_TABLE, and the fingertips' lowest point (retarget.lowest_finger_z: its minimum over the fingers'
+    corners, taken term by term) at most LIFT_TOLERANCE below the clearance. half (E, S): each finger's
+    distance from the pinch axis."""
+    spec, l1, l2 = ctx.spec, ctx.l1, ctx.l2
+    consts = np.array([ctx.w2p, base.x, base.y, base.z, ctx.shoulder_z, l1 ** 2, l2 ** 2, 2.0 * l1 * l2,
+                       2.0 * spec.pad_half[0], spec.finger_thick, spec.pad_half[1], spec.tip_offset, ctx.clearance,
+                       WRIST_ABOVE_TABLE, -LIFT_TOLERANCE], float)
+    if turner.O is None:  # nothing held: the pose itself at every turn (the turn 0 only)
+        E, S = half.shape
+        par = np.empty((E, S, 4, 3))  # the position, then the x, y, z axes
+        par[:, :, 0] = turner.P[..., :3, 3]
+        par[:, :, 1:] = np.swapaxes(turner.P[..., :3, :3], -1, -2)
+        zero, ctr = np.zeros_like(par), np.zeros((E, S, 3))
+        return _pose_check_kernel(par, zero, zero, ctr, np.ones(len(turns)), np.zeros(len(turns)),
+                                  np.asarray(half, float), consts)
+    return _pose_check_kernel(turner.par, turner.perp, turner.cross, turner.ctr, np.cos(turns), np.sin(turns),
+                              np.asarray(half, float), consts)
+
+
+@numba.njit(cache=True)
+def _pose_check_kernel(par, perp, cross, ctr, cos_t, sin_t, half, k):
+    """_pose_checks' arithmetic per episode, turn and sample, in numpy's order of operations: the turned pose's
+    numbers wanted (par + cos perp + sin cross of the position, approach and the x and y axes' heights; the
+    vectors (E, S, 4, 3): position less ctr, then the x, y, z axes) and the three checks on them. k: the
+    constants (see the caller). One loop: numpy's made eight (E, C, S) planes and a pass over memory each."""
+    E, S, C = par.shape[0], par.shape[1], len(cos_t)
+    closes = np.empty((E, C, S), np.bool_)
+    wrist, fingers = np.empty_like(closes), np.empty_like(closes)
+    w2p, bx, by, bz, sz, l1sq, l2sq, den, pad2, thick, pad1, tip, clear, above, low = (
+        k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8], k[9], k[10], k[11], k[12], k[13], k[14])
+    for e in range(E):
+        for c in range(C):
+            co, si = cos_t[c], sin_t[c]
+            for s in range(S):
+                p0 = par[e, s, 0, 0] + co * perp[e, s, 0, 0] + si * cross[e, s, 0, 0] + ctr[e, s, 0]
+                p1 = par[e, s, 0, 1] + co * perp[e, s, 0, 1] + si * cross[e, s, 0, 1] + ctr[e, s, 1]
+                p2 = par[e, s, 0, 2] + co * perp[e, s, 0, 2] + si * cross[e, s, 0, 2] + ctr[e, s, 2]
+                a0 = par[e, s, 3, 0] + co * perp[e, s, 3, 0] + si * cross[e, s, 3, 0]
+                a1 = par[e, s, 3, 1] + co * perp[e, s, 3, 1] + si * cross[e, s, 3, 1]
+                a2 = par[e, s, 3, 2] + co * perp[e, s, 3, 2] + si * cross[e, s, 3, 2]
+                xz = par[e, s, 1, 2] + co * perp[e, s, 1, 2] + si * cross[e, s, 1, 2]
+                yz = par[e, s, 2, 2] + co * perp[e, s, 2, 2] + si * cross[e, s, 2, 2]
+                w0, w1, w2 = p0 - w2p * a0, p1 - w2p * a1, p2 - w2p * a2
+                dx, dy, h = w0 - bx, w1 - by, w2 - bz - sz
+                reach = (dx * dx + dy * dy + h * h - l1sq - l2sq) / den
+                closes[e, c, s] = abs(reach) <= 1.0
+                wrist[e, c, s] = w2 > above
+                xo = half[e, s] + pad2 + thick
+                lowest = p2 - abs(xz) * xo - abs(yz) * pad1 + a2 * tip
+                fingers[e, c, s] = lowest - clear > low
+    return closes, wrist, fingers
 
 
 def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, out: tuple | None = None,
@@ -403,7 +430,7 @@ def screen_arm(ctx: ArmsContext, traj: np.ndarray, held: np.ndarray, obj0: np.nd
         turns, max_step = grasp_turns(sym), (np.radians(TURN_STEP_MAX_DEG) if sym == 0 else 0.0)
         O = object_at_steps(traj, held, obj0, o, steps)
     turner = _Turner(pose7_to_transform(traj[e, steps, a, :7]), O)
-    closes, wrist, fingers = _pose_checks(ctx, ctx.bases[a], *turner.check_parts(turns), half)
+    closes, wrist, fingers = _pose_checks(ctx, ctx.bases[a], turner, turns, half)
     pad = ~res.valid[:, None, :]
     ok = (closes & wrist & fingers) | pad
     run = np.zeros(T, int)  # steps the hand has been closed for (grasp_choice: the turn changes once settled)
