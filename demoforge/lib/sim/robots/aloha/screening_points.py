@@ -24,6 +24,8 @@ from .grasp_choice import HAND_SPREAD
 GROUPS = (slice(0, 5), slice(5, 10), slice(10, 16))
 # m a sphere's test is looser than the exact one: far above the float32 distances' rounding (~1e-7 m)
 SLACK = 1e-5
+# point sets per pass of min_distance's kernel (its float32 planes stay in the first-level cache)
+SETS = 64
 
 
 def segments(ctx, base, q: np.ndarray, k: int = 5, extra: int = 0) -> np.ndarray:
@@ -56,32 +58,43 @@ def min_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     float32 squares summed x, y, z, the smallest taken, then its square root (_min_distance_kernel)."""
     lead = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
     n = int(np.prod(lead))
-    A, B = (np.ascontiguousarray(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, x.shape[-2], 3), np.float32)
+    A, B = (np.ascontiguousarray(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, x.shape[-2], 3), float)
             for x in (a, b))
     return _min_distance_kernel(A, B).reshape(lead)
 
 
 @numba.njit(cache=True)
 def _min_distance_kernel(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(n,) min_distance of float32 sets A (n, P, 3) and B (n, Q, 3), NaN where a pair's is: one compiled loop per
-    set (numpy's planes of every pair cost a pass over memory per term, and its call overhead per small set)."""
+    """(n,) min_distance of sets A (n, P, 3) and B (n, Q, 3) (float64, taken as float32), NaN where a pair's is.
+    SETS at a time, copied into float32 planes coordinate, point, then set: the pairs' loop runs over the sets
+    innermost, in SIMD lanes (five times the loop per set; numpy's planes of every pair cost a pass over
+    memory per term)."""
     n, P, Q = A.shape[0], A.shape[1], B.shape[1]
     out = np.empty(n, np.float32)
-    for e in range(n):
-        best = np.float32(np.inf)
-        nan = False
+    At, Bt = np.empty((3, P, SETS), np.float32), np.empty((3, Q, SETS), np.float32)
+    best, nan = np.empty(SETS, np.float32), np.empty(SETS, np.bool_)
+    for e0 in range(0, n, SETS):
+        w = min(SETS, n - e0)
+        for e in range(w):
+            for c in range(3):
+                for i in range(P):
+                    At[c, i, e] = np.float32(A[e0 + e, i, c])
+                for j in range(Q):
+                    Bt[c, j, e] = np.float32(B[e0 + e, j, c])
+        best[:] = np.float32(np.inf)
+        nan[:] = False
         for i in range(P):
-            ax, ay, az = A[e, i, 0], A[e, i, 1], A[e, i, 2]
             for j in range(Q):
-                dx, dy, dz = ax - B[e, j, 0], ay - B[e, j, 1], az - B[e, j, 2]
-                d = dx * dx
-                d += dy * dy
-                d += dz * dz
-                if d != d:
-                    nan = True
-                elif d < best:
-                    best = d
-        out[e] = np.float32(np.nan) if nan else np.sqrt(best)
+                for e in range(w):
+                    dx, dy, dz = At[0, i, e] - Bt[0, j, e], At[1, i, e] - Bt[1, j, e], At[2, i, e] - Bt[2, j, e]
+                    d = dx * dx
+                    d += dy * dy
+                    d += dz * dz
+                    low = best[e]
+                    best[e] = d if d < low else low
+                    nan[e] |= d != d
+        for e in range(w):
+            out[e0 + e] = np.float32(np.nan) if nan[e] else np.sqrt(best[e])
     return out
 
 
