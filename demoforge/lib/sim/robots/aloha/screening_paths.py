@@ -126,18 +126,26 @@ def _node(good, margin, e, f, c, s, b, bad, cap):
 
 
 @numba.njit(cache=True)
-def _joints(q, q5f, e, s, ks, K, out):
-    """out (N, 7): the float32 joints of episode e's states n = (2 c + w) K + k at sample s, the arm's six, then the
-    last half-turned."""
-    C = q.shape[1]
+def _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node):
+    """Episode e's states n = (2 c + w) K + k: joints (S, N, 7) their float32 joints (the arm's six, then the last
+    half-turned), node (2, S, N) their costs. Read in the arrays' order (a state per sample, per turn, was ten
+    times slower than the arithmetic: strided reads from memory)."""
+    C, S = q.shape[1], q.shape[2]
     for c in range(C):
-        for w in range(2):
-            for i in range(K):
-                n = (2 * c + w) * K + i
-                b = 4 * w + ks[i]
-                for j in range(6):
-                    out[n, j] = np.float32(q[e, c, s, b, j])
-                out[n, 6] = np.float32(q5f[e, c, s, b])
+        for s in range(S):
+            for w in range(2):
+                for i in range(K):
+                    n, b = (2 * c + w) * K + i, 4 * w + ks[i]
+                    for j in range(6):
+                        joints[s, n, j] = np.float32(q[e, c, s, b, j])
+                    joints[s, n, 6] = np.float32(q5f[e, c, s, b])
+    for f in range(2):
+        for c in range(C):
+            for s in range(S):
+                for w in range(2):
+                    for i in range(K):
+                        n, b = (2 * c + w) * K + i, 4 * w + ks[i]
+                        node[f, s, n] = _node(good, margin, e, f, c, s, b, bad64, cap)
 
 
 @numba.njit(cache=True)
@@ -148,7 +156,7 @@ def _paths(q, q5f, good, margin, start, valid, may_turn, thr, nb, move, bad64, c
     E, F, C, S, B = good.shape
     m = nb.shape[1]
     bad = np.float32(bad64)
-    prev, cur = np.empty((8 * C, 7), np.float32), np.empty((8 * C, 7), np.float32)
+    joints, node = np.empty((S, 8 * C, 7), np.float32), np.empty((2, S, 8 * C), np.float32)
     cost, new = np.empty((2, 8 * C), np.float32), np.empty((2, 8 * C), np.float32)
     back = np.zeros((S, 2, 8 * C), np.int8)
     ks, arm = np.empty(4, np.int64), np.empty(m, np.float32)
@@ -158,33 +166,26 @@ def _paths(q, q5f, good, margin, start, valid, may_turn, thr, nb, move, bad64, c
             if branches[e, k]:
                 ks[K] = k
                 K += 1
+        _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node)
         for f in range(2):
             for c in range(C):
                 for w in range(2):
                     for i in range(K):
-                        b = 4 * w + ks[i]
-                        cost[f, (2 * c + w) * K + i] = (np.float32(start[e, f, c, b])
-                                                        + _node(good, margin, e, f, c, 0, b, bad64, cap))
-        last = -1  # the sample whose joints prev holds
+                        n = (2 * c + w) * K + i
+                        cost[f, n] = np.float32(start[e, f, c, 4 * w + ks[i]]) + node[f, 0, n]
         for s in range(1, S):
-            if not valid[e, s]:
-                continue
-            if last != s - 1:
-                _joints(q, q5f, e, s - 1, ks, K, prev)
-            _joints(q, q5f, e, s, ks, K, cur)
-            _step(prev, cur, cost, new, back[s], nb, move, not may_turn[e, s], thr[e, s], ks, K, arm, bad)
-            for f in range(2):
-                for c in range(C):
-                    for w in range(2):
-                        for i in range(K):
-                            n = (2 * c + w) * K + i
-                            new[f, n] += _node(good, margin, e, f, c, s, 4 * w + ks[i], bad64, cap)
-            prev, cur, cost, new, last = cur, prev, new, cost, s
+            if valid[e, s]:
+                _step(joints[s - 1], joints[s], cost, new, back[s], nb, move, not may_turn[e, s], thr[e, s], K, arm,
+                      bad)
+                for f in range(2):
+                    for n in range(2 * C * K):
+                        new[f, n] += node[f, s, n]
+                cost, new = new, cost
         _backtrack(cost, back, valid, nb, e, ks, K, cs, bs, out)
 
 
 @numba.njit(cache=True)
-def _step(prev, cur, cost, new, back, nb, move, held, thr, ks, K, arm, bad):
+def _step(prev, cur, cost, new, back, nb, move, held, thr, K, arm, bad):
     """One sample's step: new (2, N) each state's cheapest total over its predecessors (the state's own cost not
     yet added), back (2, N) which (2 j + t: neighbour j, the other wrist branch if t), in numpy's float32 order
     ((cost + (move + BAD if turning where held)) + BAD if a joint moves thr or more), the first on ties, NaN
