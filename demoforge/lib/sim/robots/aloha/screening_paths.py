@@ -8,10 +8,11 @@ MARGIN_CAP; TURN_RATE_WEIGHT per rad of turn); a path costing less than BAD meet
 The sums are float32 in grasp_choice's order of additions, the ties broken as argmin's (the first state,
 the first predecessor), so the paths are the plain per-episode DP's exactly.
 
-The DP runs in numba kernels, one episode at a time (each with its own arm branches: no grouping, no copies):
-per sample, the joints of its states gathered as float32, then per state and predecessor the largest joint
-move and the float32 sum, the cheapest kept with its back-pointer; then the backtrack. Numpy passes per sample
-over (predecessor, state) planes of a few hundred elements spent ten times their arithmetic in call overhead.
+The DP runs in numba kernels, one episode at a time over its own arm branches (no grouping, no copies): the
+episode's joints (as float32) and state costs read once in the arrays' order, then per sample, state and
+predecessor the largest joint move and the float32 sum, the cheapest kept with its back-pointer (selects, not
+branches: which predecessor wins is unpredictable); then the backtrack. Numpy passes per sample over
+(predecessor, state) planes of a few hundred elements spent ten times their arithmetic in call overhead.
 No fastmath: the sums, NaN's propagation through the joints' maxima and the ties are numpy's exactly.
 """
 
@@ -113,7 +114,7 @@ def _byte(good, e, f, c, s):
 @numba.njit(cache=True)
 def _max(a, b):
     """np.maximum's: NaN if either is."""
-    return b if (b > a or b != b) else a
+    return b if (b > a) | (b != b) else a
 
 
 @numba.njit(cache=True)
@@ -127,7 +128,7 @@ def _node(good, margin, e, f, c, s, b, bad, cap):
 
 @numba.njit(cache=True)
 def _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node):
-    """Episode e's states n = (2 c + w) K + k: joints (S, N, 7) their float32 joints (the arm's six, then the last
+    """Episode e's states n = (2 c + w) K + k: joints (S, 7, N) their float32 joints (the arm's six, then the last
     half-turned), node (2, S, N) their costs. Read in the arrays' order (a state per sample, per turn, was ten
     times slower than the arithmetic: strided reads from memory)."""
     C, S = q.shape[1], q.shape[2]
@@ -137,8 +138,8 @@ def _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node):
                 for i in range(K):
                     n, b = (2 * c + w) * K + i, 4 * w + ks[i]
                     for j in range(6):
-                        joints[s, n, j] = np.float32(q[e, c, s, b, j])
-                    joints[s, n, 6] = np.float32(q5f[e, c, s, b])
+                        joints[s, j, n] = np.float32(q[e, c, s, b, j])
+                    joints[s, 6, n] = np.float32(q5f[e, c, s, b])
     for f in range(2):
         for c in range(C):
             for s in range(S):
@@ -149,23 +150,48 @@ def _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node):
 
 
 @numba.njit(cache=True)
+def _moves(nb, move, K, bad, pred, arm_pred, arm_at, step):
+    """The moves into the states n = (2 c + w) K + k of K arm branches: pred (P, N) the predecessor 2 j + t (turn
+    nb[c, j], the other wrist branch if t), arm_pred (m, N) / arm_at (N) the states whose arm joints count (wrist
+    branch 0's: the two share them), step (2, P, N) the float32 move's cost, where the turn may change or not
+    (BAD added to a turn's change)."""
+    C, m = nb.shape
+    zero = np.float32(0.0)
+    for c in range(C):
+        for w in range(2):
+            for i in range(K):
+                n = (2 * c + w) * K + i
+                arm_at[n] = 2 * c * K + i
+                for j in range(m):
+                    arm_pred[j, n] = 2 * nb[c, j] * K + i
+                    for t in range(2):
+                        pred[2 * j + t, n] = (2 * nb[c, j] + (w ^ t)) * K + i
+                        step[0, 2 * j + t, n] = move[c, j] + zero
+                        step[1, 2 * j + t, n] = move[c, j] + (bad if j > 0 else zero)
+
+
+@numba.njit(cache=True)
 def _paths(q, q5f, good, margin, start, valid, may_turn, thr, nb, move, bad64, cap, branches, rows, cs, bs, out):
     """best_paths' DP for the episodes rows, each over its arm branches branches (E, 4), into cs, bs, out: thr
     (E, S) the jumps and move (C, m) the moves' costs in float32, bad64 / cap BAD and MARGIN_CAP (arguments: a
     cached kernel would not see them change)."""
     E, F, C, S, B = good.shape
-    m = nb.shape[1]
+    m, M = nb.shape[1], 8 * C
     bad = np.float32(bad64)
-    joints, node = np.empty((S, 8 * C, 7), np.float32), np.empty((2, S, 8 * C), np.float32)
-    cost, new = np.empty((2, 8 * C), np.float32), np.empty((2, 8 * C), np.float32)
-    back = np.zeros((S, 2, 8 * C), np.int8)
-    ks, arm = np.empty(4, np.int64), np.empty(m, np.float32)
+    joints, node = np.empty((S, 7, M), np.float32), np.empty((2, S, M), np.float32)
+    cost, new, nan = np.empty((2, M), np.float32), np.empty((2, M), np.float32), np.empty((2, M), np.bool_)
+    back = np.zeros((S, 2, M), np.int8)
+    pred, arm_pred, arm_at = np.empty((2 * m, M), np.int64), np.empty((m, M), np.int64), np.empty(M, np.int64)
+    step, arm = np.empty((2, 2 * m, M), np.float32), np.empty((m, M), np.float32)
+    ks = np.empty(4, np.int64)
     for e in rows:
         K = 0
         for k in range(4):
             if branches[e, k]:
                 ks[K] = k
                 K += 1
+        N = 2 * C * K
+        _moves(nb, move, K, bad, pred, arm_pred, arm_at, step)
         _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node)
         for f in range(2):
             for c in range(C):
@@ -175,52 +201,41 @@ def _paths(q, q5f, good, margin, start, valid, may_turn, thr, nb, move, bad64, c
                         cost[f, n] = np.float32(start[e, f, c, 4 * w + ks[i]]) + node[f, 0, n]
         for s in range(1, S):
             if valid[e, s]:
-                _step(joints[s - 1], joints[s], cost, new, back[s], nb, move, not may_turn[e, s], thr[e, s], K, arm,
-                      bad)
+                _step(joints[s - 1], joints[s], cost, new, nan, back[s], pred, arm_pred, arm_at,
+                      step[0 if may_turn[e, s] else 1], thr[e, s], N, arm, bad)
                 for f in range(2):
-                    for n in range(2 * C * K):
-                        new[f, n] += node[f, s, n]
+                    for n in range(N):
+                        new[f, n] = (np.float32(np.nan) if nan[f, n] else new[f, n]) + node[f, s, n]
                 cost, new = new, cost
         _backtrack(cost, back, valid, nb, e, ks, K, cs, bs, out)
 
 
 @numba.njit(cache=True)
-def _step(prev, cur, cost, new, back, nb, move, held, thr, K, arm, bad):
+def _step(prev, cur, cost, new, nan, back, pred, arm_pred, arm_at, step, thr, N, arm, bad):
     """One sample's step: new (2, N) each state's cheapest total over its predecessors (the state's own cost not
-    yet added), back (2, N) which (2 j + t: neighbour j, the other wrist branch if t), in numpy's float32 order
-    ((cost + (move + BAD if turning where held)) + BAD if a joint moves thr or more), the first on ties, NaN
-    (predecessor 2 m, past the last) if any total is."""
-    C, m = nb.shape
-    zero = np.float32(0.0)
-    for c in range(C):
-        for i in range(K):
-            for j in range(m):  # the arm's three joints: the wrist branches share them (wrist branch 0's taken)
-                a, p = 2 * c * K + i, 2 * nb[c, j] * K + i
-                d = _max(abs(prev[p, 0] - cur[a, 0]), abs(prev[p, 1] - cur[a, 1]))
-                arm[j] = _max(d, abs(prev[p, 2] - cur[a, 2]))
-            for w in range(2):
-                n = (2 * c + w) * K + i
-                best0, best1 = np.float32(np.inf), np.float32(np.inf)
-                arg0, arg1, nan0, nan1 = 0, 0, False, False
-                for j in range(m):
-                    step = move[c, j] + (bad if (j > 0 and held) else zero)
-                    for t in range(2):
-                        p = (2 * nb[c, j] + (w ^ t)) * K + i
-                        tot0, tot1 = cost[0, p] + step, cost[1, p] + step
-                        nan0 |= tot0 != tot0
-                        nan1 |= tot1 != tot1
-                        # a jump only adds: a total not under the best so far stays so (nor does no move: inf)
-                        if not (tot0 < best0 or tot1 < best1):
-                            continue
-                        jump = _max(_max(abs(prev[p, 3] - cur[n, 3]), abs(prev[p, 4] - cur[n, 4])), arm[j])
-                        tot0 += bad if _max(abs(prev[p, 5] - cur[n, 5]), jump) >= thr else zero
-                        tot1 += bad if _max(abs(prev[p, 6] - cur[n, 6]), jump) >= thr else zero
-                        if tot0 < best0:
-                            best0, arg0 = tot0, 2 * j + t
-                        if tot1 < best1:
-                            best1, arg1 = tot1, 2 * j + t
-                new[0, n], back[0, n] = (np.float32(np.nan), 2 * m) if nan0 else (best0, arg0)
-                new[1, n], back[1, n] = (np.float32(np.nan), 2 * m) if nan1 else (best1, arg1)
+    yet added), back (2, N) which (p of pred), in numpy's float32 order ((cost + step) + BAD if a joint moves thr
+    or more), the first on ties; nan (2, N) where any total is NaN (back: P, past the last)."""
+    P, zero = pred.shape[0], np.float32(0.0)
+    for j in range(arm_pred.shape[0]):  # the arm's three joints (wrist branch 0's)
+        for n in range(N):
+            a, p = arm_at[n], arm_pred[j, n]
+            d = _max(abs(prev[0, p] - cur[0, a]), abs(prev[1, p] - cur[1, a]))
+            arm[j, n] = _max(d, abs(prev[2, p] - cur[2, a]))
+    for n in range(N):
+        best0, best1, arg0, arg1 = np.float32(np.inf), np.float32(np.inf), 0, 0
+        nan0, nan1 = False, False
+        for x in range(P):
+            p = pred[x, n]
+            jump = _max(_max(abs(prev[3, p] - cur[3, n]), abs(prev[4, p] - cur[4, n])), arm[x >> 1, n])
+            tot0 = (cost[0, p] + step[x, n]) + (bad if _max(abs(prev[5, p] - cur[5, n]), jump) >= thr else zero)
+            tot1 = (cost[1, p] + step[x, n]) + (bad if _max(abs(prev[6, p] - cur[6, n]), jump) >= thr else zero)
+            nan0 |= tot0 != tot0
+            nan1 |= tot1 != tot1
+            less0, less1 = tot0 < best0, tot1 < best1
+            best0, arg0 = (tot0 if less0 else best0), (x if less0 else arg0)
+            best1, arg1 = (tot1 if less1 else best1), (x if less1 else arg1)
+        new[0, n], back[0, n], nan[0, n] = best0, (P if nan0 else arg0), nan0
+        new[1, n], back[1, n], nan[1, n] = best1, (P if nan1 else arg1), nan1
 
 
 @numba.njit(cache=True)
