@@ -7,26 +7,21 @@ The costs are grasp_choice._best_path's (a state not followed or a joint jumping
 MARGIN_CAP; TURN_RATE_WEIGHT per rad of turn); a path costing less than BAD meets every rule at every sample.
 The sums are float32 in grasp_choice's order of additions, the ties broken as argmin's (the first state,
 the first predecessor), so the paths are the plain per-episode DP's exactly.
+
+The DP runs in numba kernels, one episode at a time over its own arm branches (no grouping, no copies): the
+episode's joints (as float32) and state costs read once in the arrays' order, then per sample, state and
+predecessor the largest joint move and the float32 sum, the cheapest kept with its back-pointer (selects, not
+branches: which predecessor wins is unpredictable); then the backtrack. Numpy passes per sample over
+(predecessor, state) planes of a few hundred elements spent ten times their arithmetic in call overhead.
+No fastmath: the sums, NaN's propagation through the joints' maxima and the ties are numpy's exactly.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .grasp_choice import BAD, MARGIN_CAP
-
-
-def _states(nb: np.ndarray, nb_mask: np.ndarray, nb_cost: np.ndarray, K: int) -> tuple[np.ndarray, ...]:
-    """The path's states (turn c, wrist branch w, arm branch k of K), n = (2 c + w) K + k, and where each can be
-    reached from: (pred (N, P) the states, the state itself first; move (N, P) the cost of the move, inf for
-    none; turning (N, P) the move changes the turn)."""
-    C, m = nb.shape
-    c, w, k = np.unravel_index(np.arange(C * 2 * K), (C, 2, K))
-    j = np.repeat(np.arange(m), 2)  # neighbour slot, then the same wrist branch and the other
-    ww = (w[:, None] + np.tile([0, 1], m)[None]) % 2
-    pred = (2 * nb[c][:, j] + ww) * K + k[:, None]
-    move = np.where(nb_mask[c][:, j], nb_cost[c][:, j], np.inf)
-    return pred, move, np.broadcast_to(j > 0, pred.shape)
 
 
 def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost, infeasible: bool = True):
@@ -37,7 +32,7 @@ def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask,
     moves between turns to the neighbours nb (C, m) only, and
     between branches only within an arm branch (the two wrist branches of each; an arm branch changes only
     through a singular configuration, which no followed path passes), each episode's arm branches never
-    followed left out (the episodes grouped by those). Returns (c (E, 2, S), b (E, 2, S), cost (E, 2)); a
+    followed left out. Returns (c (E, 2, S), b (E, 2, S), cost (E, 2)); a
     cost under BAD: every sample followed, no joint jumping, the turn changing only where it may.
 
     A path costing less than BAD keeps to one arm branch through followed states: the arm branches without
@@ -51,29 +46,18 @@ def best_paths(q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask,
     reach = live.copy()
     multi = np.flatnonzero(live.sum(axis=1) > 1)  # (one branch: the paths are its own anyway)
     if len(multi):
-        reach[multi] = _reachable(good[multi], valid[multi], may_turn[multi], nb, nb_mask)
+        reach[multi] = _reachable(good, valid, may_turn, nb, nb_mask, multi)
     cs, bs, cost = np.zeros((E, F, S), int), np.zeros((E, F, S), int), np.full((E, F), np.inf)
-    _grouped(reach, reach.any(axis=1), (cs, bs, cost), q, q5f, good, margin, start, valid, may_turn, jumps,
-             (nb, nb_mask, nb_cost))
+    # the move costs as the DP adds them: float32, inf for no move
+    move = np.where(nb_mask, nb_cost, np.inf).astype(np.float32)
+    # MARGIN_CAP in the margins' type (numpy's np.minimum and subtraction keep a float32 margin float32)
+    cap = margin.dtype.type(MARGIN_CAP)
+    args = (q, q5f, good, margin, start, valid, may_turn, jumps.astype(np.float32), nb, move, BAD, cap)
+    _paths(*args, reach, np.flatnonzero(reach.any(axis=1)), cs, bs, cost)
     if infeasible:  # (where no branch was left out, those are the paths already)
         again = ~(cost < BAD).all(axis=1) & (reach != live).any(axis=1)
-        _grouped(live, again, (cs, bs, cost), q, q5f, good, margin, start, valid, may_turn, jumps, (nb, nb_mask, nb_cost))
+        _paths(*args, live, np.flatnonzero(again), cs, bs, cost)
     return cs, bs, cost
-
-
-def _grouped(branches, rows, out, q, q5f, good, margin, start, valid, may_turn, jumps, moves) -> None:
-    """_paths_of for the episodes rows (E,) bool, grouped by their arm branches (E, 4) bool, into out."""
-    sel = np.flatnonzero(rows)
-    if not len(sel):
-        return
-    keys, inverse = np.unique(branches[sel], axis=0, return_inverse=True)
-    for k, key in enumerate(keys):
-        r = sel[inverse.ravel() == k]
-        r = slice(None) if len(r) == len(rows) else r  # every episode: no copies
-        res = _paths_of(q[r], q5f[r], good[r], margin[r], start[r], valid[r], may_turn[r], jumps[r], moves,
-                        np.flatnonzero(key))
-        for o, v in zip(out, res):
-            o[r] = v
 
 
 def _any_of_four(x: np.ndarray) -> np.ndarray:
@@ -83,92 +67,199 @@ def _any_of_four(x: np.ndarray) -> np.ndarray:
     return np.bitwise_or.reduce(words, axis=1).view(np.uint8).reshape(len(x), 4).astype(bool)
 
 
-def _reachable(good, valid, may_turn, nb, nb_mask) -> np.ndarray:
-    """(E, 4) the arm branches with a path of followed states over the samples in either half-turn (moves as
-    best_paths', a joint free to jump). A state's eight branches are the bits of a byte (bit 4 w + k)."""
+@numba.njit(cache=True)
+def _reachable(good, valid, may_turn, nb, nb_mask, rows):
+    """(len(rows), 4) the arm branches of the episodes rows with a path of followed states over the samples in
+    either half-turn (moves as best_paths', a joint free to jump). A state's eight branches are the bits of a
+    byte (bit 4 w + k)."""
     E, F, C, S, B = good.shape
-    g = np.packbits(good, axis=-1, bitorder="little")[..., 0]  # (E, F, C, S)
-    r = g[:, :, :, 0]
-    for s in range(1, S):
-        turn = (r | (r >> 4)) & 15  # (E, F, C) the arm branches at each turn, either wrist branch
-        moved = turn.copy()  # nb[:, 0] is the turn itself
-        for j in range(1, nb.shape[1]):
-            moved |= np.take(turn, nb[:, j], axis=2) * nb_mask[:, j].astype(np.uint8)
-        came = np.where(may_turn[:, s, None, None], moved, turn)
-        r = np.where(valid[:, s, None, None], g[:, :, :, s] & (came | (came << 4)), r)
-    bits = np.bitwise_or.reduce(((r | (r >> 4)) & 15).reshape(E, -1), axis=1)
-    return ((bits[:, None] >> np.arange(4)) & 1).astype(bool)
+    out = np.zeros((len(rows), 4), np.bool_)
+    r = np.zeros(C, np.int64)
+    turn = np.zeros(C, np.int64)
+    for i in range(len(rows)):
+        e = rows[i]
+        bits = 0
+        for f in range(F):
+            for c in range(C):
+                r[c] = _byte(good, e, f, c, 0)
+            for s in range(1, S):
+                if not valid[e, s]:
+                    continue
+                for c in range(C):
+                    turn[c] = (r[c] | (r[c] >> 4)) & 15  # the arm branches at each turn, either wrist branch
+                for c in range(C):
+                    came = turn[c]  # nb[:, 0] is the turn itself
+                    if may_turn[e, s]:
+                        for j in range(1, nb.shape[1]):
+                            if nb_mask[c, j]:
+                                came |= turn[nb[c, j]]
+                    r[c] = _byte(good, e, f, c, s) & (came | (came << 4))
+            for c in range(C):
+                bits |= (r[c] | (r[c] >> 4)) & 15
+        for k in range(4):
+            out[i, k] = (bits >> k) & 1
+    return out
 
 
-def _paths_of(q, q5f, good, margin, start, valid, may_turn, jumps, moves, ks):
-    """best_paths for episodes sharing the arm branches ks that are followed somewhere. Laid out sample first and
-    predecessor before state ((P, N) planes: numpy's reductions over a short last axis, and gathers with
-    several index arrays, cost ten times the element-wise work), the costs in float32 (7 digits of a path's
-    few hundred at most: the BAD threshold and the margins' order keep) added in grasp_choice's order."""
+@numba.njit(cache=True)
+def _byte(good, e, f, c, s):
+    """The branches followed in a state, bit b for branch b."""
+    x = 0
+    for b in range(good.shape[4]):
+        if good[e, f, c, s, b]:
+            x |= 1 << b
+    return x
+
+
+@numba.njit(cache=True)
+def _max(a, b):
+    """np.maximum's: NaN if either is."""
+    return b if (b > a) | (b != b) else a
+
+
+@numba.njit(cache=True)
+def _node(good, margin, e, f, c, s, b, bad, cap):
+    """A state's cost as numpy's float64 then rounded to float32: BAD if not followed, its missing margin (NaN
+    kept as np.minimum keeps it)."""
+    mg = margin[e, f, c, s, b]
+    low = cap if mg >= cap else mg
+    return np.float32((0.0 if good[e, f, c, s, b] else bad) + (cap - low))
+
+
+@numba.njit(cache=True)
+def _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node):
+    """Episode e's states n = (2 c + w) K + k: joints (S, 7, N) their float32 joints (the arm's six, then the last
+    half-turned), node (2, S, N) their costs. Read in the arrays' order (a state per sample, per turn, was ten
+    times slower than the arithmetic: strided reads from memory)."""
+    C, S = q.shape[1], q.shape[2]
+    for c in range(C):
+        for s in range(S):
+            for w in range(2):
+                for i in range(K):
+                    n, b = (2 * c + w) * K + i, 4 * w + ks[i]
+                    for j in range(6):
+                        joints[s, j, n] = np.float32(q[e, c, s, b, j])
+                    joints[s, 6, n] = np.float32(q5f[e, c, s, b])
+    for f in range(2):
+        for c in range(C):
+            for s in range(S):
+                for w in range(2):
+                    for i in range(K):
+                        n, b = (2 * c + w) * K + i, 4 * w + ks[i]
+                        node[f, s, n] = _node(good, margin, e, f, c, s, b, bad64, cap)
+
+
+@numba.njit(cache=True)
+def _moves(nb, move, K, bad, pred, arm_pred, arm_at, step):
+    """The moves into the states n = (2 c + w) K + k of K arm branches: pred (P, N) the predecessor 2 j + t (turn
+    nb[c, j], the other wrist branch if t), arm_pred (m, N) / arm_at (N) the states whose arm joints count (wrist
+    branch 0's: the two share them), step (2, P, N) the float32 move's cost, where the turn may change or not
+    (BAD added to a turn's change)."""
+    C, m = nb.shape
+    zero = np.float32(0.0)
+    for c in range(C):
+        for w in range(2):
+            for i in range(K):
+                n = (2 * c + w) * K + i
+                arm_at[n] = 2 * c * K + i
+                for j in range(m):
+                    arm_pred[j, n] = 2 * nb[c, j] * K + i
+                    for t in range(2):
+                        pred[2 * j + t, n] = (2 * nb[c, j] + (w ^ t)) * K + i
+                        step[0, 2 * j + t, n] = move[c, j] + zero
+                        step[1, 2 * j + t, n] = move[c, j] + (bad if j > 0 else zero)
+
+
+@numba.njit(cache=True)
+def _paths(q, q5f, good, margin, start, valid, may_turn, thr, nb, move, bad64, cap, branches, rows, cs, bs, out):
+    """best_paths' DP for the episodes rows, each over its arm branches branches (E, 4), into cs, bs, out: thr
+    (E, S) the jumps and move (C, m) the moves' costs in float32, bad64 / cap BAD and MARGIN_CAP (arguments: a
+    cached kernel would not see them change)."""
     E, F, C, S, B = good.shape
-    K = len(ks)
-    pred, move, turning = _states(*moves, K)
-    N, P = pred.shape
-    predT = pred.T.ravel()  # predecessor-major: (P, N) planes
-    # the joints (S, 7, E, N): the arm's five, then the last per half-turn; per arm branch a float32 copy sample
-    # first, then the joint axis moved in (two copies with short strides: a third faster than one long-strided)
-    Q = np.empty((S, 7, E, C, 2, K), np.float32)
-    q6, q5f6 = q.reshape(E, C, S, 2, 4, 6), q5f.reshape(E, C, S, 2, 4)
-    for i, k in enumerate(ks):
-        by_sample = np.ascontiguousarray(q6[..., k, :].transpose(2, 0, 1, 3, 4), np.float32)  # (S, E, C, 2, 6)
-        Q[:, :6, ..., i] = by_sample.transpose(0, 4, 1, 2, 3)
-        Q[:, 6, ..., i] = q5f6[..., k].transpose(2, 0, 1, 3)
-    Q = Q.reshape(S, 7, E, N)
-    g = good.reshape(E, F, C, S, 2, 4)[..., ks]
-    mg = margin.reshape(E, F, C, S, 2, 4)[..., ks]
-    node = np.ascontiguousarray((BAD * ~g + (MARGIN_CAP - np.minimum(mg, MARGIN_CAP))).transpose(3, 1, 0, 2, 4, 5),
-                                dtype=np.float32).reshape(S, F, E, N)
-    st = np.ascontiguousarray(start.reshape(E, F, C, 2, 4)[..., ks].transpose(1, 0, 2, 3, 4), dtype=np.float32)
-    cost = st.reshape(F, E, N) + node[0]
-    moveT = move.T.astype(np.float32)  # (P, N)
-    turnT = turning.T
-    thr = jumps.astype(np.float32)
-    bad = np.float32(BAD)
-    first_of = (P - np.arange(P)).astype(np.uint8)[:, None]  # P - p: the largest marks the first minimum (argmin's)
-    back = np.zeros((S, F, E, N), np.int8)
-    # the arm's three joints are the two wrist branches' own: their moves per (neighbour, turn, arm branch) only
-    m = P // 2
-    c_, k_ = np.divmod(np.arange(C * K), K)
-    arm_from = ((2 * moves[0][c_] * K + k_[:, None]).T).ravel()  # (m, C K): the neighbour's wrist branch 0
-    arm_to = 2 * c_ * K + k_
-    for s in range(1, S):
-        prev = np.take(Q[s - 1, :3], arm_from, axis=2).reshape(3, E, m, C * K)
-        cur = np.take(Q[s, :3], arm_to, axis=2)[:, :, None]
-        arm = np.abs(prev[0] - cur[0])
-        for j in (1, 2):
-            np.maximum(arm, np.abs(prev[j] - cur[j]), out=arm)
-        prev = np.take(Q[s - 1, 3:5], predT, axis=2).reshape(2, E, P, N)
-        cur = Q[s, 3:5, :, None]
-        jump = np.maximum(np.abs(prev[0] - cur[0]), np.abs(prev[1] - cur[1]))
-        # the arm's move into each state (both its wrist branches), broadcast over the predecessor's wrist branch
-        # only (a long inner loop: broadcast over both, the innermost was K long)
-        arm = np.repeat(arm.reshape(E, m, C, 1, K), 2, axis=3).reshape(E, m, 1, N)
-        np.maximum(jump.reshape(E, m, 2, N), arm, out=jump.reshape(E, m, 2, N))
-        j5 = np.abs(np.take(Q[s - 1, 5:], predT, axis=2).reshape(F, E, P, N) - Q[s, 5:, :, None])
-        np.maximum(j5, jump, out=j5)
-        step = moveT + bad * (turnT & ~may_turn[:, s, None, None])  # (E, P, N)
-        total = np.take(cost, predT, axis=2).reshape(F, E, P, N) + step
-        total += bad * (j5 >= thr[:, s, None, None])
-        best = total.min(axis=2)
-        arg = P - ((total == best[:, :, None]) * first_of).max(axis=2)
-        keep = ~valid[:, s, None]
-        cost = np.where(keep, cost, best + node[s])
-        back[s] = np.where(keep, 0, arg)
-    n = cost.argmin(axis=2)  # (F, E)
-    best = np.take_along_axis(cost, n[..., None], axis=2)[..., 0]
-    ns = np.empty((F, E, S), int)
-    f, e = np.arange(F)[:, None], np.arange(E)[None]
-    for s in range(S - 1, -1, -1):
-        ns[:, :, s] = n
-        if s:
-            n = pred[n, back[s, f, e, n]]
-    c, w, k = np.unravel_index(ns, (C, 2, K))
-    return np.swapaxes(c, 0, 1), np.swapaxes(4 * w + ks[k], 0, 1), best.T.astype(float)
+    m, M = nb.shape[1], 8 * C
+    bad = np.float32(bad64)
+    joints, node = np.empty((S, 7, M), np.float32), np.empty((2, S, M), np.float32)
+    cost, new, nan = np.empty((2, M), np.float32), np.empty((2, M), np.float32), np.empty((2, M), np.bool_)
+    back = np.zeros((S, 2, M), np.int8)
+    pred, arm_pred, arm_at = np.empty((2 * m, M), np.int64), np.empty((m, M), np.int64), np.empty(M, np.int64)
+    step, arm = np.empty((2, 2 * m, M), np.float32), np.empty((m, M), np.float32)
+    ks = np.empty(4, np.int64)
+    for e in rows:
+        K = 0
+        for k in range(4):
+            if branches[e, k]:
+                ks[K] = k
+                K += 1
+        N = 2 * C * K
+        _moves(nb, move, K, bad, pred, arm_pred, arm_at, step)
+        _episode(q, q5f, good, margin, e, ks, K, bad64, cap, joints, node)
+        for f in range(2):
+            for c in range(C):
+                for w in range(2):
+                    for i in range(K):
+                        n = (2 * c + w) * K + i
+                        cost[f, n] = np.float32(start[e, f, c, 4 * w + ks[i]]) + node[f, 0, n]
+        for s in range(1, S):
+            if valid[e, s]:
+                _step(joints[s - 1], joints[s], cost, new, nan, back[s], pred, arm_pred, arm_at,
+                      step[0 if may_turn[e, s] else 1], thr[e, s], N, arm, bad)
+                for f in range(2):
+                    for n in range(N):
+                        new[f, n] = (np.float32(np.nan) if nan[f, n] else new[f, n]) + node[f, s, n]
+                cost, new = new, cost
+        _backtrack(cost, back, valid, nb, e, ks, K, cs, bs, out)
+
+
+@numba.njit(cache=True)
+def _step(prev, cur, cost, new, nan, back, pred, arm_pred, arm_at, step, thr, N, arm, bad):
+    """One sample's step: new (2, N) each state's cheapest total over its predecessors (the state's own cost not
+    yet added), back (2, N) which (p of pred), in numpy's float32 order ((cost + step) + BAD if a joint moves thr
+    or more), the first on ties; nan (2, N) where any total is NaN (back: P, past the last)."""
+    P, zero = pred.shape[0], np.float32(0.0)
+    for j in range(arm_pred.shape[0]):  # the arm's three joints (wrist branch 0's)
+        for n in range(N):
+            a, p = arm_at[n], arm_pred[j, n]
+            d = _max(abs(prev[0, p] - cur[0, a]), abs(prev[1, p] - cur[1, a]))
+            arm[j, n] = _max(d, abs(prev[2, p] - cur[2, a]))
+    for n in range(N):
+        best0, best1, arg0, arg1 = np.float32(np.inf), np.float32(np.inf), 0, 0
+        nan0, nan1 = False, False
+        for x in range(P):
+            p = pred[x, n]
+            jump = _max(_max(abs(prev[3, p] - cur[3, n]), abs(prev[4, p] - cur[4, n])), arm[x >> 1, n])
+            tot0 = (cost[0, p] + step[x, n]) + (bad if _max(abs(prev[5, p] - cur[5, n]), jump) >= thr else zero)
+            tot1 = (cost[1, p] + step[x, n]) + (bad if _max(abs(prev[6, p] - cur[6, n]), jump) >= thr else zero)
+            nan0 |= tot0 != tot0
+            nan1 |= tot1 != tot1
+            less0, less1 = tot0 < best0, tot1 < best1
+            best0, arg0 = (tot0 if less0 else best0), (x if less0 else arg0)
+            best1, arg1 = (tot1 if less1 else best1), (x if less1 else arg1)
+        new[0, n], back[0, n], nan[0, n] = best0, (P if nan0 else arg0), nan0
+        new[1, n], back[1, n], nan[1, n] = best1, (P if nan1 else arg1), nan1
+
+
+@numba.njit(cache=True)
+def _backtrack(cost, back, valid, nb, e, ks, K, cs, bs, out):
+    """Episode e's cheapest final state (argmin's: the first, or the first NaN) and its path back."""
+    C, S = nb.shape[0], cs.shape[2]
+    for f in range(2):
+        n = 0
+        for x in range(1, 2 * C * K):
+            if cost[f, n] != cost[f, n]:
+                break
+            if cost[f, x] < cost[f, n] or cost[f, x] != cost[f, x]:
+                n = x
+        out[e, f] = cost[f, n]
+        for s in range(S - 1, -1, -1):
+            c, i = divmod(n, 2 * K)
+            w, i = divmod(i, K)
+            cs[e, f, s], bs[e, f, s] = c, 4 * w + ks[i]
+            if s:
+                p = back[s, f, n] if valid[e, s] else 0  # (numpy's 0 where skipped: the state itself)
+                if p >= 2 * nb.shape[1]:
+                    raise IndexError("a NaN cost on the path (numpy's back-pointer past the predecessors)")
+                j, t = divmod(p, 2)
+                n = (2 * nb[c, j] + (w ^ t)) * K + i
 
 
 __all__ = ["best_paths"]

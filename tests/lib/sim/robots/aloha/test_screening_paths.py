@@ -88,9 +88,8 @@ def _instance(rng, E=6, C=5, S=7):
     return q, q5f, good | ~valid[:, None, None, :, None], margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_the_batched_path_search_is_the_plain_dp(seed):
-    args = _instance(np.random.default_rng(seed))
+def _assert_plain(args, seed):
+    """best_paths' paths and costs are the plain DP's, and its witnesses (infeasible False) the same where feasible."""
     cs, bs, cost = best_paths(*args)
     witnesses = best_paths(*args, infeasible=False)
     E = len(cost)
@@ -103,3 +102,25 @@ def test_the_batched_path_search_is_the_plain_dp(seed):
                 assert witnesses[2][e, f] == plain and (witnesses[0][e, f] == cs[e, f]).all()
             else:
                 assert not witnesses[2][e, f] < BAD
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_batched_path_search_is_the_plain_dp(seed):
+    _assert_plain(_instance(np.random.default_rng(seed)), seed)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_unsolved_joints_missing_neighbours_and_float32_margins(seed):
+    """Joints not solved (NaN: a move from or to them never jumps, as numpy's maxima and >= have it), turns with
+    fewer neighbours (nb_mask's padding: no move) and float32 margins (their cap subtracted in float32): still
+    the plain DP's."""
+    rng = np.random.default_rng(100 + seed)
+    q, q5f, good, margin, start, valid, may_turn, jumps, nb, nb_mask, nb_cost = _instance(rng)
+    arm = rng.random(q.shape[:3] + (4,)) < 0.1  # the arm's joints, shared by both wrist branches
+    q[..., :3] = np.where(np.concatenate([arm, arm], axis=-1)[..., None], np.nan, q[..., :3])
+    q[..., 3:][rng.random(q.shape[:4]) < 0.1] = np.nan
+    q5f[rng.random(q5f.shape) < 0.1] = np.nan
+    nb_mask[:, 1:] = rng.random((len(nb), 2)) < 0.6
+    nb = np.where(nb_mask, nb, 0)
+    args = q, q5f, good, margin.astype(np.float32), start, valid, may_turn, jumps, nb, nb_mask, nb_cost
+    _assert_plain(args, seed)
