@@ -134,6 +134,22 @@ class ViperXBatchIK:
         return {"shoulder": shoulder_pt.copy(), "elbow": elbow_pt, "wrist": wrist_pt,
                 "pinch": wrist_pt + g.wrist_to_pinch * approach}
 
+    def segments(self, base: BasePose, q: np.ndarray, u: np.ndarray, extra: int = 0) -> np.ndarray:
+        """(..., 2 len(u) + extra, 3) the points elbow + u (wrist - elbow), then wrist + u (pinch - wrist) of joints
+        q (..., 6) (points()'s elbow, wrist centre and pinch point), then `extra` slots left for the caller: the
+        same numbers as points() interpolated (its sines and cosines numpy's, on whole arrays; the rest in
+        _segments_kernel, pose by pose, in points()'s order of operations)."""
+        g = self.g
+        lead = np.shape(q)[:-1]
+        q = np.asarray(q, float).reshape(-1, 6)
+        waist, shoulder, elbow, roll, pitch = q[:, 0], q[:, 1], q[:, 2], q[:, 3], q[:, 4]
+        psi, fore = shoulder + g.alpha, shoulder + elbow
+        trig = np.stack([np.cos(base.yaw + waist), np.sin(base.yaw + waist), np.sin(psi), np.cos(psi), np.cos(fore),
+                         np.sin(fore), np.cos(pitch), np.sin(pitch), np.sin(roll), np.cos(roll)], axis=1)
+        consts = np.array([base.x, base.y, base.z + g.shoulder_z, g.l1, g.l2, g.wrist_to_pinch])
+        out = _segments_kernel(trig, consts, np.asarray(u, float), int(extra))
+        return out.reshape(lead + out.shape[1:])
+
     def wrist(self, base: BasePose, q: np.ndarray) -> np.ndarray:
         """points(base, q)["wrist"] alone (..., 3): the wrist centre, without the pinch point's trigonometry."""
         return self._arm(base, np.asarray(q, float))[4]
@@ -369,3 +385,27 @@ def turned_poses(par: np.ndarray, perp: np.ndarray, cross: np.ndarray, ctr: np.n
             for col in range(3):
                 x = 3 + 3 * col + j
                 R[i, j, col] = par[ep, s, x] + ct * perp[ep, s, x] + st * cross[ep, s, x]
+
+
+@numba.njit(cache=True)
+def _segments_kernel(trig: np.ndarray, k: np.ndarray, u: np.ndarray, extra: int) -> np.ndarray:
+    """ViperXBatchIK.segments' arithmetic per pose: trig (n, 10) the cosines and sines of the arm's plane (ux, uy),
+    the upper arm's angle, the forearm's, the pitch and the roll; k the shoulder point's x, y, z, l1, l2 and
+    the wrist -> pinch distance. points()'s products and sums in its order (elbow = shoulder + l1 (along u, up),
+    the wrist the same from the elbow, the approach axis, the pinch), then the interpolation start + u d."""
+    n, m = trig.shape[0], len(u)
+    out = np.zeros((n, 2 * m + extra, 3))
+    for i in range(n):
+        ux, uy, spsi, cpsi, cs, ss, cp, sp, sr, cr = (trig[i, 0], trig[i, 1], trig[i, 2], trig[i, 3], trig[i, 4],
+                                                      trig[i, 5], trig[i, 6], trig[i, 7], trig[i, 8], trig[i, 9])
+        e0, e1, e2 = k[0] + k[3] * (spsi * ux), k[1] + k[3] * (spsi * uy), k[2] + k[3] * cpsi
+        w0, w1, w2 = e0 + k[4] * (cs * ux), e1 + k[4] * (cs * uy), e2 + k[4] * -ss
+        vx, vy, vz = cp, sr * sp, -cr * sp
+        ahead, up = cs * vx + ss * vz, -ss * vx + cs * vz
+        a0, a1, a2 = ahead * ux + -uy * vy, ahead * uy + ux * vy, up + 0.0
+        p0, p1, p2 = w0 + k[5] * a0, w1 + k[5] * a1, w2 + k[5] * a2
+        d0, d1, d2, f0, f1, f2 = w0 - e0, w1 - e1, w2 - e2, p0 - w0, p1 - w1, p2 - w2
+        for j in range(m):
+            out[i, j, 0], out[i, j, 1], out[i, j, 2] = e0 + u[j] * d0, e1 + u[j] * d1, e2 + u[j] * d2
+            out[i, m + j, 0], out[i, m + j, 1], out[i, m + j, 2] = w0 + u[j] * f0, w1 + u[j] * f1, w2 + u[j] * f2
+    return out

@@ -30,16 +30,8 @@ SETS = 64
 
 def segments(ctx, base, q: np.ndarray, k: int = 5, extra: int = 0) -> np.ndarray:
     """(..., 2k + extra, 3) points along the elbow -> wrist -> pinch segments of joints q (..., 6)
-    (grasp_choice._segment_points), then `extra` slots for the caller to fill. Point by point on whole
-    (..., 3) arrays (one contiguous loop each, not a broadcast over a 3-long inner axis)."""
-    p = ctx.solver.points(base, q)
-    u = np.linspace(0.0, 1.0, k)
-    out = np.empty(q.shape[:-1] + (2 * k + extra, 3))
-    for i, (a, b) in enumerate((("elbow", "wrist"), ("wrist", "pinch"))):
-        start, d = p[a], p[b] - p[a]
-        for j in range(k):
-            out[..., i * k + j, :] = start + u[j] * d
-    return out
+    (grasp_choice._segment_points), then `extra` slots for the caller to fill."""
+    return ctx.solver.segments(base, q, np.linspace(0.0, 1.0, k), extra)
 
 
 def hand_points(ctx, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
