@@ -399,9 +399,8 @@ def _clear_of(ctx: ArmsContext, arm: ArmCandidates, rows: np.ndarray, cells, q, 
     live = cells[..., None] & arm.valid[rows][:, None, :, None] & (in_range[..., :4] | in_range[..., 4:])
     cell = np.flatnonzero(live & arm.avoid.finite[rows][:, None, :, None])
     e, c, s, k = np.unravel_index(cell, live.shape)
-    p = ctx.solver.points(arm.base, np.take(q.reshape(-1, 6), ((e * C + c) * S + s) * B + k, axis=0))  # wrist branch 0
-    u = np.linspace(0.0, 1.0, 5)[:, None]
-    seg = p["elbow"][:, None] + u * (p["wrist"] - p["elbow"])[:, None]  # (m, 5, 3)
+    joints = np.take(q.reshape(-1, 6), ((e * C + c) * S + s) * B + k, axis=0)  # wrist branch 0
+    seg = ctx.solver.segments(arm.base, joints, np.linspace(0.0, 1.0, 5))[:, :5]  # (m, 5, 3) elbow -> wrist
     near = arm.avoid.near(seg, rows[e], s)
     clear = np.ones((n, C, S, 4), bool)
     clear[e[near], c[near], s[near], k[near]] = False
