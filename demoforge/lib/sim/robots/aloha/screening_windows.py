@@ -145,9 +145,33 @@ def keypoints_over_time(traj: np.ndarray, keypoints0: np.ndarray, keypoint_objec
 
 
 def rotations(pose8: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) of (..., >= 7) poses (normalised quaternions, as lib/geometry pose7_to_transform)."""
-    q = pose8[..., 3:7]
-    return quat_to_matrix(q / norm_last(q)[..., None])
+    """(..., 3, 3) of (..., >= 7) poses: lib/geometry's quat_to_matrix of the quaternions normalised by norm_last,
+    the same numbers (_rotations_kernel)."""
+    q = np.ascontiguousarray(pose8[..., 3:7], float).reshape(-1, 4)
+    return _rotations_kernel(q).reshape(pose8.shape[:-1] + (3, 3))
+
+
+@numba.njit(cache=True)
+def _rotations_kernel(q: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of quaternions q (n, 4) (scalar last) as rotations() made them with numpy:
+    divided by norm_last's norm, then by quat_normalize's (np.linalg.norm: the squares summed left to right),
+    then quat_to_matrix's products. One loop: numpy's took two dozen passes and stacks."""
+    n = q.shape[0]
+    out = np.empty((n, 3, 3))
+    for i in range(n):
+        s = q[i, 0] * q[i, 0]
+        s += q[i, 1] * q[i, 1]
+        s += q[i, 2] * q[i, 2]
+        s += q[i, 3] * q[i, 3]
+        r = np.sqrt(s)
+        x, y, z, w = q[i, 0] / r, q[i, 1] / r, q[i, 2] / r, q[i, 3] / r
+        r = np.sqrt(((x * x + y * y) + z * z) + w * w)
+        x, y, z, w = x / r, y / r, z / r, w / r
+        xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+        out[i, 0, 0], out[i, 0, 1], out[i, 0, 2] = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+        out[i, 1, 0], out[i, 1, 1], out[i, 1, 2] = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+        out[i, 2, 0], out[i, 2, 1], out[i, 2, 2] = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
+    return out
 
 
 def _proximity_sq(traj: np.ndarray, kpt: np.ndarray, ko: np.ndarray, held: np.ndarray, arm: int) -> np.ndarray:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from demoforge.lib.sim.robots.aloha.screening_windows import _score_bounds, held_scores
+from demoforge.lib.geometry import quat_to_matrix
+from demoforge.lib.sim.robots.aloha.screening_windows import _proximity_sq, _score_bounds, held_scores, norm_last, rotations
 from demoforge.lib.trajectories.segmentation import grasped_object_scores
 
 
@@ -38,3 +39,40 @@ def test_the_hull_score_bounds_hold():
     low, high = _score_bounds(kp, ko, p)
     scores = np.array([grasped_object_scores(kp[e], ko, p[e]) for e in range(len(p))])
     assert (low <= scores + 1e-12).all() and (scores <= high + 1e-12).all()
+
+
+def test_the_rotations_are_quat_to_matrix_of_the_normalised_quaternions():
+    """rotations (a compiled loop) against lib/geometry's quat_to_matrix of the quaternions divided by norm_last's
+    norm, bit for bit, on poses of any scale."""
+    rng = np.random.default_rng(3)
+    poses = rng.normal(size=(40, 50, 2, 8)) * rng.uniform(0.2, 5.0, (40, 50, 2, 1))
+    q = poses[..., 3:7]
+    got = rotations(poses)
+    assert got.shape == (40, 50, 2, 3, 3)
+    assert np.array_equal(got, quat_to_matrix(q / norm_last(q)[..., None]))
+
+
+def test_the_proximity_signal_is_the_nearest_keypoint_or_the_held_objects_approach():
+    """_proximity_sq against the squared distance written out step by step: the nearest keypoint of any object to
+    the hand; while a run holds an object, its keypoints where the run starts in place of its own, and its
+    keypoints' nearest approach to the other object's."""
+    rng = np.random.default_rng(5)
+    E, T, K = 3, 12, 7
+    ko = np.array([0, 0, 0, 1, 1, 1, 1])
+    traj = rng.normal(size=(E, T, 2, 8))
+    kpt = rng.normal(size=(E, T, 3, K))
+    held = np.full((T, 2), -1)
+    held[2:5, 1], held[5:9, 1], held[9:, 1] = 0, 1, 0
+    got = _proximity_sq(traj, kpt, ko, held, 1)
+    for e in range(E):
+        for t in range(T):
+            h = held[t, 1]
+            start = min(a for a in range(t + 1) if (held[a:t + 1, 1] == h).all()) if h >= 0 else t
+            best = np.inf
+            for k in range(K):
+                src = start if ko[k] == h else t
+                best = min(best, float(((kpt[e, src, :, k] - traj[e, t, 1, :3]) ** 2).sum()))
+                if h >= 0 and ko[k] != h:
+                    best = min(best, min(float(((kpt[e, t, :, i] - kpt[e, t, :, k]) ** 2).sum())
+                                         for i in range(K) if ko[i] == h))
+            assert np.isclose(got[e, t], best, rtol=1e-12, atol=0.0), (e, t)
