@@ -43,26 +43,81 @@ def norm_last(v: np.ndarray) -> np.ndarray:
 
 
 def smooth_batch(actions: np.ndarray, sigma: float) -> np.ndarray:
-    """keyframes.smooth_actions of each episode of a group (E, T, 2, 8): the gripper's changes (the runs
-    smoothed on their own) are the group's, so one filter call per run covers every episode."""
-    from scipy.ndimage import gaussian_filter1d
-
-    a = np.asarray(actions, float)
+    """keyframes.smooth_actions of each episode of a group (E, T, 2, 8), the same numbers: the gripper's changes
+    (the runs smoothed on their own) are the group's; scipy's Gaussian (its weights, its symmetric correlation
+    with the ends repeated) done by _smooth_kernel, episode by episode."""
+    a = np.ascontiguousarray(actions, float)
     out = a.copy()
     if sigma == 0 or a.shape[1] < 3:
         return out
-    q = a[..., 3:7] / norm_last(a[..., 3:7])[..., None]
-    flips = np.where(np.sum(q[:, 1:] * q[:, :-1], axis=-1) < 0.0, -1.0, 1.0)  # hemisphere_continuous
-    q = q * np.concatenate([np.ones_like(flips[:, :1]), np.cumprod(flips, axis=1)], axis=1)[..., None]
     opened = a[0, :, :, 7] >= 0.5
     cuts = [0, *(np.flatnonzero(np.any(opened[1:] != opened[:-1], axis=1)) + 1).tolist(), a.shape[1]]
-    for s0, s1 in zip(cuts[:-1], cuts[1:]):
-        if s1 - s0 < 3:
-            continue
-        out[:, s0:s1, :, :3] = gaussian_filter1d(a[:, s0:s1, :, :3], float(sigma), axis=1, mode="nearest")
-        sq = gaussian_filter1d(q[:, s0:s1], float(sigma), axis=1, mode="nearest")
-        out[:, s0:s1, :, 3:7] = sq / norm_last(sq)[..., None]
+    runs_ = np.array([(s0, s1) for s0, s1 in zip(cuts[:-1], cuts[1:]) if s1 - s0 >= 3], np.int64).reshape(-1, 2)
+    _smooth_kernel(a, out, gaussian_weights(float(sigma)), runs_)
     return out
+
+
+def gaussian_weights(sigma: float) -> np.ndarray:
+    """(r + 1,) scipy's gaussian_filter1d weights from the centre out: its own filter of a unit impulse (the weights
+    exactly: every other term it adds is zero)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    r = int(4.0 * sigma + 0.5)  # scipy's radius (truncate 4)
+    impulse = np.zeros(2 * r + 1)
+    impulse[r] = 1.0
+    return gaussian_filter1d(impulse, sigma, mode="constant")[r:]
+
+
+@numba.njit(cache=True)
+def _smooth_kernel(a, out, w, runs_):
+    """smooth_batch into out: per episode and arm the quaternions normalised (norm_last's sum) and made
+    hemisphere-continuous over the whole episode, then per run [s0, s1) (runs_ (k, 2)) each position and
+    quaternion channel correlated with the weights w as scipy's correlate1d does for symmetric weights
+    (centre term first, then the pairs from the outermost in, left + right; 'nearest': the run's ends
+    repeated) and the quaternions normalised again. numpy's and scipy's passes cost several times this."""
+    E, T, r = a.shape[0], a.shape[1], len(w) - 1
+    q, prev = np.empty((T, 4)), np.empty(4)
+    for e in range(E):
+        for arm in range(2):
+            sign = 1.0
+            for t in range(T):
+                s = a[e, t, arm, 3] * a[e, t, arm, 3]
+                for j in range(1, 4):
+                    s += a[e, t, arm, 3 + j] * a[e, t, arm, 3 + j]
+                n = np.sqrt(s)
+                for j in range(4):
+                    q[t, j] = a[e, t, arm, 3 + j] / n
+                if t:  # hemisphere_continuous: the sign flips where the unflipped neighbours' dot is negative
+                    d = q[t, 0] * prev[0]
+                    for j in range(1, 4):
+                        d += q[t, j] * prev[j]
+                    if d < 0.0:
+                        sign = -sign
+                for j in range(4):
+                    prev[j] = q[t, j]
+                    q[t, j] *= sign
+            for k in range(runs_.shape[0]):
+                s0, s1 = runs_[k, 0], runs_[k, 1]
+                for t in range(s0, s1):
+                    for j in range(7):
+                        acc = _channel(a, q, e, arm, j, t) * w[0]
+                        for i in range(r, 0, -1):
+                            acc += (_channel(a, q, e, arm, j, max(t - i, s0)) +
+                                    _channel(a, q, e, arm, j, min(t + i, s1 - 1))) * w[i]
+                        out[e, t, arm, j] = acc
+                for t in range(s0, s1):
+                    s = out[e, t, arm, 3] * out[e, t, arm, 3]
+                    for j in range(1, 4):
+                        s += out[e, t, arm, 3 + j] * out[e, t, arm, 3 + j]
+                    n = np.sqrt(s)
+                    for j in range(3, 7):
+                        out[e, t, arm, j] /= n
+
+
+@numba.njit(cache=True)
+def _channel(a, q, e, arm, j, t):
+    """Channel j of smooth_batch's input at step t: a position (j < 3) or the continuous quaternion's j - 3."""
+    return a[e, t, arm, j] if j < 3 else q[t, j - 3]
 
 
 def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,

@@ -1,12 +1,18 @@
 """The screening's windows stage (lib/sim/robots/aloha/screening_windows.py): the bounds that spare hull
-distances bracket the held-object scores, and the batched scores are the per-episode ones."""
+distances bracket the held-object scores, and the batched scores, smoothing, rotations and proximity signal
+are the per-episode ones."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from demoforge.lib.geometry import quat_to_matrix
-from demoforge.lib.sim.robots.aloha.screening_windows import _proximity_sq, _score_bounds, held_scores, norm_last, rotations
+from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
+from demoforge.lib.sim.robots.aloha.screening_windows import (_proximity_sq, _score_bounds, held_scores, norm_last, rotations,
+                                                             smooth_batch)
+from demoforge.lib.task_library import get_task
+from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+from demoforge.lib.trajectories.keyframes import smooth_actions
 from demoforge.lib.trajectories.segmentation import grasped_object_scores
 
 
@@ -76,3 +82,18 @@ def test_the_proximity_signal_is_the_nearest_keypoint_or_the_held_objects_approa
                     best = min(best, min(float(((kpt[e, t, :, i] - kpt[e, t, :, k]) ** 2).sum())
                                          for i in range(K) if ko[i] == h))
             assert np.isclose(got[e, t], best, rtol=1e-12, atol=0.0), (e, t)
+
+
+def test_the_batched_smoothing_is_the_planners_bit_for_bit():
+    """smooth_batch (one compiled loop: scipy's Gaussian weights, its symmetric correlation, the runs between the
+    gripper's changes on their own) against keyframes.smooth_actions per episode, on a pouring database's group
+    with its quaternions' signs flipped at random steps (hemisphere_continuous) and scaled (the normalisation)."""
+    t = get_task("pouring")
+    b = generate_episodes(from_scripted_demo(t, t.scripted_demo(0)), n=6, n_mirrored=0, seed=2, workers=1)
+    actions = np.asarray(b.actions, float)[:, :int(np.min(b.lengths))]
+    rng = np.random.default_rng(9)
+    actions[..., 3:7] *= np.where(rng.random(actions.shape[:3] + (1,)) < 0.2, -1.0, 1.0) * rng.uniform(0.5, 2.0)
+    got = smooth_batch(actions, SMOOTH_SIGMA)
+    assert (np.diff(actions[0, :, :, 7] >= 0.5, axis=0) != 0).any()  # gripper changes: several runs
+    for e in range(len(actions)):
+        assert np.array_equal(got[e], smooth_actions(actions[e], SMOOTH_SIGMA)), e
