@@ -74,9 +74,12 @@ def _smooth_kernel(a, out, w, runs_):
     hemisphere-continuous over the whole episode, then per run [s0, s1) (runs_ (k, 2)) each position and
     quaternion channel correlated with the weights w as scipy's correlate1d does for symmetric weights
     (centre term first, then the pairs from the outermost in, left + right; 'nearest': the run's ends
-    repeated) and the quaternions normalised again. numpy's and scipy's passes cost several times this."""
+    repeated, here as padding) and the quaternions normalised again. Each step's sum is its own, so the
+    loop runs over the steps innermost (SIMD lanes), a tap at a time."""
     E, T, r = a.shape[0], a.shape[1], len(w) - 1
-    q, prev = np.empty((T, 4)), np.empty(4)
+    x = np.empty((7, T + 2 * r))  # one run's channels, padded by r repeats of its ends
+    acc = np.empty(T)
+    prev = np.empty(4)
     for e in range(E):
         for arm in range(2):
             sign = 1.0
@@ -85,26 +88,31 @@ def _smooth_kernel(a, out, w, runs_):
                 for j in range(1, 4):
                     s += a[e, t, arm, 3 + j] * a[e, t, arm, 3 + j]
                 n = np.sqrt(s)
+                d = 0.0
                 for j in range(4):
-                    q[t, j] = a[e, t, arm, 3 + j] / n
-                if t:  # hemisphere_continuous: the sign flips where the unflipped neighbours' dot is negative
-                    d = q[t, 0] * prev[0]
-                    for j in range(1, 4):
-                        d += q[t, j] * prev[j]
-                    if d < 0.0:
-                        sign = -sign
+                    qj = a[e, t, arm, 3 + j] / n
+                    d = qj * prev[j] if j == 0 else d + qj * prev[j]
+                    prev[j] = qj
+                if t and d < 0.0:  # hemisphere_continuous: the unflipped neighbours' dot
+                    sign = -sign
                 for j in range(4):
-                    prev[j] = q[t, j]
-                    q[t, j] *= sign
+                    out[e, t, arm, 3 + j] = prev[j] * sign  # (the continuous quaternion, until smoothed)
             for k in range(runs_.shape[0]):
                 s0, s1 = runs_[k, 0], runs_[k, 1]
-                for t in range(s0, s1):
-                    for j in range(7):
-                        acc = _channel(a, q, e, arm, j, t) * w[0]
-                        for i in range(r, 0, -1):
-                            acc += (_channel(a, q, e, arm, j, max(t - i, s0)) +
-                                    _channel(a, q, e, arm, j, min(t + i, s1 - 1))) * w[i]
-                        out[e, t, arm, j] = acc
+                m = s1 - s0
+                for j in range(7):
+                    src = a if j < 3 else out
+                    for t in range(m + 2 * r):
+                        x[j, t] = src[e, min(max(s0 + t - r, s0), s1 - 1), arm, j]
+                for j in range(7):
+                    for t in range(m):
+                        acc[t] = x[j, t + r] * w[0]
+                    for i in range(r, 0, -1):
+                        wi = w[i]
+                        for t in range(m):
+                            acc[t] += (x[j, t + r - i] + x[j, t + r + i]) * wi
+                    for t in range(m):
+                        out[e, s0 + t, arm, j] = acc[t]
                 for t in range(s0, s1):
                     s = out[e, t, arm, 3] * out[e, t, arm, 3]
                     for j in range(1, 4):
@@ -112,12 +120,19 @@ def _smooth_kernel(a, out, w, runs_):
                     n = np.sqrt(s)
                     for j in range(3, 7):
                         out[e, t, arm, j] /= n
+            for t in range(T):  # steps outside every run keep their input
+                if not _in_runs(t, runs_):
+                    for j in range(3, 7):
+                        out[e, t, arm, j] = a[e, t, arm, j]
 
 
 @numba.njit(cache=True)
-def _channel(a, q, e, arm, j, t):
-    """Channel j of smooth_batch's input at step t: a position (j < 3) or the continuous quaternion's j - 3."""
-    return a[e, t, arm, j] if j < 3 else q[t, j - 3]
+def _in_runs(t, runs_):
+    """Whether step t lies in one of the runs [s0, s1) (k, 2)."""
+    for k in range(runs_.shape[0]):
+        if runs_[k, 0] <= t < runs_[k, 1]:
+            return True
+    return False
 
 
 def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
