@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from demoforge.bench.cases_sim import scripted_episodes, timed_pair
-from demoforge.bench.timing import BenchCase
+from demoforge.bench.timing import BenchCase, one_core
 from demoforge.lib.geometry import quat_to_matrix, random_quaternions
 from demoforge.lib.sim import SimOptions
 from demoforge.lib.sim.robots import get_robot
@@ -139,7 +139,8 @@ def _screening_setup(size: int):
         screen_episodes(robot, "pouring", actions[warm], lengths[warm], kp[warm])
 
         def fast():
-            return screen_episodes(robot, "pouring", actions[pick], lengths[pick], kp[pick])
+            with one_core():
+                return screen_episodes(robot, "pouring", actions[pick], lengths[pick], kp[pick])
 
         def baseline():
             return [robot.motion("pouring", actions[e, :lengths[e]], kp[e]) for e in pick]

@@ -8,7 +8,9 @@ asserted.
 
 from __future__ import annotations
 
+import os
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -44,6 +46,20 @@ class BenchResult:
     @property
     def items_per_second(self) -> float:
         return self.size / self.seconds if self.seconds > 0 else float("inf")
+
+
+@contextmanager
+def one_core():
+    """Run the block on one core of those this process may use (every thread of it, BLAS's included: a case
+    measured "on one core" is not helped by a library's threads), then on all of them again."""
+    allowed = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    if allowed:
+        os.sched_setaffinity(0, {min(allowed)})
+    try:
+        yield
+    finally:
+        if allowed:
+            os.sched_setaffinity(0, allowed)
 
 
 def best_time(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
