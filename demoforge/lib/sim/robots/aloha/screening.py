@@ -36,15 +36,18 @@ reaches). An episode with no witness is screened out, with the first cause (by w
 The forearms are checked on the witnesses, and where they clash each arm is searched again around the
 other's witness, as the planner does (screening_pairs.py _again).
 
-What keeps it fast (one core, numpy only; the verdicts are the same float for float as the plain batched
-rules'): arrays laid out so that each step is element-wise work on contiguous planes (no numpy reductions
-over a short axis, gathers by flat index, not by several index arrays, a few tens of episodes a pass so the
-temporaries stay in the cache); the joints solved once per pose wanted (closed_form.ViperXBatchIK.joints,
-margins per joint); the path search (screening_paths.py) on sample-major float32 planes, without the arm
-branches that have no path of followed states (a path meeting the rules keeps to one) and, around the
-other arm, without the details of the paths that fail; the other arm's points tested against a held
-object's turned hand in closed form (each pair of points comes near on an arc of turns), point distances
-only in a 10 um band; the shared steps, needed gaps and witness points of a pair check taken once.
+What keeps it fast (one core; the verdicts are the same float for float as the plain batched rules'): the
+loops that numpy ran as many small passes (per sample, per neighbour, per point) are numba kernels that do
+the same arithmetic in the same order (no fastmath; numpy's own sines, cosines, arctangents and arccosines
+on whole arrays where libm's would differ in the last bit), each checked bit for bit against its numpy or
+per-episode original in the tests: the path search (screening_paths.py, one episode at a time over its arm
+branches), the joints' arithmetic between numpy's trigonometry (closed_form.ViperXBatchIK.solve_into,
+margins per joint, straight into place), the pose checks, the turn paths' reach, the smoothing, the
+proximity signal, the rotations, the forearm points, the point sets' distances and the other arm's test
+against a held object's turned hand (each pair of points comes near on an arc of turns: in closed form,
+point distances only in a 10 um band). Around them, arrays laid out for contiguous work, a few tens of
+episodes a pass so the temporaries stay in the cache, and the shared steps, needed gaps and witness points
+of a pair check taken once.
 
 Where it differs from the planner: the witness is a feasible candidate, not necessarily the planner's best
 one, so the turn and margin reported are the witness's and the forearms are checked on the witnesses'
