@@ -62,6 +62,7 @@ path crosses.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -129,31 +130,24 @@ def screen_episodes(robot, task_name: str, actions, lengths=None, keypoints0=Non
     return out
 
 
-def warm_kernels() -> list[str]:
+def warm_kernels() -> list:
     """Compile the screening's numba kernels (or load them from numba's cache beside their modules) by screening
     a small pouring database (its scripted seed-0 demonstration augmented, half mirrored: every stage runs,
     the second choice of an arm around the other included): `make setup` runs it once, so the first
     screening of a fresh checkout and every process of the test suite load them instead of compiling
-    them again (8.5 s CPU each). Returns the kernels still without a compiled version (none, as a rule)."""
+    them again (8.5 s CPU each). Returns the index files of numba's cache of the kernels' modules."""
     from demoforge.lib.sim.robots import get_robot
     from demoforge.lib.task_library import get_task
     from demoforge.lib.trajectories.augmentation import from_scripted_demo, generate_episodes
+
+    from . import closed_form, screening_arm, screening_paths, screening_points, screening_windows
 
     t = get_task("pouring")
     b = generate_episodes(from_scripted_demo(t, t.scripted_demo(0)), n=47, n_mirrored=24, seed=0, workers=1)
     screen_episodes(get_robot("aloha", "2f140"), "pouring", np.asarray(b.actions, float), np.asarray(b.lengths),
                     np.asarray(b.keypoints, float))
-    return [name for name, k in compiled_kernels().items() if not k.signatures]
-
-
-def compiled_kernels() -> dict:
-    """The screening's numba kernels by module and name (numba dispatchers: .signatures lists what is compiled)."""
-    from numba.core.registry import CPUDispatcher
-
-    from . import closed_form, screening_arm, screening_paths, screening_points, screening_windows
-    return {f"{m.__name__.rsplit('.', 1)[-1]}.{n}": k for m in (closed_form, screening_arm, screening_paths,
-                                                               screening_points, screening_windows)
-            for n, k in vars(m).items() if isinstance(k, CPUDispatcher)}
+    return sorted(f for m in (closed_form, screening_arm, screening_paths, screening_points, screening_windows)
+                  for f in (Path(m.__file__).parent / "__pycache__").glob(f"{Path(m.__file__).stem}.*.nbi"))
 
 
 def episode_groups(actions: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
@@ -243,5 +237,5 @@ def _combine(out: Screening, idx: np.ndarray, arms: list, forearms: tuple, windo
     out.arm_feasible[idx] = feasible
 
 
-__all__ = ["CHUNK", "REASONS", "SCREEN_VERSION", "Screening", "compiled_kernels", "episode_groups", "padded_actions",
-           "screen_episodes", "warm_kernels"]
+__all__ = ["CHUNK", "REASONS", "SCREEN_VERSION", "Screening", "episode_groups", "padded_actions", "screen_episodes",
+           "warm_kernels"]
