@@ -370,24 +370,6 @@ def _wrap_into(arm: np.ndarray, ang: np.ndarray, mid: np.ndarray, half: np.ndarr
 
 
 @numba.njit(cache=True)
-def turned_poses(par: np.ndarray, perp: np.ndarray, cross: np.ndarray, ctr: np.ndarray, rows: np.ndarray,
-                 cos_t: np.ndarray, sin_t: np.ndarray, cells: np.ndarray, pos: np.ndarray, R: np.ndarray) -> None:
-    """Pinch poses turned about a held object's axis (screening_arm._Turner, _Poses.at's arithmetic) into pos
-    (k, 3), R (k, 3, 3): the flat cells (k,) of (n, C, S) are episode rows[e], turn c (cos_t, sin_t (n, C)),
-    sample s; par, perp, cross (E, S, 12) the parts of the pinch position - ctr (E, S, 3) and the rotation's
-    columns along the axis, across it and the axis x it: v = par + cos perp + sin cross."""
-    C, S = cos_t.shape[1], par.shape[1]
-    for i in range(len(cells)):
-        e, c, s = cells[i] // (C * S), cells[i] // S % C, cells[i] % S
-        ep, ct, st = rows[e], cos_t[e, c], sin_t[e, c]
-        for j in range(3):
-            pos[i, j] = par[ep, s, j] + ct * perp[ep, s, j] + st * cross[ep, s, j] + ctr[ep, s, j]
-            for col in range(3):
-                x = 3 + 3 * col + j
-                R[i, j, col] = par[ep, s, x] + ct * perp[ep, s, x] + st * cross[ep, s, x]
-
-
-@numba.njit(cache=True)
 def _segments_kernel(trig: np.ndarray, k: np.ndarray, u: np.ndarray, extra: int) -> np.ndarray:
     """ViperXBatchIK.segments' arithmetic per pose: trig (n, 10) the cosines and sines of the arm's plane (ux, uy),
     the upper arm's angle, the forearm's, the pitch and the roll; k the shoulder point's x, y, z, l1, l2 and

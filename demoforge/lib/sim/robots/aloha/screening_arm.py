@@ -25,7 +25,7 @@ import numpy as np
 from demoforge.lib.geometry import pose7_to_transform
 from demoforge.lib.sim.robots.retarget import finger_half_width, grasp_turns
 
-from .closed_form import SCREEN_CHUNK, turned_poses
+from .closed_form import SCREEN_CHUNK
 from .grasp_choice import (BAD, GRIP_SETTLE_STEPS, HAND_SPREAD, JUMP, JUMP_PER_STEP, LIFT_TOLERANCE, MARGIN_CAP,
                            MIN_MARGIN, SAMPLES, TRANSIT_WEIGHT, TURN_RATE_WEIGHT, TURN_STEP_MAX_DEG, TURN_WEIGHT,
                            WRIST_ABOVE_TABLE)
@@ -122,29 +122,10 @@ class _Turner:
             out.ctr, out.par, out.perp, out.cross = self.ctr[rows], self.par[rows], self.perp[rows], self.cross[rows]
         return out
 
-    def turned(self, theta: np.ndarray, rows=slice(None), per_sample: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(pos (..., S, 3), R (..., S, 3, 3)) of the episodes `rows` turned by theta: (E',) one turn per
-        episode, (E', C) several, or (E', S) one per sample (per_sample)."""
-        theta = np.asarray(theta, float)
-        extra = 0 if per_sample else theta.ndim - 1  # 1: a turn axis after the episodes'
-        if self.O is None:
-            P = self.P[rows]
-            if per_sample:
-                return P[..., :3, 3].copy(), P[..., :3, :3].copy()
-            P = P[:, None] if extra else P
-            return np.broadcast_to(P[..., :3, 3], theta.shape + P.shape[-3:-2] + (3,)).copy(), \
-                np.broadcast_to(P[..., :3, :3], theta.shape + P.shape[-3:-2] + (3, 3)).copy()
-        tail = (None, None) if per_sample else (None, None, None)
-        c, s = np.cos(theta)[(...,) + tail], np.sin(theta)[(...,) + tail]  # (..., [1,] 1, 1)
-        par, perp, cross = (x[rows][:, None] if extra else x[rows] for x in (self.par, self.perp, self.cross))
-        v = par + c * perp + s * cross  # (..., S, 4, 3)
-        ctr = self.ctr[rows][:, None] if extra else self.ctr[rows]
-        return v[..., 0, :] + ctr, np.swapaxes(v[..., 1:, :], -1, -2)
-
 
 class _Poses:
     """The pinch poses of the episodes rows (n,) of a _Turner turned by theta (n, C'), made cell by cell where
-    wanted (_Turner.turned's arithmetic: the joints and the hand's points are wanted at some of the cells)."""
+    wanted (turned_poses: the joints and the hand's points are wanted at some of the cells)."""
 
     def __init__(self, turner: _Turner, rows: np.ndarray, theta: np.ndarray):
         self.turner, self.rows, self.theta = turner, rows, theta
@@ -155,16 +136,39 @@ class _Poses:
     def at(self, e: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pos (k, 3), R (k, 3, 3)) of the cells: episode e (of rows), turn c (of theta's columns), sample s."""
         t = self.turner
-        flat = self.rows[e] * t.P.shape[1] + s
         if t.O is None:
-            P = np.take(t.P.reshape(-1, 4, 4), flat, axis=0)
+            P = np.take(t.P.reshape(-1, 4, 4), self.rows[e] * t.P.shape[1] + s, axis=0)
             return P[:, :3, 3].copy(), P[:, :3, :3].copy()
-        th = self.theta[e, c]
-        cos, sin = np.cos(th)[:, None], np.sin(th)[:, None]
-        # each cell's four vectors as one row of 12 (a contiguous inner loop, not 4 x 3 broadcast)
-        par, perp, cross = (np.take(x.reshape(-1, 12), flat, axis=0) for x in (t.par, t.perp, t.cross))
-        v = (par + cos * perp + sin * cross).reshape(-1, 4, 3)
-        return v[:, 0, :] + np.take(t.ctr.reshape(-1, 3), flat, axis=0), np.swapaxes(v[:, 1:, :], -1, -2)
+        return self.cells((e * self.theta.shape[1] + c) * t.P.shape[1] + s)
+
+    def cells(self, cell: np.ndarray, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """at() of the flat cells (k,) of (n, C', S) for a held object's turns (turned_poses), into out if given."""
+        t = self.turner
+        E, S = t.P.shape[:2]
+        pos, R = (np.empty((len(cell), 3)), np.empty((len(cell), 3, 3))) if out is None else out
+        theta = np.asarray(self.theta, float)  # (numpy's cos and sin on it)
+        turned_poses(*(np.ascontiguousarray(x).reshape(E, S, 12) for x in (t.par, t.perp, t.cross)),
+                     np.ascontiguousarray(t.ctr), np.asarray(self.rows, np.int64), np.cos(theta), np.sin(theta),
+                     np.asarray(cell, np.int64), pos, R)
+        return pos, R
+
+
+@numba.njit(cache=True)
+def turned_poses(par: np.ndarray, perp: np.ndarray, cross: np.ndarray, ctr: np.ndarray, rows: np.ndarray,
+                 cos_t: np.ndarray, sin_t: np.ndarray, cells: np.ndarray, pos: np.ndarray, R: np.ndarray) -> None:
+    """Pinch poses turned about a held object's axis (_Turner's parts, _Poses' cells) into pos
+    (k, 3), R (k, 3, 3): the flat cells (k,) of (n, C, S) are episode rows[e], turn c (cos_t, sin_t (n, C)),
+    sample s; par, perp, cross (E, S, 12) the parts of the pinch position - ctr (E, S, 3) and the rotation's
+    columns along the axis, across it and the axis x it: v = par + cos perp + sin cross."""
+    C, S = cos_t.shape[1], par.shape[1]
+    for i in range(len(cells)):
+        e, c, s = cells[i] // (C * S), cells[i] // S % C, cells[i] % S
+        ep, ct, st = rows[e], cos_t[e, c], sin_t[e, c]
+        for j in range(3):
+            pos[i, j] = par[ep, s, j] + ct * perp[ep, s, j] + st * cross[ep, s, j] + ctr[ep, s, j]
+            for col in range(3):
+                x = 3 + 3 * col + j
+                R[i, j, col] = par[ep, s, x] + ct * perp[ep, s, x] + st * cross[ep, s, x]
 
 
 def _pose_checks(ctx: ArmsContext, base, turner: _Turner, turns: np.ndarray,
@@ -243,7 +247,7 @@ def _solve(ctx: ArmsContext, base, pos: np.ndarray, R: np.ndarray, out: tuple | 
 def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tuple[np.ndarray, ...]:
     """_solve of the poses (n, C, S) where cells (n, C, S); elsewhere every branch out of range (margins -inf),
     its joints 0. (By flat indices, chunk by chunk straight into place; a held object's turns made by a kernel
-    (closed_form.turned_poses) chunk by chunk, not gathered from (k, 12) copies of the turner's parts first.)"""
+    (turned_poses) chunk by chunk, not gathered from (k, 12) copies of the turner's parts first.)"""
     # (in ctx's scratch memory: every caller is done with a pass's joints before it solves the next)
     q = ctx.scratch("q", cells.shape + (8, 6), 0.0)
     m, q5f = ctx.scratch("m", cells.shape + (8,), -np.inf), ctx.scratch("q5f", cells.shape + (8,), 0.0)
@@ -252,22 +256,13 @@ def _solve_cells(ctx: ArmsContext, base, poses: _Poses, cells: np.ndarray) -> tu
     if not len(cell):
         return q, m, q5f, mf
     flat = tuple(x.reshape((-1,) + x.shape[cells.ndim:]) for x in (q, m, q5f, mf))
-    t = poses.turner
-    if t.O is None:
+    if poses.turner.O is None:
         _solve(ctx, base, *poses.at(*np.unravel_index(cell, cells.shape)), out=flat, at=cell)
         return q, m, q5f, mf
-    E, S = t.P.shape[:2]
-    par, perp, cross = (np.ascontiguousarray(x).reshape(E, S, 12) for x in (t.par, t.perp, t.cross))
-    ctr, rows = np.ascontiguousarray(t.ctr), np.asarray(poses.rows, np.int64)
-    theta = np.ascontiguousarray(poses.theta, float)  # (numpy's cos and sin on it, as _Poses.at's)
-    assert cells.shape[1:] == (theta.shape[1], S)
-    cos_t, sin_t = np.cos(theta), np.sin(theta)
     buf = np.empty((min(len(cell), SCREEN_CHUNK), 3)), np.empty((min(len(cell), SCREEN_CHUNK), 3, 3))
 
-    def turned(i, j):  # _Poses.at's poses of the cells i to j
-        pos, R = buf[0][:j - i], buf[1][:j - i]
-        turned_poses(par, perp, cross, ctr, rows, cos_t, sin_t, cell[i:j], pos, R)
-        return pos, R
+    def turned(i, j):  # the poses of the cells i to j
+        return poses.cells(cell[i:j], (buf[0][:j - i], buf[1][:j - i]))
 
     ctx.solver.solve_into(base, len(cell), turned, cell, *flat)
     return q, m, q5f, mf

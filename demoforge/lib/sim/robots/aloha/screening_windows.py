@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from scipy.optimize import nnls
 
-from demoforge.lib.geometry import pose7_to_transform, quat_to_matrix, transform_inverse, umeyama
+from demoforge.lib.geometry import pose7_to_transform, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
 from demoforge.lib.trajectories.segmentation import HULL_WEIGHT, NEAREST_KEYPOINT_WEIGHT, SegmentationParams
 
@@ -77,9 +77,9 @@ def _smooth_kernel(a, out, w, runs_):
     repeated, here as padding) and the quaternions normalised again. Each step's sum is its own, so the
     loop runs over the steps innermost (SIMD lanes), a tap at a time."""
     E, T, r = a.shape[0], a.shape[1], len(w) - 1
+    qc, prev = np.empty((T, 4)), np.empty(4)  # one arm's continuous quaternions; the step before's, unflipped
     x = np.empty((7, T + 2 * r))  # one run's channels, padded by r repeats of its ends
     acc = np.empty(T)
-    prev = np.empty(4)
     for e in range(E):
         for arm in range(2):
             sign = 1.0
@@ -96,14 +96,16 @@ def _smooth_kernel(a, out, w, runs_):
                 if t and d < 0.0:  # hemisphere_continuous: the unflipped neighbours' dot
                     sign = -sign
                 for j in range(4):
-                    out[e, t, arm, 3 + j] = prev[j] * sign  # (the continuous quaternion, until smoothed)
+                    qc[t, j] = prev[j] * sign
             for k in range(runs_.shape[0]):
                 s0, s1 = runs_[k, 0], runs_[k, 1]
                 m = s1 - s0
-                for j in range(7):
-                    src = a if j < 3 else out
-                    for t in range(m + 2 * r):
-                        x[j, t] = src[e, min(max(s0 + t - r, s0), s1 - 1), arm, j]
+                for t in range(m + 2 * r):
+                    src = min(max(s0 + t - r, s0), s1 - 1)
+                    for j in range(3):
+                        x[j, t] = a[e, src, arm, j]
+                    for j in range(4):
+                        x[3 + j, t] = qc[src, j]
                 for j in range(7):
                     for t in range(m):
                         acc[t] = x[j, t + r] * w[0]
@@ -120,19 +122,6 @@ def _smooth_kernel(a, out, w, runs_):
                     n = np.sqrt(s)
                     for j in range(3, 7):
                         out[e, t, arm, j] /= n
-            for t in range(T):  # steps outside every run keep their input
-                if not _in_runs(t, runs_):
-                    for j in range(3, 7):
-                        out[e, t, arm, j] = a[e, t, arm, j]
-
-
-@numba.njit(cache=True)
-def _in_runs(t, runs_):
-    """Whether step t lies in one of the runs [s0, s1) (k, 2)."""
-    for k in range(runs_.shape[0]):
-        if runs_[k, 0] <= t < runs_[k, 1]:
-            return True
-    return False
 
 
 def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,
@@ -272,12 +261,8 @@ def _proximity_kernel(g, kpt, ko, h, start, n_obj):
             for k in range(K):
                 o = ko[k]
                 src = a if o == held else t  # the held object's keypoints in its grasp frame: where the run starts
-                dx = kpt[e, src, 0, k] - g[e, t, 0]
-                d = dx * dx
-                dy = kpt[e, src, 1, k] - g[e, t, 1]
-                d += dy * dy
-                dz = kpt[e, src, 2, k] - g[e, t, 2]
-                d += dz * dz
+                d = _sq_dist(kpt[e, src, 0, k] - g[e, t, 0], kpt[e, src, 1, k] - g[e, t, 1],
+                             kpt[e, src, 2, k] - g[e, t, 2])
                 if d < per[o]:
                     per[o] = d
             if held >= 0:
@@ -288,12 +273,8 @@ def _proximity_kernel(g, kpt, ko, h, start, n_obj):
                         o2 = ko[j]
                         if o2 == held:
                             continue
-                        dx = kpt[e, t, 0, i] - kpt[e, t, 0, j]
-                        d = dx * dx
-                        dy = kpt[e, t, 1, i] - kpt[e, t, 1, j]
-                        d += dy * dy
-                        dz = kpt[e, t, 2, i] - kpt[e, t, 2, j]
-                        d += dz * dz
+                        d = _sq_dist(kpt[e, t, 0, i] - kpt[e, t, 0, j], kpt[e, t, 1, i] - kpt[e, t, 1, j],
+                                     kpt[e, t, 2, i] - kpt[e, t, 2, j])
                         if d < per[o2]:
                             per[o2] = d
             best = per[0]
@@ -302,6 +283,12 @@ def _proximity_kernel(g, kpt, ko, h, start, n_obj):
                     best = per[o]
             out[e, t] = best
     return out
+
+
+@numba.njit(cache=True)
+def _sq_dist(dx, dy, dz):
+    """A squared distance from its differences, summed x, y, z (numpy's order of the planes it replaced)."""
+    return dx * dx + dy * dy + dz * dz
 
 
 def _hysteresis(d: np.ndarray, enter: float, exit: float) -> np.ndarray:
