@@ -162,7 +162,7 @@ def episode_groups(actions: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]
 
 def _screen_part(ctx: ArmsContext, actions: np.ndarray, kp: np.ndarray, out: Screening, idx: np.ndarray) -> None:
     """Screen a chunk of one group's episodes into out[idx]."""
-    traj = smooth_batch(actions, SMOOTH_SIGMA)
+    traj = smooth_batch(actions, SMOOTH_SIGMA, idx)
     held_all = held_batch(traj, kp, ctx.ko)
     _, first, inverse = np.unique(held_all.reshape(len(traj), -1), axis=0, return_index=True, return_inverse=True)
     for k, f in enumerate(first):  # one pattern of held objects per group, as a rule

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from scipy.optimize import nnls
 
-from demoforge.lib.geometry import pose7_to_transform, transform_inverse, umeyama
+from demoforge.lib.geometry import _EPS_NORM, pose7_to_transform, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
 from demoforge.lib.trajectories.segmentation import HULL_WEIGHT, NEAREST_KEYPOINT_WEIGHT, SegmentationParams
 
@@ -42,10 +42,11 @@ def norm_last(v: np.ndarray) -> np.ndarray:
     return np.sqrt(s)
 
 
-def smooth_batch(actions: np.ndarray, sigma: float) -> np.ndarray:
+def smooth_batch(actions: np.ndarray, sigma: float, episodes: np.ndarray | None = None) -> np.ndarray:
     """keyframes.smooth_actions of each episode of a group (E, T, 2, 8), the same numbers: the gripper's changes
     (the runs smoothed on their own) are the group's; scipy's Gaussian (its weights, its symmetric correlation
-    with the ends repeated) done by _smooth_kernel, episode by episode."""
+    with the ends repeated) done by _smooth_kernel, episode by episode. episodes (E,): the numbers an error
+    names them by (default 0 to E - 1)."""
     a = np.ascontiguousarray(actions, float)
     out = a.copy()
     if sigma == 0 or a.shape[1] < 3:
@@ -53,7 +54,10 @@ def smooth_batch(actions: np.ndarray, sigma: float) -> np.ndarray:
     opened = a[0, :, :, 7] >= 0.5
     cuts = [0, *(np.flatnonzero(np.any(opened[1:] != opened[:-1], axis=1)) + 1).tolist(), a.shape[1]]
     runs_ = np.array([(s0, s1) for s0, s1 in zip(cuts[:-1], cuts[1:]) if s1 - s0 >= 3], np.int64).reshape(-1, 2)
-    _smooth_kernel(a, out, gaussian_weights(float(sigma)), runs_)
+    bad = _smooth_kernel(a, out, gaussian_weights(float(sigma)), runs_)
+    if bad[0]:  # (numpy's planes gave NaN here, and lib/geometry's quat_normalize this error after them)
+        raise ValueError(f"smooth_batch: {bad[0]} quaternion(s) have zero norm or non-finite values (the first: "
+                         f"episode {bad[1] if episodes is None else episodes[bad[1]]}, step {bad[2]}, arm {bad[3]})")
     return out
 
 
@@ -75,8 +79,10 @@ def _smooth_kernel(a, out, w, runs_):
     quaternion channel correlated with the weights w as scipy's correlate1d does for symmetric weights
     (centre term first, then the pairs from the outermost in, left + right; 'nearest': the run's ends
     repeated, here as padding) and the quaternions normalised again. Each step's sum is its own, so the
-    loop runs over the steps innermost (SIMD lanes), a tap at a time."""
+    loop runs over the steps innermost (SIMD lanes), a tap at a time. Returns the count of quaternions with no
+    length or non-finite values and the first one's (episode, step, arm)."""
     E, T, r = a.shape[0], a.shape[1], len(w) - 1
+    bad = np.zeros(4, np.int64)  # quaternions with no length or non-finite values: their count, the first's (e, t, arm)
     qc, prev = np.empty((T, 4)), np.empty(4)  # one arm's continuous quaternions; the step before's, unflipped
     x = np.empty((7, T + 2 * r))  # one run's channels, padded by r repeats of its ends
     acc = np.empty(T)
@@ -88,6 +94,11 @@ def _smooth_kernel(a, out, w, runs_):
                 for j in range(1, 4):
                     s += a[e, t, arm, 3 + j] * a[e, t, arm, 3 + j]
                 n = np.sqrt(s)
+                if not n > _EPS_NORM or not np.isfinite(s):  # (no division by it: counted, the first kept)
+                    if not bad[0]:
+                        bad[1], bad[2], bad[3] = e, t, arm
+                    bad[0] += 1
+                    n = 1.0
                 d = 0.0
                 for j in range(4):
                     qj = a[e, t, arm, 3 + j] / n
@@ -122,6 +133,7 @@ def _smooth_kernel(a, out, w, runs_):
                     n = np.sqrt(s)
                     for j in range(3, 7):
                         out[e, t, arm, j] /= n
+    return bad
 
 
 def held_batch(traj: np.ndarray, keypoints0: np.ndarray, keypoint_object: np.ndarray,

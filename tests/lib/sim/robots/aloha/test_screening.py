@@ -177,3 +177,13 @@ def test_the_warm_up_writes_numbas_cache_of_every_kernel_module():
     modules = {f.name.split(".", 1)[0] for f in files}
     assert modules == {"closed_form", "screening_arm", "screening_paths", "screening_points", "screening_windows"}
     assert len(files) >= 12 and all(f.stat().st_size > 0 for f in files)
+
+
+def test_a_quaternion_without_length_is_named_by_its_episode(database):
+    """A zero quaternion in one episode of a database stops the screening with one ValueError naming that episode
+    of the database (not its place within a group's pass)."""
+    actions, lengths, kp, _ = database
+    broken = actions.copy()
+    broken[17, 30, 1, 3:7] = 0.0
+    with pytest.raises(ValueError, match=r"\(the first: episode 17, step 30, arm 1\)"):
+        screen_episodes(ARMS, "pouring", broken, lengths, kp)

@@ -5,6 +5,7 @@ are the per-episode ones."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from demoforge.lib.geometry import quat_to_matrix
 from demoforge.lib.sim.robots.aloha import SMOOTH_SIGMA
@@ -97,3 +98,16 @@ def test_the_batched_smoothing_is_the_planners_bit_for_bit():
     assert (np.diff(actions[0, :, :, 7] >= 0.5, axis=0) != 0).any()  # gripper changes: several runs
     for e in range(len(actions)):
         assert np.array_equal(got[e], smooth_actions(actions[e], SMOOTH_SIGMA)), e
+
+
+def test_a_quaternion_without_length_is_one_clear_error():
+    """A pose whose quaternion is zero (or not finite) stops the smoothing with a ValueError that names it, as
+    lib/geometry's quat_normalize does, instead of a division by zero in the kernel or NaN poses."""
+    t = get_task("pouring")
+    b = generate_episodes(from_scripted_demo(t, t.scripted_demo(0)), n=2, n_mirrored=0, seed=2, workers=1)
+    actions = np.asarray(b.actions, float)[:, :int(np.min(b.lengths))]
+    actions[1, 40, 0, 3:7] = 0.0
+    actions[2, 7, 1, 4] = np.nan
+    with pytest.raises(ValueError, match=r"2 quaternion\(s\) have zero norm or non-finite values \(the first: "
+                                         r"episode 1, step 40, arm 0\)"):
+        smooth_batch(actions, SMOOTH_SIGMA)
