@@ -19,11 +19,13 @@ import numba
 import numpy as np
 from scipy.optimize import nnls
 
-from demoforge.lib.geometry import _EPS_NORM, pose7_to_transform, transform_inverse, umeyama
+from demoforge.lib.geometry import pose7_to_transform, transform_inverse, umeyama
 from demoforge.lib.sim.robots.arm_motion import APPROACH
 from demoforge.lib.trajectories.segmentation import HULL_WEIGHT, NEAREST_KEYPOINT_WEIGHT, SegmentationParams
 
 
+# a quaternion shorter than this has no direction (the bound lib/geometry's quat_normalize refuses below)
+ZERO_NORM = 1e-12
 WINDOW_BATCH = 64  # episodes per pass of windows_batch (1.5x faster than 256 at once: memory, not arithmetic)
 
 
@@ -94,7 +96,7 @@ def _smooth_kernel(a, out, w, runs_):
                 for j in range(1, 4):
                     s += a[e, t, arm, 3 + j] * a[e, t, arm, 3 + j]
                 n = np.sqrt(s)
-                if not n > _EPS_NORM or not np.isfinite(s):  # (no division by it: counted, the first kept)
+                if not n > ZERO_NORM or not np.isfinite(s):  # (no division by it: counted, the first kept)
                     if not bad[0]:
                         bad[1], bad[2], bad[3] = e, t, arm
                     bad[0] += 1
